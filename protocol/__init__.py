@@ -1,0 +1,1 @@
+"""protocol: the msgpack wire contract v1 shared by scouts, map servers and planners."""

@@ -1,0 +1,5 @@
+import sys
+
+from psrmap.cli import main
+
+sys.exit(main())

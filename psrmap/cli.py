@@ -1,0 +1,52 @@
+"""The `psrmap` console script: one subcommand per component, parsed with argparse.
+
+Each component package owns its own subcommands in its `cli.py` (a `register(subparsers)` function
+that adds parsers whose `func` default runs the command). This module only collects them, so the
+components stay independent of each other.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from collections.abc import Sequence
+
+# Packages that contribute subcommands, in the order they are listed in `psrmap --help`.
+_COMMAND_MODULES = (
+    "map_server.cli",  # router, server, status, query
+    "scout_agent.cli",  # scout, evaluate
+    "consumer_planner.cli",  # plan, compare
+    "psrmap.mission",  # mission
+    "psrmap.experiments",  # experiment
+)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="psrmap",
+        description="Proprioceptive terrain mapping for legged lunar scouts, shared over Zenoh.",
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for name in _COMMAND_MODULES:
+        try:
+            module = importlib.import_module(name)
+        except ModuleNotFoundError as exc:  # a component not built yet must not break the others
+            if exc.name and name.startswith(exc.name):
+                continue
+            raise
+        register = getattr(module, "register", None)
+        if register is not None:
+            register(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    result = args.func(args)
+    return int(result or 0)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,64 @@
+"""What a scout knows each control tick (proprioception) and what only the simulator knows (ground truth).
+
+These two records are the seam between the simulation/controller (`scout_agent.sim`, `scout_agent.control`)
+and the estimators (`scout_agent.estimators`): estimators read `ProprioSample` only; evaluation reads
+`GroundTruth` beside it, never mixed in.
+
+Conventions: legs in `LEG_NAMES` order, joints in `JOINT_NAMES` order (hip ab/ad, thigh, calf per leg);
+quaternions are (w, x, y, z) and rotate base-frame vectors into the world (map) frame; the world frame is the
+mission's map frame, z up, gravity along -z.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+LEG_NAMES: tuple[str, ...] = ("FL", "FR", "RL", "RR")
+JOINT_NAMES: tuple[str, ...] = tuple(
+    f"{leg}_{part}_joint" for leg in LEG_NAMES for part in ("hip", "thigh", "calf")
+)
+
+
+@dataclass(frozen=True, slots=True)
+class BaseState:
+    """Pose and twist of the robot's base (trunk frame)."""
+
+    pos: np.ndarray  # (3,) base origin in the world frame [m]
+    quat: np.ndarray  # (4,) wxyz, world_R_base
+    vel: np.ndarray  # (3,) linear velocity of the base origin, world frame [m/s]
+    omega: np.ndarray  # (3,) angular velocity, base frame [rad/s]
+
+
+@dataclass(frozen=True, slots=True)
+class ProprioSample:
+    """Signals a real Aliengo would have at one control tick."""
+
+    t: float  # scout clock [s]
+    q: np.ndarray  # (12,) joint positions [rad], JOINT_NAMES order
+    dq: np.ndarray  # (12,) joint velocities [rad/s]
+    tau: np.ndarray  # (12,) joint torques applied by the actuators [N·m]
+    contact: np.ndarray  # (4,) bool, foot contact flags (normal force above a threshold, like a foot sensor)
+    foot_force_world: np.ndarray  # (4, 3) ground reaction force on each foot, world frame [N]
+    imu_acc: np.ndarray  # (3,) accelerometer specific force, base frame [m/s²]
+    imu_gyro: np.ndarray  # (3,) gyroscope angular velocity, base frame [rad/s]
+    base: BaseState  # base state as the robot knows it (truth degraded by noise, or an estimate)
+    foot_pos_des_base: np.ndarray  # (4, 3) controller's desired foot positions, base frame [m]
+    foot_vel_des_base: np.ndarray  # (4, 3) controller's desired foot velocities, base frame [m/s]
+    stance_planned: np.ndarray  # (4,) bool, the gait schedule puts the leg in stance
+    phase: np.ndarray  # (4,) gait phase of each leg in [0, 1)
+
+
+@dataclass(frozen=True, slots=True)
+class GroundTruth:
+    """What only the simulator knows, for evaluation. Never fed to the estimators."""
+
+    t: float  # sim time [s]
+    base: BaseState  # exact base state
+    foot_pos_world: np.ndarray  # (4, 3) foot sphere centres, world frame [m]
+    contact_point_world: np.ndarray  # (4, 3) foot contact points, world frame [m]; NaN rows in swing
+    stance_disp: np.ndarray  # (4,) distance the contact point moved since the stance's first contact [m]; NaN in swing
+    terrain_height_at_feet: np.ndarray  # (4,) exact terrain height under each foot [m]
+    friction_at_feet: np.ndarray  # (4,) friction coefficient of the ground under each foot
+    nonfoot_contacts: int  # number of robot geoms other than feet touching the ground
