@@ -1,0 +1,42 @@
+"""The one root exception of `protocol`: a message or query that breaks wire contract v1."""
+
+from __future__ import annotations
+
+__all__ = ["REASONS", "ProtocolError"]
+
+# Every reason a message can be rejected for; the server counts rejections by these keys in `status`.
+REASONS: tuple[str, ...] = (
+    "decode",  # not msgpack, or not a map with string keys
+    "oversize",  # payload longer than the configured maximum
+    "bad_version",  # `v` is not a supported schema version
+    "bad_type",  # `type` unknown, or not the type expected on this key
+    "missing_field",  # a required field (or a layer's statistic) is absent
+    "wrong_type",  # a field has the wrong Python/msgpack type
+    "bad_id",  # a map / scout id outside [A-Za-z0-9_-]+
+    "bad_value",  # a scalar out of its domain (negative seq, res <= 0, non-finite t, ...)
+    "key_mismatch",  # `map` / `scout` disagree with the key expression the message arrived on
+    "wrong_res",  # `res` differs from the map's resolution
+    "unknown_layer",  # a layer name not in protocol.layers.LAYERS
+    "unknown_stat",  # a statistic the layer does not define
+    "bad_length",  # a byte array whose length is not a multiple of its dtype size
+    "length_mismatch",  # arrays of one layer (or of a region) have different lengths
+    "nonfinite",  # NaN or inf in a statistic
+    "negative_count",  # a count-like statistic below zero
+    "index_range",  # a cell index beyond +-2**30
+    "duplicate_cell",  # a cell appears twice in one layer of one delta
+)
+
+
+class ProtocolError(ValueError):
+    """A message, key or query violates the wire contract.
+
+    `reason` is a short snake_case key from `REASONS` (counted in the server's status);
+    the message says which field was wrong and what would have been valid.
+    """
+
+    def __init__(self, reason: str, message: str) -> None:
+        if reason not in REASONS:
+            raise ValueError(f"unknown ProtocolError reason {reason!r}; reasons: {', '.join(REASONS)}")
+        super().__init__(f"{reason}: {message}")
+        self.reason = reason
+        self.detail = message

@@ -1,0 +1,91 @@
+"""Zenoh key expressions of wire contract v1, built and parsed in one place."""
+
+from __future__ import annotations
+
+import re
+
+from protocol.errors import ProtocolError
+
+__all__ = [
+    "ID_PATTERN",
+    "ack_key",
+    "ack_pattern",
+    "alive_key",
+    "alive_pattern",
+    "delta_key",
+    "delta_pattern",
+    "map_key",
+    "parse_alive_key",
+    "parse_delta_key",
+    "status_key",
+    "validate_id",
+]
+
+PREFIX = "psr"
+ID_PATTERN = re.compile(r"[A-Za-z0-9_-]+")
+SERVER = "server"  # the `who` of the server's liveliness token
+
+
+def validate_id(s: object, what: str = "id") -> str:
+    """Return `s` if it is a valid map / scout id (`[A-Za-z0-9_-]+`), else raise ProtocolError('bad_id')."""
+    if not isinstance(s, str):
+        raise ProtocolError(
+            "wrong_type", f"{what} must be a str matching [A-Za-z0-9_-]+, got {type(s).__name__}"
+        )
+    if not ID_PATTERN.fullmatch(s):
+        raise ProtocolError("bad_id", f"{what} {s!r} must match [A-Za-z0-9_-]+ (letters, digits, '_', '-')")
+    return s
+
+
+def delta_key(map_id: str, scout_id: str) -> str:
+    return f"{PREFIX}/{validate_id(map_id, 'map')}/delta/{validate_id(scout_id, 'scout')}"
+
+
+def delta_pattern(map_id: str) -> str:
+    return f"{PREFIX}/{validate_id(map_id, 'map')}/delta/*"
+
+
+def ack_key(map_id: str, scout_id: str) -> str:
+    return f"{PREFIX}/{validate_id(map_id, 'map')}/ack/{validate_id(scout_id, 'scout')}"
+
+
+def ack_pattern(map_id: str) -> str:
+    return f"{PREFIX}/{validate_id(map_id, 'map')}/ack/*"
+
+
+def map_key(map_id: str) -> str:
+    return f"{PREFIX}/{validate_id(map_id, 'map')}/map"
+
+
+def status_key(map_id: str) -> str:
+    return f"{PREFIX}/{validate_id(map_id, 'map')}/status"
+
+
+def alive_key(map_id: str, who: str) -> str:
+    """Liveliness token key of a scout, or of the server with `who="server"`."""
+    return f"{PREFIX}/{validate_id(map_id, 'map')}/alive/{validate_id(who, 'who')}"
+
+
+def alive_pattern(map_id: str) -> str:
+    return f"{PREFIX}/{validate_id(map_id, 'map')}/alive/*"
+
+
+def _parse(key: str, kind: str) -> tuple[str, str]:
+    parts = str(key).split("/")
+    if len(parts) != 4 or parts[0] != PREFIX or parts[2] != kind:
+        raise ProtocolError("key_mismatch", f"key {key!r} is not of the form {PREFIX}/<map>/{kind}/<id>")
+    return validate_id(parts[1], "map"), validate_id(parts[3], kind)
+
+
+def parse_delta_key(key: str) -> tuple[str, str]:
+    """`psr/<map>/delta/<scout>` -> (map_id, scout_id); ProtocolError('key_mismatch') otherwise."""
+    return _parse(key, "delta")
+
+
+def parse_alive_key(key: str) -> tuple[str, str]:
+    """`psr/<map>/alive/<who>` -> (map_id, who)."""
+    return _parse(key, "alive")
+
+
+def parse_ack_key(key: str) -> tuple[str, str]:
+    return _parse(key, "ack")

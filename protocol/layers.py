@@ -1,0 +1,263 @@
+"""Map layers: which sufficient statistics each carries, how they merge, and how a value follows from them.
+
+A scout sends per-cell *statistics*; the server adds them (`merge_op`); any reader turns totals into a
+value with `layer_value`. All functions are vectorised over cells: every statistic is an array of the
+same shape, and cells with `n == 0` give NaN.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+
+from protocol.errors import ProtocolError
+
+__all__ = [
+    "LAYERS",
+    "MIN_COT_DIST_M",
+    "MIN_PLANE_SPREAD_M",
+    "Layer",
+    "cell_center",
+    "cell_index",
+    "derived_names",
+    "elevation_slope_deg",
+    "empty_value",
+    "get_layer",
+    "layer_derived",
+    "layer_value",
+    "merge_op",
+]
+
+MergeOp = Literal["add", "min", "max"]
+
+MIN_COT_DIST_M = 0.05  # cot is NaN where less distance than this was walked in the cell [m]
+MIN_PLANE_SPREAD_M = 0.02  # plane fit needs footholds spread at least this much along both axes [m]
+
+
+@dataclass(frozen=True)
+class Layer:
+    """One map layer: `stats` are the sufficient statistics on the wire, in canonical order.
+
+    `counts` are statistics that may never be negative (rejected as `negative_count`).
+    """
+
+    name: str
+    stats: tuple[str, ...]
+    unit: str
+    doc: str
+    counts: tuple[str, ...] = ("n",)
+
+
+LAYERS: dict[str, Layer] = {
+    layer.name: layer
+    for layer in (
+        Layer(
+            "elevation",
+            ("n", "sum", "sumsq", "sx", "sy", "sxx", "syy", "sxy", "sxz", "syz", "min", "max"),
+            "m",
+            "terrain height from non-slipping stance footholds; value = plane-fit height at the cell centre "
+            "when the fit is well conditioned, else the mean; x, y of the fit sums are relative to the cell "
+            "centre",
+            counts=("n", "sumsq", "sxx", "syy"),
+        ),
+        Layer(
+            "slip",
+            ("n", "events"),
+            "1",
+            "slip of stance feet; n = stance phases seen, events = slip events; value = events / n",
+            counts=("n", "events"),
+        ),
+        Layer(
+            "cot",
+            ("work", "dist", "n"),
+            "1",
+            "cost of transport; work = sum E/(m g) [m], dist = sum of distance [m]; value = work / dist, "
+            f"NaN where dist < {MIN_COT_DIST_M} m",
+            counts=("n", "dist"),
+        ),
+        Layer(
+            "giim",
+            ("n", "sum", "sumsq", "min"),
+            "rad",
+            "gravito-inertial instability margin at the CoM projection; value = mean, worst = min",
+            counts=("n", "sumsq"),
+        ),
+        Layer(
+            "giam",
+            ("n", "sum", "sumsq", "min"),
+            "m/s^2",
+            "gravito-inertial acceleration margin at the CoM projection; value = mean, worst = min",
+            counts=("n", "sumsq"),
+        ),
+        Layer(
+            "contacts",
+            ("n", "nonfoot"),
+            "1",
+            "non-foot body contacts at the CoM cell; n = samples, nonfoot = samples with a non-foot "
+            "contact; value = nonfoot / n",
+            counts=("n", "nonfoot"),
+        ),
+    )
+}
+
+
+def get_layer(name: str) -> Layer:
+    """The layer called `name`, or ProtocolError('unknown_layer') naming the known layers."""
+    layer = LAYERS.get(name)
+    if layer is None:
+        raise ProtocolError("unknown_layer", f"no layer {name!r}; layers: {', '.join(LAYERS)}")
+    return layer
+
+
+def merge_op(stat: str) -> MergeOp:
+    """The generic merge rule: `min`/`min_*` by min, `max`/`max_*` by max, every other stat adds."""
+    if stat == "min" or stat.startswith("min_"):
+        return "min"
+    if stat == "max" or stat.startswith("max_"):
+        return "max"
+    return "add"
+
+
+def empty_value(stat: str) -> float:
+    """The identity of a stat's merge: 0 for sums, +inf for min, -inf for max."""
+    return {"add": 0.0, "min": np.inf, "max": -np.inf}[merge_op(stat)]
+
+
+Stats = Mapping[str, np.ndarray]
+
+
+def _f(stats: Stats, name: str) -> np.ndarray:
+    return np.asarray(stats[name], dtype=np.float64)
+
+
+def _ratio(num: np.ndarray, den: np.ndarray, ok: np.ndarray) -> np.ndarray:
+    out = np.full(np.broadcast(num, den).shape, np.nan)
+    np.divide(num, den, out=out, where=ok)
+    return out
+
+
+def _plane_fit(stats: Stats) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Least-squares plane z = h + gx x + gy y per cell -> (h, gx, gy, ok), ok = well conditioned."""
+    n = _f(stats, "n")
+    with np.errstate(divide="ignore", invalid="ignore"):
+        mx, my, mz = _f(stats, "sx") / n, _f(stats, "sy") / n, _f(stats, "sum") / n
+        cxx = _f(stats, "sxx") / n - mx * mx
+        cyy = _f(stats, "syy") / n - my * my
+        cxy = _f(stats, "sxy") / n - mx * my
+        cxz = _f(stats, "sxz") / n - mx * mz
+        cyz = _f(stats, "syz") / n - my * mz
+        det = cxx * cyy - cxy * cxy
+        half_tr = 0.5 * (cxx + cyy)
+        lam_min = half_tr - np.sqrt(np.maximum(half_tr * half_tr - det, 0.0))
+        ok = (n >= 3) & np.isfinite(lam_min) & (lam_min >= MIN_PLANE_SPREAD_M**2)
+        safe_det = np.where(ok, det, 1.0)
+        gx = np.where(ok, (cyy * cxz - cxy * cyz) / safe_det, np.nan)
+        gy = np.where(ok, (cxx * cyz - cxy * cxz) / safe_det, np.nan)
+        h = np.where(ok, mz - gx * mx - gy * my, np.nan)
+    return h, gx, gy, ok
+
+
+def elevation_slope_deg(stats: Stats) -> np.ndarray:
+    """Terrain slope [deg] from the plane fit of elevation stats; NaN where the fit is ill conditioned."""
+    _, gx, gy, _ = _plane_fit(stats)
+    return np.degrees(np.arctan(np.hypot(gx, gy)))
+
+
+def _mean(stats: Stats) -> np.ndarray:
+    n = _f(stats, "n")
+    return _ratio(_f(stats, "sum"), n, n > 0)
+
+
+def _std(stats: Stats) -> np.ndarray:
+    n = _f(stats, "n")
+    mean = _mean(stats)
+    var = _ratio(_f(stats, "sumsq"), n, n > 0) - mean * mean
+    return np.sqrt(np.maximum(var, 0.0))
+
+
+def _elevation(stats: Stats) -> np.ndarray:
+    h, _, _, ok = _plane_fit(stats)
+    return np.where(ok, h, _mean(stats))
+
+
+def _worst(stats: Stats) -> np.ndarray:
+    return np.where(_f(stats, "n") > 0, _f(stats, "min"), np.nan)
+
+
+_VALUE = {
+    "elevation": _elevation,
+    "slip": lambda s: _ratio(_f(s, "events"), _f(s, "n"), _f(s, "n") > 0),
+    "cot": lambda s: _ratio(
+        _f(s, "work"), _f(s, "dist"), (_f(s, "n") > 0) & (_f(s, "dist") >= MIN_COT_DIST_M)
+    ),
+    "giim": _mean,
+    "giam": _mean,
+    "contacts": lambda s: _ratio(_f(s, "nonfoot"), _f(s, "n"), _f(s, "n") > 0),
+}
+
+# Named quantities beyond `value` that a reader (or a region query) may ask for.
+_DERIVED = {
+    "elevation": {
+        "mean": _mean,
+        "std": _std,
+        "slope_deg": elevation_slope_deg,
+        "min": _worst,
+        "max": lambda s: np.where(_f(s, "n") > 0, _f(s, "max"), np.nan),
+    },
+    "slip": {
+        "events": lambda s: np.where(_f(s, "n") > 0, _f(s, "events"), np.nan),
+        "rate": _VALUE["slip"],
+    },
+    "cot": {},
+    "giim": {"mean": _mean, "std": _std, "worst": _worst},
+    "giam": {"mean": _mean, "std": _std, "worst": _worst},
+    "contacts": {
+        "nonfoot": lambda s: np.where(_f(s, "n") > 0, _f(s, "nonfoot"), np.nan),
+        "rate": _VALUE["contacts"],
+    },
+}
+
+
+def layer_value(layer_name: str, stats: Stats) -> np.ndarray:
+    """The layer's value per cell from its merged statistics (NaN where `n == 0`).
+
+    elevation: plane-fit height at the cell centre if well conditioned (>= 3 footholds spread at least
+    `MIN_PLANE_SPREAD_M` along both principal axes), else the mean height [m];
+    slip: events / n; cot: work / dist (NaN where dist < `MIN_COT_DIST_M`); giim, giam: mean;
+    contacts: nonfoot / n.
+    """
+    get_layer(layer_name)
+    return _VALUE[layer_name](stats)
+
+
+def derived_names(layer_name: str) -> tuple[str, ...]:
+    """Names accepted by `layer_derived` for this layer (besides `value`)."""
+    return tuple(_DERIVED[get_layer(layer_name).name])
+
+
+def layer_derived(layer_name: str, name: str, stats: Stats) -> np.ndarray:
+    """A named derived quantity (e.g. `slope_deg`, `std`, `events`, `worst`, `value`); NaN where n == 0."""
+    if name == "value":
+        return layer_value(layer_name, stats)
+    table = _DERIVED[get_layer(layer_name).name]
+    if name not in table:
+        valid = ", ".join(("value", *table))
+        raise ProtocolError("unknown_stat", f"layer {layer_name!r} has no derived {name!r}; derived: {valid}")
+    return table[name](stats)
+
+
+def cell_index(x, y, res: float, x0: float = 0.0, y0: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Map-frame position(s) [m] -> signed cell indices `(ix, iy)` as int32 arrays (floor)."""
+    ix = np.floor((np.asarray(x, dtype=np.float64) - x0) / res).astype(np.int32)
+    iy = np.floor((np.asarray(y, dtype=np.float64) - y0) / res).astype(np.int32)
+    return ix, iy
+
+
+def cell_center(ix, iy, res: float, x0: float = 0.0, y0: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Cell indices -> map-frame coordinates [m] of the cell centres."""
+    x = x0 + (np.asarray(ix, dtype=np.float64) + 0.5) * res
+    y = y0 + (np.asarray(iy, dtype=np.float64) + 0.5) * res
+    return x, y

@@ -1,0 +1,166 @@
+"""Wire contract v1 messages as frozen dataclasses (numpy arrays inside; `codec` turns them into bytes)."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from protocol.errors import ProtocolError
+from protocol.layers import LAYERS, derived_names, get_layer
+
+__all__ = [
+    "VERSION",
+    "Ack",
+    "CellDelta",
+    "LayerCells",
+    "MapRegion",
+    "RegionQuery",
+    "ScoutStatus",
+    "Status",
+]
+
+VERSION = 1
+
+# One layer of a delta: {"ix": int32 (N,), "iy": int32 (N,), <stat>: float64 (N,), ...}
+LayerCells = dict[str, np.ndarray]
+
+
+@dataclass(frozen=True, eq=False)
+class CellDelta:
+    """Statistics one scout gathered since its previous delta.
+
+    epoch: unique per scout process start; seq: 0, 1, 2, ... per (scout, epoch) without gaps;
+    t: scout clock [s] of the newest sample; res: cell size [m]; layers: layer -> LayerCells.
+    """
+
+    map: str
+    scout: str
+    epoch: int
+    seq: int
+    t: float
+    res: float
+    layers: dict[str, LayerCells] = field(default_factory=dict)
+
+    def n_updates(self) -> int:
+        """Cell-statistic updates carried: sum over layers of cells x stats."""
+        return sum(len(c["ix"]) * (len(c) - 2) for c in self.layers.values())
+
+
+@dataclass(frozen=True)
+class Ack:
+    """Server -> scout: every seq <= `seq` of (scout, epoch) is merged and persisted."""
+
+    map: str
+    scout: str
+    epoch: int
+    seq: int
+
+
+@dataclass(frozen=True, eq=False)
+class MapRegion:
+    """A box of the map: layers -> stat/derived name -> float64 (h, w); row = iy - iy0, col = ix - ix0."""
+
+    map: str
+    res: float
+    ix0: int
+    iy0: int
+    w: int
+    h: int
+    version: int
+    layers: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class ScoutStatus:
+    epoch: int
+    last_seq: int  # highest seq merged without gaps in `epoch` (-1: none yet)
+    alive: bool
+
+
+@dataclass(frozen=True)
+class Status:
+    map: str
+    res: float
+    version: int
+    cells: int
+    merged: int
+    duplicates: int
+    rejected: dict[str, int] = field(default_factory=dict)
+    scouts: dict[str, ScoutStatus] = field(default_factory=dict)
+
+
+def _split(value: str) -> tuple[str, ...]:
+    return tuple(s for s in (p.strip() for p in value.split(",")) if s)
+
+
+@dataclass(frozen=True)
+class RegionQuery:
+    """Parameters of a `map` query: an inclusive map-frame box [m], layers (None = all) and stats.
+
+    stats: raw statistic names, `value`, derived names (`layer_derived`), or `all` (every raw stat).
+    """
+
+    x0: float
+    y0: float
+    x1: float
+    y1: float
+    layers: tuple[str, ...] | None = None
+    stats: tuple[str, ...] = ("value", "n")
+
+    def to_parameters(self) -> str:
+        parts = [f"x0={self.x0!r}", f"y0={self.y0!r}", f"x1={self.x1!r}", f"y1={self.y1!r}"]
+        if self.layers is not None:
+            parts.append("layers=" + ",".join(self.layers))
+        parts.append("stats=" + ",".join(self.stats))
+        return ";".join(parts)
+
+    @classmethod
+    def parse(cls, params: str | Mapping[str, str]) -> RegionQuery:
+        """Parse `x0=..;y0=..;x1=..;y1=..[;layers=a,b][;stats=value,n]`; ProtocolError on anything else."""
+        if isinstance(params, str):
+            items: dict[str, str] = {}
+            for part in params.split(";"):
+                if not part:
+                    continue
+                k, sep, v = part.partition("=")
+                if not sep:
+                    raise ProtocolError("missing_field", f"parameter {part!r} is not of the form name=value")
+                items[k.strip()] = v.strip()
+        else:
+            items = dict(params)
+        allowed = {"x0", "y0", "x1", "y1", "layers", "stats"}
+        extra = sorted(set(items) - allowed)
+        if extra:
+            raise ProtocolError(
+                "unknown_stat", f"unknown parameter(s) {extra}; parameters: {sorted(allowed)}"
+            )
+        box: list[float] = []
+        for k in ("x0", "y0", "x1", "y1"):
+            if k not in items:
+                raise ProtocolError(
+                    "missing_field", f"query needs {k}; give x0, y0, x1, y1 in map-frame metres"
+                )
+            try:
+                num = float(items[k])
+            except ValueError:
+                raise ProtocolError("wrong_type", f"{k}={items[k]!r} is not a number") from None
+            if not math.isfinite(num):
+                raise ProtocolError("nonfinite", f"{k}={items[k]!r} must be finite")
+            box.append(num)
+        if box[2] < box[0] or box[3] < box[1]:
+            raise ProtocolError("bad_value", f"empty box: need x0 <= x1 and y0 <= y1, got {box}")
+        layers = None
+        if "layers" in items:
+            layers = _split(items["layers"])
+            for name in layers:
+                get_layer(name)
+        stats = _split(items.get("stats", "value,n")) or ("value", "n")
+        names = {"value", "all"} | {s for la in LAYERS.values() for s in la.stats}
+        names |= {d for la in LAYERS for d in derived_names(la)}
+        for s in stats:
+            if s not in names:
+                raise ProtocolError("unknown_stat", f"no stat {s!r}; stats: {', '.join(sorted(names))}")
+        return cls(box[0], box[1], box[2], box[3], layers, stats)

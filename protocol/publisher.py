@@ -1,0 +1,184 @@
+"""Scout-side delta publishing: seq numbering, a bounded buffer of unacknowledged deltas, resend.
+
+The transport is anything with `put(key, payload)`; `InMemoryTransport` records puts for tests, the
+Zenoh one lives in `protocol.zenoh_transport`. Thread-safe: acks arrive on the network thread.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import OrderedDict
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+from protocol.codec import encode
+from protocol.keys import delta_key, validate_id
+from protocol.messages import Ack, CellDelta, LayerCells
+
+__all__ = ["DeltaPublisher", "InMemoryTransport", "Transport", "UnackedBufferFull", "new_epoch"]
+
+
+class Transport(Protocol):
+    def put(self, key: str, payload: bytes) -> None: ...
+
+
+class InMemoryTransport:
+    """A transport double: remembers every `(key, payload)` put, optionally forwards to a sink."""
+
+    def __init__(self, sink: Callable[[str, bytes], None] | None = None) -> None:
+        self.sent: list[tuple[str, bytes]] = []
+        self.sink = sink
+
+    def put(self, key: str, payload: bytes) -> None:
+        self.sent.append((key, payload))
+        if self.sink is not None:
+            self.sink(key, payload)
+
+
+class UnackedBufferFull(RuntimeError):
+    """`send` was called while `max_unacked` deltas await an ack; keep accumulating and retry later."""
+
+
+def new_epoch() -> int:
+    """A fresh epoch for a scout process start: microseconds since the Unix epoch (unique, growing)."""
+    return time.time_ns() // 1000
+
+
+@dataclass
+class _Pending:
+    payload: bytes
+    sent_at: float  # clock time of the latest (re)send [s]
+
+
+class DeltaPublisher:
+    """Builds `CellDelta`s, numbers them 0, 1, 2, ... within one epoch, resends until acknowledged.
+
+    max_unacked: deltas kept awaiting an ack (then `send` raises UnackedBufferFull, `full` is True);
+    resend_after_s: a delta with no ack after this long is sent again by `poll`.
+    """
+
+    def __init__(
+        self,
+        transport: Transport,
+        map_id: str,
+        scout_id: str,
+        res: float,
+        *,
+        epoch: int | None = None,
+        max_unacked: int = 512,
+        resend_after_s: float = 1.0,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        if max_unacked < 1:
+            raise ValueError(f"max_unacked={max_unacked}; need >= 1")
+        if not res > 0:
+            raise ValueError(f"res={res}; need a cell size > 0 [m]")
+        self.transport = transport
+        self.map_id = validate_id(map_id, "map")
+        self.scout_id = validate_id(scout_id, "scout")
+        self.res = float(res)
+        self.epoch = new_epoch() if epoch is None else int(epoch)
+        self.max_unacked = max_unacked
+        self.resend_after_s = resend_after_s
+        self.clock = clock
+        self.key = delta_key(map_id, scout_id)
+        self.next_seq = 0
+        self.acked_seq = -1  # highest seq acknowledged (cumulative)
+        self.resent = 0
+        self._pending: OrderedDict[int, _Pending] = OrderedDict()
+        self._lock = threading.Lock()
+        self._resend_requested = False
+
+    @property
+    def unacked(self) -> int:
+        """Number of deltas sent but not yet acknowledged."""
+        return len(self._pending)
+
+    @property
+    def full(self) -> bool:
+        return len(self._pending) >= self.max_unacked
+
+    def build(self, layers: Mapping[str, LayerCells], t: float, seq: int) -> CellDelta:
+        clean = {}
+        for name, cells in layers.items():
+            clean[name] = {
+                k: np.asarray(v, dtype=np.int32 if k in ("ix", "iy") else np.float64)
+                for k, v in cells.items()
+            }
+        return CellDelta(self.map_id, self.scout_id, self.epoch, seq, float(t), self.res, clean)
+
+    def send(self, layers: Mapping[str, LayerCells], t: float) -> int:
+        """Publish the statistics gathered since the previous delta; returns its seq."""
+        with self._lock:
+            if len(self._pending) >= self.max_unacked:
+                raise UnackedBufferFull(
+                    f"{len(self._pending)} deltas await an ack (max_unacked="
+                    f"{self.max_unacked}); keep accumulating and retry after acks"
+                )
+            seq = self.next_seq
+            payload = encode(self.build(layers, t, seq))
+            self.next_seq += 1
+            self._pending[seq] = _Pending(payload, self.clock())
+        self.transport.put(self.key, payload)
+        return seq
+
+    def on_ack(self, ack: Ack) -> int:
+        """Forget every delta up to `ack.seq` of our epoch; returns how many were released."""
+        if ack.scout != self.scout_id or ack.map != self.map_id or ack.epoch != self.epoch:
+            return 0
+        released = 0
+        with self._lock:
+            self.acked_seq = max(self.acked_seq, ack.seq)
+            while self._pending:
+                seq = next(iter(self._pending))
+                if seq > ack.seq:
+                    break
+                del self._pending[seq]
+                released += 1
+        return released
+
+    def _due(self, now: float, force: bool) -> list[tuple[int, bytes]]:
+        with self._lock:
+            due = []
+            for seq, p in self._pending.items():
+                if force or now - p.sent_at >= self.resend_after_s:
+                    p.sent_at = now
+                    due.append((seq, p.payload))
+            return due
+
+    def request_resend(self) -> None:
+        """Ask the next `poll` to resend everything unacked (safe from a network callback thread)."""
+        self._resend_requested = True
+
+    def poll(self, now: float | None = None) -> int:
+        """Resend (in seq order) every unacked delta whose ack is overdue, or all of them after
+        `request_resend`; returns how many."""
+        force, self._resend_requested = self._resend_requested, False
+        due = self._due(self.clock() if now is None else now, force=force)
+        for _, payload in due:
+            self.transport.put(self.key, payload)
+        self.resent += len(due)
+        return len(due)
+
+    def resend_all(self) -> int:
+        """Resend every unacked delta now (e.g. the server came back); returns how many."""
+        due = self._due(self.clock(), force=True)
+        for _, payload in due:
+            self.transport.put(self.key, payload)
+        self.resent += len(due)
+        return len(due)
+
+    def wait_acked(self, timeout_s: float, step_s: float = 0.05) -> bool:
+        """Block until every delta is acknowledged (polling resends meanwhile); False on timeout."""
+        deadline = self.clock() + timeout_s
+        done = threading.Event()
+        while self.unacked:
+            if self.clock() > deadline:
+                return False
+            self.poll()
+            done.wait(step_s)
+        return True
