@@ -1,0 +1,190 @@
+"""Per-cell sufficient statistics on the scout: what accumulates between deltas, and the scout's own map.
+
+`CellAccumulator` buffers per-sample statistics cheaply (one tuple append per `add`) and reduces them per
+cell at `flush()` into the `layers` dict of a `CellDelta` (DESIGN.md wire contract: `ix`, `iy` int32 and
+float64 stats, a cell at most once per layer). `LocalMap` merges such dicts with the server's rule
+(`protocol.layers.merge_op`), so a scout with no server holds, cell for cell, what a server would merge from
+the same deltas; `save_npz` writes it in the `map_region` layout.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+
+import numpy as np
+
+from protocol.layers import LAYERS, cell_center, cell_index, empty_value, get_layer, layer_value, merge_op
+
+__all__ = ["CellAccumulator", "LocalMap", "load_npz"]
+
+LayersDict = dict[str, dict[str, np.ndarray]]
+
+
+class CellAccumulator:
+    """Statistics gathered since the last `flush`, per layer; `res` cell size [m], (x0, y0) map origin [m]."""
+
+    def __init__(self, res: float, x0: float = 0.0, y0: float = 0.0) -> None:
+        if not res > 0:
+            raise ValueError(f"res={res}; need a cell size > 0 [m]")
+        self.res, self.x0, self.y0 = float(res), float(x0), float(y0)
+        self._order = {name: layer.stats for name, layer in LAYERS.items()}
+        self._ident = {name: tuple(empty_value(s) for s in st) for name, st in self._order.items()}
+        self._rows: dict[str, list[tuple[float, ...]]] = {name: [] for name in LAYERS}
+
+    def add(self, layer: str, x: float, y: float, **stats: float) -> None:
+        """One sample at map position (x, y) [m]; stats not given take their merge identity."""
+        order = self._order.get(layer)
+        if order is None:
+            get_layer(layer)  # raises, naming the layers
+            return
+        unknown = stats.keys() - set(order)
+        if unknown:
+            raise ValueError(f"layer {layer!r} has no stat {sorted(unknown)}; stats: {', '.join(order)}")
+        ident = self._ident[layer]
+        self._rows[layer].append((x, y, *(stats.get(s, ident[i]) for i, s in enumerate(order))))
+
+    def add_elevation(self, x: float, y: float, z: float) -> None:
+        """One foothold (x, y, z) [m]: moments relative to its cell centre, plus min/max."""
+        ix, iy = cell_index(x, y, self.res, self.x0, self.y0)
+        cx, cy = cell_center(ix, iy, self.res, self.x0, self.y0)
+        dx, dy = float(x - cx), float(y - cy)
+        self._rows["elevation"].append(
+            (x, y, 1.0, z, z * z, dx, dy, dx * dx, dy * dy, dx * dy, dx * z, dy * z, z, z)
+        )
+
+    @property
+    def pending(self) -> int:
+        """Samples buffered since the last flush."""
+        return sum(len(r) for r in self._rows.values())
+
+    def flush(self) -> LayersDict:
+        """Reduce the buffered samples per cell and clear; layers with no sample are left out."""
+        out: LayersDict = {}
+        for name, rows in self._rows.items():
+            if not rows:
+                continue
+            arr = np.asarray(rows, dtype=np.float64)
+            rows.clear()
+            out[name] = reduce_cells(arr[:, 0], arr[:, 1], arr[:, 2:], self._order[name], self.res, self.x0, self.y0)
+        return out
+
+
+def reduce_cells(
+    x: np.ndarray, y: np.ndarray, values: np.ndarray, stats: tuple[str, ...], res: float, x0: float, y0: float
+) -> dict[str, np.ndarray]:
+    """Group samples (k,) at (x, y) with (k, len(stats)) values per cell, each stat by its merge op."""
+    ix, iy = cell_index(x, y, res, x0, y0)
+    keys = np.stack([ix, iy], axis=1)
+    uniq, inv = np.unique(keys, axis=0, return_inverse=True)
+    inv = inv.reshape(-1)
+    m = len(uniq)
+    cells: dict[str, np.ndarray] = {"ix": uniq[:, 0].astype(np.int32), "iy": uniq[:, 1].astype(np.int32)}
+    for j, s in enumerate(stats):
+        op = merge_op(s)
+        col = values[:, j]
+        if op == "add":
+            cells[s] = np.bincount(inv, weights=col, minlength=m)
+        else:
+            acc = np.full(m, empty_value(s))
+            (np.minimum if op == "min" else np.maximum).at(acc, inv, col)
+            cells[s] = acc
+    return cells
+
+
+class LocalMap:
+    """A scout's own map: merged totals per cell and layer, same merge rule as the server."""
+
+    def __init__(self, res: float) -> None:
+        self.res = float(res)
+        self._cells: dict[str, dict[tuple[int, int], np.ndarray]] = {name: {} for name in LAYERS}
+        self.merged = 0  # deltas merged
+
+    def merge(self, layers: Mapping[str, Mapping[str, np.ndarray]]) -> None:
+        for name, cells in layers.items():
+            stats = get_layer(name).stats
+            ops = [merge_op(s) for s in stats]
+            table = self._cells[name]
+            cols = np.stack([np.asarray(cells[s], dtype=np.float64) for s in stats], axis=1)
+            for k, (i, j) in enumerate(zip(cells["ix"].tolist(), cells["iy"].tolist(), strict=True)):
+                row = cols[k]
+                cur = table.get((i, j))
+                if cur is None:
+                    table[(i, j)] = row.copy()
+                    continue
+                for c, op in enumerate(ops):
+                    if op == "add":
+                        cur[c] += row[c]
+                    elif op == "min":
+                        cur[c] = min(cur[c], row[c])
+                    else:
+                        cur[c] = max(cur[c], row[c])
+        self.merged += 1
+
+    def cells(self, layer: str) -> dict[str, np.ndarray]:
+        """All cells of a layer as arrays: `ix`, `iy` and every stat (sorted by (iy, ix))."""
+        stats = get_layer(layer).stats
+        table = self._cells[layer]
+        keys = sorted(table, key=lambda k: (k[1], k[0]))
+        out = {
+            "ix": np.array([k[0] for k in keys], dtype=np.int32),
+            "iy": np.array([k[1] for k in keys], dtype=np.int32),
+        }
+        vals = np.array([table[k] for k in keys]).reshape(len(keys), len(stats))
+        for c, s in enumerate(stats):
+            out[s] = vals[:, c].copy()
+        return out
+
+    def bounds(self) -> tuple[int, int, int, int] | None:
+        """(ix0, iy0, ix1, iy1) inclusive over all layers, or None when empty."""
+        keys = [k for table in self._cells.values() for k in table]
+        if not keys:
+            return None
+        ixs, iys = zip(*keys, strict=True)
+        return min(ixs), min(iys), max(ixs), max(iys)
+
+    def region(self, ix0: int, iy0: int, ix1: int, iy1: int) -> dict[str, dict[str, np.ndarray]]:
+        """Dense (h, w) arrays per layer and stat (row = iy − iy0), plus `value`; empty cells hold the merge
+        identity (0, +inf for min, −inf for max) and value NaN."""
+        w, h = ix1 - ix0 + 1, iy1 - iy0 + 1
+        out: dict[str, dict[str, np.ndarray]] = {}
+        for name, table in self._cells.items():
+            stats = get_layer(name).stats
+            grid = {s: np.full((h, w), empty_value(s)) for s in stats}
+            for (i, j), row in table.items():
+                if ix0 <= i <= ix1 and iy0 <= j <= iy1:
+                    for c, s in enumerate(stats):
+                        grid[s][j - iy0, i - ix0] = row[c]
+            grid["value"] = layer_value(name, grid)
+            out[name] = grid
+        return out
+
+    def save_npz(self, path: str | Path) -> Path:
+        """Write the whole map as `map_region` arrays: `<layer>/<stat>` (h, w) and res, ix0, iy0, w, h."""
+        b = self.bounds() or (0, 0, -1, -1)
+        ix0, iy0, ix1, iy1 = b
+        arrays: dict[str, np.ndarray] = {
+            "res": np.float64(self.res),
+            "ix0": np.int64(ix0),
+            "iy0": np.int64(iy0),
+            "w": np.int64(ix1 - ix0 + 1),
+            "h": np.int64(iy1 - iy0 + 1),
+        }
+        for name, grid in self.region(ix0, iy0, ix1, iy1).items():
+            for s, a in grid.items():
+                arrays[f"{name}/{s}"] = a
+        path = Path(path)
+        np.savez_compressed(path, **arrays)
+        return path
+
+
+def load_npz(path: str | Path) -> tuple[dict[str, int | float], dict[str, dict[str, np.ndarray]]]:
+    """Read a map saved by `LocalMap.save_npz`: (header {res, ix0, iy0, w, h}, {layer: {stat: (h, w)}})."""
+    with np.load(path) as z:
+        header = {k: z[k].item() for k in ("res", "ix0", "iy0", "w", "h")}
+        layers: dict[str, dict[str, np.ndarray]] = {}
+        for key in z.files:
+            if "/" in key:
+                layer, stat = key.split("/", 1)
+                layers.setdefault(layer, {})[stat] = z[key]
+    return header, layers

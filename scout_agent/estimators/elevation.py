@@ -1,0 +1,107 @@
+"""Elevation from stance footholds (paper eq. 11–12) and the per-cell plane fit.
+
+A foothold is the ground point under a non-slipping stance foot, in the map frame:
+p = base_pos + world_R_base · p_foot_base − r · n̂, with p_foot_base the foot sphere centre from leg kinematics,
+r the foot radius and n̂ the terrain normal (the paper takes the foot centre's z; removing the radius along the
+normal makes the point lie on the ground, whatever the slope). n̂ comes from a plane fitted to the four most
+recent footholds (proprioceptive), +z until there are three.
+
+Cells keep summed moments with x, y relative to the cell centre (DESIGN "elevation" layer):
+n, sum (Σz), sumsq (Σz²), sx, sy, sxx, syy, sxy, sxz, syz. `plane_from_moments` solves
+z = z0 + gx·dx + gy·dy by least squares per cell, so that a cell whose points
+lie on one line (one foot track) still gets a height: the slope is fitted only along directions the points
+span (its unobservable component is set to zero).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+__all__ = ["PLANE_STATS", "foothold_world", "plane_from_moments", "plane_moments", "slope_deg", "terrain_normal"]
+
+PLANE_STATS = ("n", "sum", "sumsq", "sx", "sy", "sxx", "syy", "sxy", "sxz", "syz")
+_UP = np.array([0.0, 0.0, 1.0])
+
+
+def terrain_normal(points: np.ndarray) -> np.ndarray:
+    """Upward unit normal of the least-squares plane z = a + b·x + c·y through (k, 3) points; +z if k < 3."""
+    if len(points) < 3:
+        return _UP.copy()
+    xy = points[:, :2] - points[:, :2].mean(axis=0)
+    z = points[:, 2] - points[:, 2].mean()
+    a = xy.T @ xy
+    det = a[0, 0] * a[1, 1] - a[0, 1] * a[1, 0]
+    if abs(det) < 1e-12:
+        return _UP.copy()
+    rhs = xy.T @ z
+    b = (a[1, 1] * rhs[0] - a[0, 1] * rhs[1]) / det
+    c = (a[0, 0] * rhs[1] - a[1, 0] * rhs[0]) / det
+    n = np.array([-b, -c, 1.0])
+    return n / math.sqrt(float(n @ n))
+
+
+def foothold_world(
+    base_pos: np.ndarray, world_R_base: np.ndarray, foot_base: np.ndarray, radius_m: float, normal: np.ndarray
+) -> np.ndarray:
+    """Ground contact point(s) [m], map frame: base_pos + R·foot_base − r·n̂. foot_base: (3,) or (k, 3)."""
+    return base_pos + foot_base @ world_R_base.T - radius_m * normal
+
+
+def plane_moments(x: np.ndarray, y: np.ndarray, z: np.ndarray, cx: np.ndarray, cy: np.ndarray) -> dict:
+    """Per-point contributions to the elevation stats, x, y relative to the cell centre (cx, cy)."""
+    dx = np.asarray(x, dtype=float) - cx
+    dy = np.asarray(y, dtype=float) - cy
+    z = np.asarray(z, dtype=float)
+    return {
+        "n": np.ones_like(z),
+        "sum": z,
+        "sumsq": z * z,
+        "sx": dx,
+        "sy": dy,
+        "sxx": dx * dx,
+        "syy": dy * dy,
+        "sxy": dx * dy,
+        "sxz": dx * z,
+        "syz": dy * z,
+    }
+
+
+def plane_from_moments(stats: dict, min_spread_m: float = 0.03) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Least-squares plane z = z0 + gx·dx + gy·dy per cell from summed moments (dx, dy about the cell centre).
+
+    The slope is fitted only along the principal directions of the points' xy spread whose standard deviation
+    exceeds `min_spread_m`, and set to zero across them (a truncated pseudo-inverse): exact wherever the points
+    span the cell, and a cell with one straight foot track gets its height without an invented cross slope.
+    Returns (z_centre [m], gx, gy) arrays; NaN where n == 0.
+    """
+    n = np.asarray(stats["n"], dtype=float)
+    empty = n <= 0
+    nn = np.where(empty, 1.0, n)
+    mx = np.asarray(stats["sx"], float) / nn
+    my = np.asarray(stats["sy"], float) / nn
+    mz = np.asarray(stats["sum"], float) / nn
+    cxx = np.asarray(stats["sxx"], float) / nn - mx * mx
+    cyy = np.asarray(stats["syy"], float) / nn - my * my
+    cxy = np.asarray(stats["sxy"], float) / nn - mx * my
+    cxz = np.asarray(stats["sxz"], float) / nn - mx * mz
+    cyz = np.asarray(stats["syz"], float) / nn - my * mz
+    cov = np.stack([np.stack([cxx, cxy], -1), np.stack([cxy, cyy], -1)], -2)  # (..., 2, 2)
+    lam, vec = np.linalg.eigh(cov)  # (..., 2), (..., 2, 2) columns are eigenvectors
+    cz = np.stack([cxz, cyz], -1)  # (..., 2)
+    proj = np.einsum("...ik,...i->...k", vec, cz)  # v_k · cz
+    keep = lam > min_spread_m**2
+    coef = np.where(keep, proj / np.where(keep, lam, 1.0), 0.0)
+    g = np.einsum("...ik,...k->...i", vec, coef)
+    gx, gy = g[..., 0], g[..., 1]
+    z0 = mz - gx * mx - gy * my
+    z0 = np.where(empty, np.nan, z0)
+    gx = np.where(empty, np.nan, gx)
+    gy = np.where(empty, np.nan, gy)
+    return z0, gx, gy
+
+
+def slope_deg(gx: np.ndarray, gy: np.ndarray) -> np.ndarray:
+    """Slope angle [deg] of the plane with gradient (gx, gy)."""
+    return np.degrees(np.arctan(np.hypot(gx, gy)))

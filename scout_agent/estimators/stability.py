@@ -1,0 +1,94 @@
+"""Gravito-inertial stability margins GIIM and GIAM (paper eq. 8–10; Uno et al. 2022, Ribeiro et al. 2020).
+
+GIA a = g − a_CoM (eq. 8), in the world frame. Two proprioceptive sources:
+
+- `gia_from_forces`: a = −Σ f_contact / m. In simulation the foot contact forces stand in for foot force
+  sensors (the Aliengo has foot contact sensors, not 3-axis load cells: this is the simulator's help, said so).
+- `gia_from_imu`: a ≈ −world_R_base · f_imu, the accelerometer's specific force rotated into the world
+  (ignores the lever arm between IMU and CoM).
+
+Support polygon (default): the four most recent footholds, each foot's current or last stance point, sorted
+counter-clockwise about their centroid seen from above (not in leg order). In a trot only two feet stand at
+once; over those two every margin is ≤ 0 (kept as `support="stance"`, a diagnostic only). For each
+consecutive pair (a, b): n_ab = (p_G − p_a) × (p_G − p_b), outward and upward;
+GIIM_ab = acos(n̂·â) − π/2 [rad], GIAM_ab = −n̂·a [m/s²]; margins = min over faces; identity
+GIAM_ab = ‖a‖·sin(GIIM_ab). Faces with ‖n‖ ≈ 0 are skipped; fewer than 2 points → NaN; 2 points → the two
+opposite faces, so the margin is ≤ 0.
+
+`variant="paper"`: the reading that reproduces the paper's averages (REFERENCE: they match the front/rear
+faces of a static stance): the points in leg order FL, FR, RL, RR (cyclic faces, which cross the polygon's
+diagonals) and the absolute value of the minimum. It is not a stability margin (it is ≥ 0 even when the GIA
+leaves the support); kept only to compare with the paper's numbers.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+__all__ = ["gia_from_forces", "gia_from_imu", "margins", "margins_per_face", "order_ccw"]
+
+_EPS_N = 1e-9
+
+
+def gia_from_forces(foot_force_world: np.ndarray, mass_kg: float) -> np.ndarray:
+    """a = −Σ f / m [m/s²], world frame. foot_force_world: (k, 3) ground reaction forces [N]."""
+    return -foot_force_world.sum(axis=0) / mass_kg
+
+
+def gia_from_imu(imu_acc_base: np.ndarray, world_R_base: np.ndarray) -> np.ndarray:
+    """a = −R·f_imu [m/s²], world frame, from the accelerometer's specific force (base frame)."""
+    return -(world_R_base @ imu_acc_base)
+
+
+def order_ccw(points: np.ndarray) -> np.ndarray:
+    """Indices sorting (k, 3) points counter-clockwise about their centroid, seen from above (+z)."""
+    c = points[:, :2].mean(axis=0)
+    return np.argsort(np.arctan2(points[:, 1] - c[1], points[:, 0] - c[0]), kind="stable")
+
+
+def margins_per_face(points: np.ndarray, p_g: np.ndarray, gia: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """GIIM [rad] and GIAM [m/s²] of the faces (points[i], points[i+1 mod k]), in the given order.
+
+    points: (k, 3) support points, world frame [m]; p_g: (3,) CoM; gia: (3,) [m/s²]. Faces with ‖n‖ ≈ 0 get NaN.
+    """
+    u = points - p_g  # (k, 3) = −(p_G − p_a)
+    n = np.cross(u, np.roll(u, -1, axis=0))  # (p_G − p_a) × (p_G − p_b) = u_a × u_b
+    nn = np.sqrt(np.einsum("ij,ij->i", n, n))
+    ok = nn > _EPS_N * max(1.0, float(np.abs(u).max()) ** 2)
+    nhat = n / np.where(ok, nn, 1.0)[:, None]
+    proj = nhat @ gia  # n̂·a
+    a_norm = math.sqrt(float(gia @ gia))
+    cosang = np.clip(proj / a_norm, -1.0, 1.0) if a_norm > 0 else np.zeros_like(proj)
+    giim = np.arccos(cosang) - math.pi / 2
+    giam = -proj
+    giim[~ok] = np.nan
+    giam[~ok] = np.nan
+    return giim, giam
+
+
+def margins(
+    points: np.ndarray, p_g: np.ndarray, gia: np.ndarray, variant: str = "correct"
+) -> tuple[float, float]:
+    """(GIIM [rad], GIAM [m/s²]) = minima over the faces of the support `points` (k, 3).
+
+    variant "correct": points sorted counter-clockwise about their centroid, min over faces.
+    variant "paper": points taken in the order given (leg order), |min| over faces.
+    """
+    k = len(points)
+    if k < 2:
+        return math.nan, math.nan
+    if variant == "correct":
+        pts = points[order_ccw(points)] if k > 2 else points
+    elif variant == "paper":
+        pts = points
+    else:
+        raise ValueError(f"margin variant {variant!r} unknown; variants: correct, paper")
+    giim, giam = margins_per_face(pts, p_g, gia)
+    if np.isnan(giim).all():
+        return math.nan, math.nan
+    m_i, m_a = float(np.nanmin(giim)), float(np.nanmin(giam))
+    if variant == "paper":
+        return abs(m_i), abs(m_a)
+    return m_i, m_a

@@ -1,0 +1,404 @@
+"""Known-answer tests of the estimators: slip indicators on constructed signals, CoT, GIIM/GIAM, plane fit."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from scout_agent.estimators import (
+    CotConfig,
+    CotMeter,
+    SlipConfig,
+    SlipDetector,
+    cot_from_sums,
+    delta_p_paper,
+    delta_p_vector,
+    delta_v,
+    foothold_world,
+    gia_from_forces,
+    gia_from_imu,
+    margins,
+    margins_per_face,
+    order_ccw,
+    plane_from_moments,
+    plane_moments,
+    slope_deg,
+    terrain_normal,
+)
+
+DT = 0.002
+I3 = np.eye(3)
+Z3 = np.zeros(3)
+FOOT0 = np.array([0.24, 0.134, -0.33])
+
+
+# ---------------------------------------------------------------- slip: the indicators
+
+
+def test_delta_v_known_values():
+    # (0.1 - 0)/(0.1 + 0.05) along x only
+    assert delta_v(np.array([0.1, 0, 0]), np.zeros(3), 0.05) == pytest.approx(0.1 / 0.15)
+    # element-wise: x (0.2-0.1)/(0.2+0.05), z (0-0.05)/(0+0.05)
+    dv = delta_v(np.array([[0.2, 0, 0]]), np.array([[0.1, 0, 0.05]]), 0.05)
+    assert dv[0] == pytest.approx(math.hypot(0.1 / 0.25, 1.0))
+
+
+def test_delta_p_paper_is_blind_to_motion_across_the_foot_vector():
+    des = np.array([0.3, 0.0, 0.0])
+    act = np.array([0.0, 0.3, 0.0])
+    assert delta_p_paper(des, act) == pytest.approx(0.0)
+    assert delta_p_vector(des, act) == pytest.approx(0.3 * math.sqrt(2))
+    # along the vector the paper form sees the full distance
+    assert delta_p_paper(des, np.array([0.33, 0, 0])) == pytest.approx(0.03)
+
+
+# ---------------------------------------------------------------- slip: the detector on constructed stances
+
+
+def warm(det, t_end=-0.1):
+    """1.5 s of quiet four-foot stance (small ΔV noise) ending before t_end, so ε_v has a history."""
+    rng = np.random.default_rng(7)
+    planned = np.ones(4, dtype=bool)
+    n = int(1.5 / DT)
+    for k in range(n):
+        t = t_end - 1.6 + k * DT
+        det.update(t, planned, planned, np.tile(FOOT0, (4, 1)), rng.normal(0, 0.01, (4, 3)), I3, Z3, Z3)
+    off = np.zeros(4, dtype=bool)
+    det.update(t_end - 0.05, off, off, np.tile(FOOT0, (4, 1)), np.zeros((4, 3)), I3, Z3, Z3)
+    return det
+
+
+def run_stance(det, slide_vel, *, t0=0.0, duration=0.4, contact_fn=None, base_vel=Z3, planned_all=True):
+    """One planned stance of leg FL (others in swing): the foot slides at slide_vel(t_rel) in the world.
+
+    The base moves at base_vel (world), no rotation. Returns the events per tick of FL and the last tick.
+    """
+    n = int(round(duration / DT))
+    p_foot = FOOT0.copy()  # world foot position with the base starting at the origin
+    base = np.zeros(3)
+    events = []
+    ticks = []
+    for k in range(n + 2):
+        t = t0 + k * DT
+        tr = k * DT
+        planned = np.array([k <= n, False, False, False]) if planned_all else np.zeros(4, bool)
+        fv = np.asarray(slide_vel(tr), dtype=float) if k <= n else Z3
+        contact = planned.copy()
+        if contact_fn is not None and k <= n:
+            contact[0] = contact_fn(tr)
+        foot_pos = np.tile(p_foot - base, (4, 1))
+        foot_vel = np.tile(fv - base_vel, (4, 1))
+        tick = det.update(t, planned, contact, foot_pos, foot_vel, I3, base_vel, Z3)
+        events.append(bool(tick.event[0]))
+        ticks.append(tick)
+        p_foot = p_foot + fv * DT
+        base = base + base_vel * DT
+    return np.array(events), ticks
+
+
+def slide(t_start, t_end, v):
+    return lambda tr: np.asarray(v) if t_start <= tr < t_end else Z3
+
+
+@pytest.mark.parametrize("form", ["default", "paper"])
+def test_no_slip_on_a_foot_that_stays_put_while_the_base_moves(form):
+    det = warm(SlipDetector(SlipConfig(form=form)))
+    events, ticks = run_stance(det, lambda tr: Z3, base_vel=np.array([0.2, 0.0, 0.0]))
+    assert not events.any()
+    assert max(t.dv[0] for t in ticks) == pytest.approx(0.0, abs=1e-12)
+    assert max(t.dp[0] for t in ticks) == pytest.approx(0.0, abs=1e-9)
+
+
+def test_no_slip_when_the_base_rotates_and_the_foot_stays_put():
+    det = SlipDetector()
+    w = 0.5  # yaw rate [rad/s]
+    v = np.array([0.2, 0.05, 0.0])
+    p_world = np.array([0.3, 0.1, -0.33])
+    planned = np.array([True, False, False, False])
+    for k in range(200):
+        t = k * DT
+        c, s = math.cos(w * t), math.sin(w * t)
+        rot = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+        base = v * t
+        x = rot.T @ (p_world - base)
+        omega = np.array([0, 0, w])
+        xdot = -(rot.T @ v + np.cross(omega, x))
+        tick = det.update(t, planned, planned, np.tile(x, (4, 1)), np.tile(xdot, (4, 1)), rot, v, omega)
+        assert tick.dv[0] == pytest.approx(0.0, abs=1e-9)
+        assert tick.dp[0] < 1e-4  # Euler integration of the base position only
+        assert not tick.event.any()
+
+
+@pytest.mark.parametrize("form", ["default", "paper"])
+def test_a_slide_along_x_is_one_event(form):
+    det = warm(SlipDetector(SlipConfig(form=form)))
+    # 0.3 m/s for 0.15 s = 4.5 cm, starting 0.1 s into the stance; ΔV = 0.3/0.05 = 6 > 1.5
+    events, ticks = run_stance(det, slide(0.1, 0.25, [0.3, 0.0, 0.0]))
+    assert events.sum() == 1
+    k = int(np.argmax(events))
+    assert ticks[k].dp[0] > 0.02
+    # default: the event comes once ΔP passes 2 cm, ≈ 0.067 s after slide onset; the paper's norm difference
+    # sees only the part along the foot vector (0.24/0.43 of it) and fires later
+    lo, hi = (0.16, 0.18) if form == "default" else (0.2, 0.23)
+    assert lo <= k * DT <= hi
+    assert ticks[-1].stance_end[0] and ticks[-1].slipped[0]
+
+
+def test_a_slide_across_the_foot_vector_is_missed_by_the_paper_form_only():
+    # move perpendicular to the foot vector (in the x-y plane): ‖x‖ barely changes
+    u = np.cross(FOOT0, [0, 0, 1.0])
+    u = 0.3 * u / np.linalg.norm(u)
+    ev_default, _ = run_stance(warm(SlipDetector(SlipConfig(form="default"))), slide(0.1, 0.25, u))
+    ev_paper, _ = run_stance(warm(SlipDetector(SlipConfig(form="paper"))), slide(0.1, 0.25, u))
+    assert ev_default.sum() == 1
+    assert ev_paper.sum() == 0
+
+
+def test_sticky_flag_catches_a_slip_whose_displacement_builds_after_the_velocity_peak():
+    # onset 0.3 m/s for 20 ms (6 mm, ΔV = 6) then a creep at 0.04 m/s (ΔV = 0.8 < ε_v) to 2.6 cm in all
+    def v(tr):
+        if 0.1 <= tr < 0.12:
+            return np.array([0.3, 0, 0])
+        if 0.12 <= tr < 0.62:
+            return np.array([0.04, 0, 0])
+        return Z3
+
+    ev_default, _ = run_stance(warm(SlipDetector()), v, duration=0.7)
+    ev_paper, _ = run_stance(warm(SlipDetector(SlipConfig(form="paper"))), v, duration=0.7)
+    assert ev_default.sum() == 1
+    assert ev_paper.sum() == 0
+
+
+def test_contact_flicker_does_not_reset_the_default_reference():
+    # the contact flag drops for 4 ms in the middle of a slide
+    flicker = lambda tr: not (0.15 <= tr < 0.154)  # noqa: E731
+    ev_default, _ = run_stance(warm(SlipDetector()), slide(0.1, 0.2, [0.3, 0, 0]), contact_fn=flicker)
+    ev_paper, _ = run_stance(warm(SlipDetector(SlipConfig(form="paper"))), slide(0.1, 0.2, [0.3, 0, 0]), contact_fn=flicker)
+    assert ev_default.sum() == 1
+    # after the flicker the paper form measures from the new touchdown: 0.046 s × 0.3 m/s = 1.4 cm < 2 cm
+    assert ev_paper.sum() == 0
+
+
+def test_touchdown_is_the_first_contact_inside_the_planned_stance():
+    late = lambda tr: tr >= 0.05  # noqa: E731  the foot lands 50 ms into the planned stance
+    det = SlipDetector()
+    _, ticks = run_stance(det, lambda tr: Z3, contact_fn=late)
+    td = [k for k, t in enumerate(ticks) if t.touchdown[0]]
+    assert td == [25]
+
+
+def test_slip_during_settling_is_ignored_and_a_later_stance_can_slip_again():
+    det = warm(SlipDetector())
+    # a 3 cm slide entirely inside the first 50 ms (impact) must not count
+    ev, _ = run_stance(det, slide(0.0, 0.045, [0.7, 0, 0]))
+    assert ev.sum() == 0
+    det2 = warm(SlipDetector())
+    ev1, _ = run_stance(det2, slide(0.1, 0.25, [0.3, 0, 0]))
+    ev2, _ = run_stance(det2, slide(0.1, 0.25, [0.3, 0, 0]), t0=1.0)
+    assert ev1.sum() == 1 and ev2.sum() == 1
+
+
+def test_eps_v_is_a_percentile_of_recent_dv_with_a_floor():
+    det = SlipDetector(SlipConfig(eps_v_every=1))
+    planned = np.array([True, True, True, True])
+    rng = np.random.default_rng(0)
+    for k in range(400):
+        vel = rng.normal(0, 0.5, (4, 3))  # ΔV ≈ 10·‖v‖ ≫ floor
+        det.update(k * DT, planned, planned, np.tile(FOOT0, (4, 1)), vel, I3, Z3, Z3)
+    assert det.eps_v > 5.0
+    det2 = SlipDetector(SlipConfig(eps_v_every=1))
+    for k in range(400):
+        det2.update(k * DT, planned, planned, np.tile(FOOT0, (4, 1)), np.zeros((4, 3)), I3, Z3, Z3)
+    assert det2.eps_v == pytest.approx(1.5)
+
+
+def test_unknown_form_names_the_valid_ones():
+    with pytest.raises(ValueError, match="default, paper"):
+        SlipConfig(form="magic")
+
+
+# ---------------------------------------------------------------- Cost of Transport
+
+
+def test_cot_of_a_constant_power_profile():
+    cfg = CotConfig(mass_kg=20.0, gravity_mps2=1.62)
+    meter = CotMeter(cfg)
+    tau = np.ones(12)
+    dq = np.array([2.0, -2.0] * 6)  # |τ·θ̇| = 2 W per joint, 24 W in all; negative work counts too
+    v = np.array([0.2, 0.0, 0.1])  # vertical velocity is not distance
+    total_w = total_d = 0.0
+    for k in range(501):  # 1 s
+        w, d = meter.update(k * DT, tau, dq, v)
+        total_w += w
+        total_d += d
+    assert meter.energy_j == pytest.approx(24.0)
+    assert meter.dist_m == pytest.approx(0.2)
+    assert total_w == pytest.approx(24.0 / (20 * 1.62))
+    assert meter.cot == pytest.approx(24.0 / (20 * 1.62 * 0.2))
+    assert cot_from_sums(total_w, total_d) == pytest.approx(meter.cot)
+
+
+def test_cot_of_a_sinusoidal_power_profile():
+    meter = CotMeter(CotConfig(mass_kg=10.0, gravity_mps2=1.0))
+    n = 20000
+    T = math.pi
+    for k in range(n + 1):
+        t = k * T / n
+        tau = np.zeros(12)
+        tau[0] = math.sin(t)
+        dq = np.zeros(12)
+        dq[0] = -3.0  # power = 3|sin t|, ∫0^π = 6 J
+        meter.update(t, tau, dq, np.array([1.0, 0, 0]))
+    assert meter.energy_j == pytest.approx(6.0, rel=1e-3)
+    assert meter.cot == pytest.approx(6.0 / (10 * 1.0 * math.pi), rel=1e-3)
+
+
+def test_cot_is_undefined_below_the_minimum_distance():
+    assert math.isnan(cot_from_sums(1.0, 0.01))
+    np.testing.assert_array_equal(np.isnan(cot_from_sums(np.array([1.0, 1.0]), np.array([0.0, 1.0]))), [True, False])
+
+
+# ---------------------------------------------------------------- GIIM / GIAM
+
+G_LUNAR = np.array([0.0, 0.0, -1.62])
+STATIC_FEET = np.array([[0.24, 0.134, 0.0], [0.24, -0.134, 0.0], [-0.24, 0.134, 0.0], [-0.24, -0.134, 0.0]])
+COM = np.array([0.0, 0.0, 0.35])
+
+
+def test_static_aliengo_reference_figures():
+    pts = STATIC_FEET[order_ccw(STATIC_FEET)]
+    giim, giam = margins_per_face(pts, COM, G_LUNAR)
+    # faces in CCW order; lateral faces (y = ±0.134) and front/rear faces (x = ±0.24)
+    lateral = [i for i in range(4) if abs(pts[i, 1] - pts[(i + 1) % 4, 1]) < 1e-9]
+    frontrear = [i for i in range(4) if i not in lateral]
+    np.testing.assert_allclose(giim[lateral], 0.366, atol=5e-4)
+    np.testing.assert_allclose(giam[lateral], 0.579, atol=5e-4)
+    np.testing.assert_allclose(giim[frontrear], 0.601, atol=5e-4)
+    np.testing.assert_allclose(giam[frontrear], 0.916, atol=5e-4)
+    m_i, m_a = margins(STATIC_FEET, COM, G_LUNAR)
+    assert m_i == pytest.approx(0.366, abs=5e-4) and m_a == pytest.approx(0.579, abs=5e-4)
+
+
+def test_paper_variant_reproduces_the_front_rear_figures():
+    # leg order FL, FR, RL, RR: faces cross the diagonals; |min| is the front/rear face's value
+    m_i, m_a = margins(STATIC_FEET, COM, G_LUNAR, "paper")
+    assert m_i == pytest.approx(0.601, abs=5e-4) and m_a == pytest.approx(0.916, abs=5e-4)
+
+
+def test_hand_computed_triangle():
+    # CoM 1 m above (0, 0); GIA straight down 1 m/s²; the face through (1, -1) and (1, 1) is 1 m away
+    pts = np.array([[1.0, -1.0, 0], [1.0, 1.0, 0], [-1.0, 0.0, 0]])
+    p_g = np.array([0.0, 0.0, 1.0])
+    giim, giam = margins(pts, p_g, np.array([0, 0, -1.0]))
+    # nearest faces: the slanted edges, at 1/√5 from (0, 0); the one at x = 1 is 1 m away
+    d = 1 / math.sqrt(5)
+    assert giim == pytest.approx(math.atan2(d, 1.0))
+    assert giam == pytest.approx(d / math.hypot(d, 1.0))
+
+
+def test_gia_outside_the_support_gives_negative_margins_and_ordering_does_not_matter():
+    a = np.array([3.0, 0.0, -1.62])  # strong forward push: tips over the front edge
+    shuffled = STATIC_FEET[[3, 0, 2, 1]]
+    m1 = margins(STATIC_FEET, COM, a)
+    m2 = margins(shuffled, COM, a)
+    assert m1[0] < 0 and m1[1] < 0
+    assert m1 == pytest.approx(m2)
+
+
+def test_degenerate_supports():
+    assert all(math.isnan(v) for v in margins(STATIC_FEET[:1], COM, G_LUNAR))
+    two = STATIC_FEET[[0, 3]]  # trot diagonal
+    giim, giam = margins(two, COM, G_LUNAR + np.array([0.1, 0.05, 0]))
+    assert giim <= 1e-12 and giam <= 1e-12
+    gi, ga = margins_per_face(two, COM, G_LUNAR)
+    np.testing.assert_allclose(gi, 0.0, atol=1e-12)  # the GIA lies in the diagonal plane
+    # coincident points: every face degenerate → NaN
+    same = np.array([[0.1, 0.1, 0.0], [0.1, 0.1, 0.0]])
+    assert all(math.isnan(v) for v in margins(same, COM, G_LUNAR))
+
+
+def test_order_ccw():
+    pts = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0]], dtype=float)
+    o = pts[order_ccw(pts)]
+    ang = np.unwrap(np.arctan2(o[:, 1], o[:, 0]))
+    assert np.all(np.diff(ang) > 0)
+
+
+finite = st.floats(-1.0, 1.0, allow_nan=False)
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    pts=st.lists(st.tuples(finite, finite, st.floats(-0.2, 0.2)), min_size=3, max_size=4),
+    com=st.tuples(st.floats(-0.3, 0.3), st.floats(-0.3, 0.3), st.floats(0.2, 0.6)),
+    gia=st.tuples(st.floats(-3, 3), st.floats(-3, 3), st.floats(-5, -0.5)),
+)
+def test_giam_equals_norm_times_sin_giim_on_every_face(pts, com, gia):
+    p = np.array(pts)
+    a = np.array(gia)
+    giim, giam = margins_per_face(p[order_ccw(p)], np.array(com), a)
+    ok = ~np.isnan(giim)
+    np.testing.assert_allclose(giam[ok], np.linalg.norm(a) * np.sin(giim[ok]), atol=1e-9)
+
+
+def test_gia_sources():
+    f = np.array([[0, 0, 10.0], [0, 0, 10.0], [1.0, 0, 0], [0, 0, 0]])
+    np.testing.assert_allclose(gia_from_forces(f, 10.0), [-0.1, 0, -2.0])
+    # a robot at rest: accelerometer reads +g up; pitched 90° about y the base x axis points down
+    rot = np.array([[0, 0, 1.0], [0, 1, 0], [-1, 0, 0]])
+    f_imu = rot.T @ np.array([0, 0, 1.62])
+    np.testing.assert_allclose(gia_from_imu(f_imu, rot), G_LUNAR, atol=1e-12)
+
+
+# ---------------------------------------------------------------- elevation
+
+
+def test_plane_fit_recovers_a_known_plane_exactly():
+    rng = np.random.default_rng(1)
+    res = 0.4
+    cx, cy = 1.0 * res + res / 2, -2 * res + res / 2
+    x = cx + rng.uniform(-res / 2, res / 2, 30)
+    y = cy + rng.uniform(-res / 2, res / 2, 30)
+    z0, gx, gy = 0.37, math.tan(math.radians(20)), -0.1
+    z = z0 + gx * (x - cx) + gy * (y - cy)
+    mom = plane_moments(x, y, z, cx, cy)
+    sums = {k: np.array([v.sum()]) for k, v in mom.items()}
+    h, fx, fy = plane_from_moments(sums)
+    assert h[0] == pytest.approx(z0, abs=1e-12)
+    assert fx[0] == pytest.approx(gx, abs=1e-10) and fy[0] == pytest.approx(gy, abs=1e-10)
+    assert slope_deg(fx, fy)[0] == pytest.approx(math.degrees(math.atan(math.hypot(gx, gy))))
+
+
+def test_plane_fit_of_one_foot_track_keeps_the_along_track_slope():
+    # footholds on a line y = cy + 0.1 up a 15° ramp along x: the height at the centre is still right
+    res = 0.4
+    x = np.linspace(-0.18, 0.18, 9)
+    y = np.full_like(x, 0.1)
+    g = math.tan(math.radians(15))
+    z = 0.2 + g * x
+    sums = {k: np.array([v.sum()]) for k, v in plane_moments(x, y, z, 0.0, 0.0).items()}
+    h, fx, fy = plane_from_moments(sums)
+    assert h[0] == pytest.approx(0.2, abs=1e-12) and fx[0] == pytest.approx(g) and fy[0] == pytest.approx(0.0)
+    empty = {k: np.zeros(1) for k in sums}
+    assert np.isnan(plane_from_moments(empty)[0][0])
+    del res
+
+
+def test_terrain_normal_and_foothold_on_a_slope():
+    a = math.radians(20)
+    pts = np.array([[0, 0, 0], [1, 0, math.tan(a)], [0, 1, 0], [1, 1, math.tan(a)]])
+    n = terrain_normal(pts)
+    np.testing.assert_allclose(n, [-math.sin(a), 0, math.cos(a)], atol=1e-12)
+    np.testing.assert_allclose(terrain_normal(pts[:2]), [0, 0, 1])
+    # a foot sphere of radius r resting on the slope: its centre sits r along the normal above the ground point
+    r = 0.0265
+    ground = np.array([0.5, 0.2, 0.5 * math.tan(a)])
+    centre = ground + r * n
+    base = np.array([0.3, 0.1, 0.6])
+    rot = np.array([[0, -1.0, 0], [1, 0, 0], [0, 0, 1]])
+    foot_b = rot.T @ (centre - base)
+    np.testing.assert_allclose(foothold_world(base, rot, foot_b, r, n), ground, atol=1e-12)
