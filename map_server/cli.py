@@ -1,0 +1,217 @@
+"""`psrmap router | server | status | query` (also `python -m map_server ...`)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import signal
+import sys
+import threading
+from collections.abc import Sequence
+from dataclasses import replace
+from typing import Any
+
+__all__ = ["main", "register"]
+
+log = logging.getLogger("map_server")
+
+
+def _stop_on_signals() -> threading.Event:
+    """An event set by SIGINT / SIGTERM (the main thread just waits on it)."""
+    stop = threading.Event()
+
+    def handler(signum: int, _frame: Any) -> None:
+        log.info("signal %d: shutting down", signum)
+        stop.set()
+
+    signal.signal(signal.SIGINT, handler)
+    signal.signal(signal.SIGTERM, handler)
+    return stop
+
+
+def _endpoints(values: Sequence[str] | None) -> tuple[str, ...]:
+    out: list[str] = []
+    for v in values or ():
+        out.extend(e for e in v.split(",") if e)
+    return tuple(out)
+
+
+def _logging(args: argparse.Namespace) -> None:
+    logging.basicConfig(
+        level=logging.DEBUG if getattr(args, "verbose", False) else logging.INFO,
+        format="%(asctime)s %(name)s %(levelname)s %(message)s",
+        stream=sys.stderr,
+    )
+
+
+def cmd_router(args: argparse.Namespace) -> int:
+    import zenoh
+
+    from protocol.session import zenoh_config
+
+    _logging(args)
+    listen = _endpoints(args.listen)
+    stop = _stop_on_signals()
+    with zenoh.open(zenoh_config(connect=_endpoints(args.connect), listen=listen, mode="router")):
+        print(json.dumps({"router": "up", "listen": list(listen)}), flush=True)
+        stop.wait()
+    return 0
+
+
+def cmd_server(args: argparse.Namespace) -> int:
+    from map_server.service import MapService, ServerConfig
+
+    _logging(args)
+    if not args.connect and not args.listen:
+        args.parser.error("give --connect tcp/HOST:PORT (a router) and/or --listen tcp/HOST:PORT")
+    if not args.res > 0:
+        args.parser.error(f"--res {args.res}: need a cell size > 0 [m]")
+    cfg = replace(
+        ServerConfig(),
+        map_id=args.map,
+        res=args.res,
+        db=args.db,
+        tile=args.tile,
+        connect=_endpoints(args.connect),
+        listen=_endpoints(args.listen),
+        mode="router" if args.listen else "peer",
+        rrd=args.rrd,
+    )
+    stop = _stop_on_signals()
+    try:
+        service = MapService(cfg)
+    except ValueError as exc:
+        args.parser.error(str(exc))
+    with service:
+        print(
+            json.dumps(
+                {"server": "up", "map": cfg.map_id, "cells": service.map.cells, "replayed": service.replayed}
+            ),
+            flush=True,
+        )
+        stop.wait()
+    log.info("stopped cleanly")
+    return 0
+
+
+def _get_one(args: argparse.Namespace, selector: str) -> bytes:
+    import zenoh
+
+    from protocol.session import zenoh_config
+
+    with zenoh.open(zenoh_config(connect=_endpoints(args.connect), mode="client")) as s:
+        for reply in s.get(selector, timeout=args.timeout):
+            if reply.ok is not None:
+                return reply.ok.payload.to_bytes()
+            assert reply.err is not None
+            raise SystemExit(f"error from server: {reply.err.payload.to_bytes().decode(errors='replace')}")
+    raise SystemExit(f"no reply on {selector} within {args.timeout} s (is a server for this map up?)")
+
+
+def cmd_status(args: argparse.Namespace) -> int:
+    from protocol.codec import decode
+    from protocol.keys import status_key
+    from protocol.messages import Status
+
+    st = decode(_get_one(args, status_key(args.map)), expected_type="status")
+    assert isinstance(st, Status)
+    out = {
+        "map": st.map,
+        "res": st.res,
+        "version": st.version,
+        "cells": st.cells,
+        "merged": st.merged,
+        "duplicates": st.duplicates,
+        "rejected": st.rejected,
+        "scouts": {
+            k: {"epoch": v.epoch, "last_seq": v.last_seq, "alive": v.alive} for k, v in st.scouts.items()
+        },
+    }
+    print(json.dumps(out, indent=2))
+    return 0
+
+
+def cmd_query(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from protocol.codec import decode
+    from protocol.keys import map_key
+    from protocol.messages import MapRegion, RegionQuery
+
+    try:
+        x0, y0, x1, y1 = (float(v) for v in args.box.split(","))
+    except ValueError:
+        args.parser.error(f"--box {args.box!r}: give x0,y0,x1,y1 in map-frame metres")
+    layers = tuple(args.layers.split(",")) if args.layers else None
+    rq = RegionQuery(x0, y0, x1, y1, layers, tuple(args.stats.split(",")))
+    region = decode(_get_one(args, f"{map_key(args.map)}?{rq.to_parameters()}"), expected_type="map_region")
+    assert isinstance(region, MapRegion)
+    summary: dict[str, Any] = {
+        "map": region.map,
+        "res": region.res,
+        "ix0": region.ix0,
+        "iy0": region.iy0,
+        "w": region.w,
+        "h": region.h,
+        "version": region.version,
+        "layers": {},
+    }
+    for name, stats in region.layers.items():
+        n = stats.get("n")
+        known = int(np.count_nonzero(n > 0)) if n is not None else None
+        entry: dict[str, Any] = {"cells_with_data": known}
+        if "value" in stats and np.isfinite(stats["value"]).any():
+            v = stats["value"][np.isfinite(stats["value"])]
+            entry.update(value_min=float(v.min()), value_mean=float(v.mean()), value_max=float(v.max()))
+        summary["layers"][name] = entry
+    if args.out:
+        arrays: dict[str, Any] = {f"{name}.{s}": a for name, stats in region.layers.items() for s, a in stats.items()}
+        meta: dict[str, Any] = {"ix0": np.int64(region.ix0), "iy0": np.int64(region.iy0), "res": np.float64(region.res)}
+        np.savez(args.out, **meta, **arrays)
+        summary["out"] = args.out
+    print(json.dumps(summary, indent=2))
+    return 0
+
+
+def register(subparsers: Any) -> None:
+    """Add `router`, `server`, `status`, `query` to the `psrmap` CLI."""
+    p = subparsers.add_parser("router", help="run an embedded Zenoh router")
+    p.add_argument("--listen", action="append", default=None, help="endpoint, e.g. tcp/127.0.0.1:7447")
+    p.add_argument("--connect", action="append", default=None, help="other routers to mesh with")
+    p.set_defaults(func=cmd_router, parser=p)
+
+    p = subparsers.add_parser("server", help="run the map server of one map")
+    p.add_argument("--map", required=True, help="map id ([A-Za-z0-9_-]+)")
+    p.add_argument("--res", type=float, default=0.4, help="cell size [m] (default 0.4)")
+    p.add_argument("--db", default=None, help="SQLite file (default: memory only, nothing persisted)")
+    p.add_argument("--tile", type=int, default=64, help="tile side [cells], a power of two")
+    p.add_argument(
+        "--connect", action="append", default=None, help="router endpoint, e.g. tcp/127.0.0.1:7447"
+    )
+    p.add_argument("--listen", action="append", default=None, help="also run as a router listening here")
+    p.add_argument("--rrd", default=None, help="log merged layers to this Rerun .rrd file")
+    p.add_argument("-v", "--verbose", action="store_true")
+    p.set_defaults(func=cmd_server, parser=p)
+
+    for name, fn, helptext in (
+        ("status", cmd_status, "print a map server's status"),
+        ("query", cmd_query, "query a box of the map"),
+    ):
+        p = subparsers.add_parser(name, help=helptext)
+        p.add_argument("--map", required=True)
+        p.add_argument("--connect", action="append", required=True, help="router endpoint")
+        p.add_argument("--timeout", type=float, default=5.0, help="reply timeout [s]")
+        if name == "query":
+            p.add_argument("--box", required=True, help="x0,y0,x1,y1 [m], inclusive")
+            p.add_argument("--layers", default=None, help="comma-separated layers (default: all)")
+            p.add_argument("--stats", default="value,n", help="stats, derived names, or 'all'")
+            p.add_argument("--out", default=None, help="write the arrays to this .npz")
+        p.set_defaults(func=fn, parser=p)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m map_server")
+    register(parser.add_subparsers(dest="command", metavar="COMMAND", required=True))
+    args = parser.parse_args(argv)
+    return int(args.func(args) or 0)

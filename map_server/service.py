@@ -1,0 +1,283 @@
+"""The map server on Zenoh (the only module of `map_server` that imports zenoh).
+
+Deltas arrive on `psr/<map>/delta/*` into a bounded `FifoChannel`; one merge worker thread drains it
+in batches (validate, deduplicate, merge, commit to SQLite, then ack). Queries (`map`, `status`) are
+handed by their callbacks to a query thread. The server holds a liveliness token and tracks scouts'.
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import threading
+from dataclasses import dataclass
+from typing import Any
+
+import zenoh
+
+from map_server.merge import Merger
+from map_server.store import MapStore
+from map_server.tiles import TiledMap
+from protocol.codec import DEFAULT_MAX_BYTES, encode
+from protocol.errors import ProtocolError
+from protocol.keys import (
+    ack_key,
+    alive_key,
+    alive_pattern,
+    delta_key,
+    delta_pattern,
+    map_key,
+    parse_alive_key,
+    status_key,
+)
+from protocol.layers import cell_index
+from protocol.messages import MapRegion, RegionQuery, ScoutStatus, Status
+from protocol.session import zenoh_config
+
+__all__ = ["MapService", "ServerConfig"]
+
+log = logging.getLogger(__name__)
+
+_WAKE = "--wake--"  # scout id of the self-addressed sample that wakes the worker at shutdown
+MAX_QUERY_CELLS = 4_000_000  # a region query may cover at most this many cells
+
+
+@dataclass(frozen=True)
+class ServerConfig:
+    """map_id, res [m], db: SQLite path (None: memory only), tile [cells], Zenoh endpoints and mode."""
+
+    map_id: str = "moon"
+    res: float = 0.4
+    db: str | None = None
+    tile: int = 64
+    connect: tuple[str, ...] = ()
+    listen: tuple[str, ...] = ()
+    mode: str = "peer"
+    channel_capacity: int = 4096  # deltas buffered between the network and the merge worker
+    batch_max: int = 512  # deltas merged and committed together at most
+    snapshot_every: int = 20_000  # deltas logged before tiles are snapshotted and the log truncated
+    max_bytes: int = DEFAULT_MAX_BYTES
+    rrd: str | None = None  # Rerun recording path; None: no visualisation
+
+
+class MapService:
+    """Runs one map: `start()`, then `stop()` (or use as a context manager)."""
+
+    def __init__(self, config: ServerConfig) -> None:
+        self.config = config
+        self.map = TiledMap(config.res, config.tile)
+        self.merger = Merger(self.map, config.map_id, max_bytes=config.max_bytes)
+        self.store = MapStore(config.db, config.map_id, config.res, config.tile) if config.db else None
+        self.replayed = self.store.load(self.merger) if self.store else 0
+        self.lock = threading.Lock()  # guards map + book between the worker and the query thread
+        self.alive: dict[str, bool] = {}
+        self.ready = threading.Event()
+        self._stopping = threading.Event()
+        self._queries: queue.Queue[Any] = queue.Queue(maxsize=256)
+        self._session: Any = None
+        self._entities: list[Any] = []
+        self._threads: list[threading.Thread] = []
+        self._viz: Any = None
+        if config.rrd:
+            from map_server.viz import MapViz
+
+            self._viz = MapViz(config.rrd, config.map_id)
+
+    # ------------------------------------------------------------------ lifecycle
+
+    def start(self) -> MapService:
+        c = self.config
+        self._session = zenoh.open(zenoh_config(c.connect, c.listen, c.mode))
+        s = self._session
+        self._sub = s.declare_subscriber(
+            delta_pattern(c.map_id), zenoh.handlers.FifoChannel(c.channel_capacity)
+        )
+        self._entities += [
+            self._sub,
+            s.declare_queryable(map_key(c.map_id), self._queries.put),
+            s.declare_queryable(status_key(c.map_id), self._queries.put),
+            s.liveliness().declare_subscriber(alive_pattern(c.map_id), self._on_alive, history=True),
+        ]
+        self._threads = [
+            threading.Thread(target=self._merge_loop, name="merge-worker", daemon=True),
+            threading.Thread(target=self._query_loop, name="query-worker", daemon=True),
+        ]
+        for t in self._threads:
+            t.start()
+        self._entities.append(s.liveliness().declare_token(alive_key(c.map_id, "server")))
+        self.ready.set()
+        log.info(
+            "map %s (res %.3f m) up; %d cells, %d deltas replayed",
+            c.map_id,
+            c.res,
+            self.map.cells,
+            self.replayed,
+        )
+        return self
+
+    def stop(self) -> None:
+        """Drain, snapshot, close Zenoh entities and the session; idempotent."""
+        if self._stopping.is_set():
+            return
+        self._stopping.set()
+        if self._session is not None:
+            self._session.put(delta_key(self.config.map_id, _WAKE), b"")
+            self._queries.put(None)
+            for t in self._threads:
+                t.join(timeout=10)
+            for e in reversed(self._entities):
+                try:
+                    e.undeclare()
+                except Exception as exc:  # already gone with a closing session
+                    log.debug("undeclare: %s", exc)
+            self._session.close()
+            self._session = None
+        if self.store is not None:
+            with self.lock:
+                self.store.snapshot(self.map)
+            self.store.close()
+        if self._viz is not None:
+            self._viz.close()
+
+    def __enter__(self) -> MapService:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    # ------------------------------------------------------------------ merge worker
+
+    def _merge_loop(self) -> None:
+        sub = self._sub
+        c = self.config
+        while not self._stopping.is_set():
+            try:
+                first = sub.recv()
+            except zenoh.ZError:
+                break
+            batch = [first]
+            while len(batch) < c.batch_max:
+                nxt = sub.try_recv()
+                if nxt is None:
+                    break
+                batch.append(nxt)
+            samples = [(str(s.key_expr), s.payload.to_bytes()) for s in batch]
+            samples = [x for x in samples if not x[0].endswith("/" + _WAKE)]
+            if samples:
+                try:
+                    self._process(samples)
+                except Exception:
+                    log.exception("merge worker failed; stopping without acking the batch")
+                    raise
+        # drain what is left so nothing is merged half-way at shutdown
+        rest = []
+        while (nxt := sub.try_recv()) is not None:
+            key = str(nxt.key_expr)
+            if not key.endswith("/" + _WAKE):
+                rest.append((key, nxt.payload.to_bytes()))
+        if rest:
+            self._process(rest)
+
+    def _process(self, samples: list[tuple[str, bytes]]) -> None:
+        with self.lock:
+            res = self.merger.ingest(samples)
+            if self.store is not None and (res.accepted or res.rejected or res.duplicates):
+                self.store.commit(res.accepted, self.merger.book, res.touched)
+                if self.store.since_snapshot >= self.config.snapshot_every:
+                    self.store.snapshot(self.map)
+            dirty = set(self.map.dirty) if self._viz is not None else set()
+        for ack in res.acks.values():
+            self._session.put(ack_key(ack.map, ack.scout), encode(ack))
+        if self._viz is not None and dirty:
+            self._viz.log_tiles(self.map, dirty, self.lock)
+
+    # ------------------------------------------------------------------ queries
+
+    def _on_alive(self, sample: zenoh.Sample) -> None:
+        try:
+            _, who = parse_alive_key(str(sample.key_expr))
+        except ProtocolError:
+            return
+        if who != "server":
+            self.alive[who] = sample.kind == zenoh.SampleKind.PUT
+
+    def _query_loop(self) -> None:
+        while True:
+            query = self._queries.get()
+            if query is None:
+                break
+            with query:
+                try:
+                    key = str(query.key_expr)
+                    if key == status_key(self.config.map_id):
+                        query.reply(key, encode(self.status()))
+                    else:
+                        rq = RegionQuery.parse(str(query.parameters))
+                        query.reply(key, encode(self.region(rq)))
+                except ProtocolError as exc:
+                    query.reply_err(f"{exc.reason}: {exc.detail}".encode())
+                except Exception as exc:  # a bad query must never kill the server
+                    log.exception("query failed")
+                    query.reply_err(f"internal: {exc}".encode())
+
+    def status(self) -> Status:
+        with self.lock:
+            book = self.merger.book
+            scouts = {
+                s: ScoutStatus(epoch, hw, self.alive.get(s, False))
+                for s, (epoch, hw) in book.latest().items()
+            }
+            for s, up in self.alive.items():
+                scouts.setdefault(s, ScoutStatus(0, -1, up))
+            return Status(
+                self.config.map_id,
+                self.map.res,
+                book.version,
+                self.map.cells,
+                book.merged,
+                book.duplicates,
+                dict(book.rejected),
+                scouts,
+            )
+
+    def region(self, rq: RegionQuery) -> MapRegion:
+        res = self.map.res
+        ix0, iy0 = (int(v) for v in cell_index(rq.x0, rq.y0, res))
+        ix1, iy1 = (int(v) for v in cell_index(rq.x1, rq.y1, res))
+        cells = (ix1 - ix0 + 1) * (iy1 - iy0 + 1)
+        if cells > MAX_QUERY_CELLS:
+            raise ProtocolError("oversize", f"box covers {cells} cells; at most {MAX_QUERY_CELLS} per query")
+        with self.lock:
+            layers = self.map.region(ix0, iy0, ix1, iy1, rq.layers, rq.stats)
+            version = self.merger.book.version
+        return MapRegion(self.config.map_id, res, ix0, iy0, ix1 - ix0 + 1, iy1 - iy0 + 1, version, layers)
+
+
+def run_server(config: ServerConfig, stop: threading.Event) -> None:
+    """Run until `stop` is set (the CLI sets it from SIGINT/SIGTERM)."""
+    with MapService(config):
+        stop.wait()
+
+
+def free_endpoint(host: str = "127.0.0.1") -> str:
+    """A `tcp/<host>:<port>` endpoint on a port that was free a moment ago (tests, benchmarks)."""
+    import socket
+
+    with socket.socket() as s:
+        s.bind((host, 0))
+        return f"tcp/{host}:{s.getsockname()[1]}"
+
+
+def wait_for_server(session: Any, map_id: str, timeout_s: float = 10.0) -> bool:
+    """Block until the server's liveliness token of `map_id` is visible from `session`."""
+    seen = threading.Event()
+
+    def on(sample: zenoh.Sample) -> None:
+        if sample.kind == zenoh.SampleKind.PUT:
+            seen.set()
+
+    sub = session.liveliness().declare_subscriber(alive_key(map_id, "server"), on, history=True)
+    try:
+        return seen.wait(timeout_s)
+    finally:
+        sub.undeclare()
