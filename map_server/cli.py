@@ -166,8 +166,14 @@ def cmd_query(args: argparse.Namespace) -> int:
             entry.update(value_min=float(v.min()), value_mean=float(v.mean()), value_max=float(v.max()))
         summary["layers"][name] = entry
     if args.out:
-        arrays: dict[str, Any] = {f"{name}.{s}": a for name, stats in region.layers.items() for s, a in stats.items()}
-        meta: dict[str, Any] = {"ix0": np.int64(region.ix0), "iy0": np.int64(region.iy0), "res": np.float64(region.res)}
+        arrays: dict[str, Any] = {
+            f"{name}.{s}": a for name, stats in region.layers.items() for s, a in stats.items()
+        }
+        meta: dict[str, Any] = {
+            "ix0": np.int64(region.ix0),
+            "iy0": np.int64(region.iy0),
+            "res": np.float64(region.res),
+        }
         np.savez(args.out, **meta, **arrays)
         summary["out"] = args.out
     print(json.dumps(summary, indent=2))
