@@ -144,8 +144,8 @@ class LocalMap:
         return min(ixs), min(iys), max(ixs), max(iys)
 
     def region(self, ix0: int, iy0: int, ix1: int, iy1: int) -> dict[str, dict[str, np.ndarray]]:
-        """Dense (h, w) arrays per layer and stat (row = iy − iy0), plus `value`; empty cells hold the merge
-        identity (0, +inf for min, −inf for max) and value NaN."""
+        """Dense (h, w) arrays per layer and stat (row = iy − iy0), plus `value`, as in `map_region`: empty
+        cells have n = 0, sums 0, and NaN for value, min and max."""
         w, h = ix1 - ix0 + 1, iy1 - iy0 + 1
         out: dict[str, dict[str, np.ndarray]] = {}
         for name, table in self._cells.items():
@@ -155,6 +155,10 @@ class LocalMap:
                 if ix0 <= i <= ix1 and iy0 <= j <= iy1:
                     for c, s in enumerate(stats):
                         grid[s][j - iy0, i - ix0] = row[c]
+            empty = grid["n"] <= 0
+            for s in stats:
+                if merge_op(s) != "add":
+                    grid[s][empty] = np.nan
             grid["value"] = layer_value(name, grid)
             out[name] = grid
         return out
