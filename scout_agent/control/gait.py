@@ -1,0 +1,37 @@
+"""The trot schedule: diagonal pairs (FL+RR, FR+RL) half a cycle apart; stance while phase < duty."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class GaitConfig:
+    freq_hz: float = 1.4  # gait cycles per second
+    duty: float = 0.6  # stance share of a cycle
+    offsets: tuple[float, float, float, float] = (0.0, 0.5, 0.5, 0.0)  # FL, FR, RL, RR
+
+
+class TrotGait:
+    def __init__(self, config: GaitConfig = GaitConfig()) -> None:
+        self.config = config
+        self._offsets = np.asarray(config.offsets)
+        self.stance_s = config.duty / config.freq_hz  # stance duration [s]
+        self.swing_s = (1.0 - config.duty) / config.freq_hz  # swing duration [s]
+
+    def phase(self, t: float) -> np.ndarray:
+        """(4,) phase in [0, 1); stance is [0, duty), swing [duty, 1)."""
+        return (t * self.config.freq_hz + self._offsets) % 1.0
+
+    def stance(self, phase: np.ndarray) -> np.ndarray:
+        return phase < self.config.duty
+
+    def swing_progress(self, phase: np.ndarray) -> np.ndarray:
+        """(4,) progress through swing in [0, 1] (0 for stance legs)."""
+        d = self.config.duty
+        return np.clip((phase - d) / (1.0 - d), 0.0, 1.0)
+
+    def stance_progress(self, phase: np.ndarray) -> np.ndarray:
+        return np.clip(phase / self.config.duty, 0.0, 1.0)

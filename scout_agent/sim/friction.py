@@ -1,0 +1,110 @@
+"""Ground friction as a map in the map frame: a default coefficient plus rectangular patches.
+
+The simulator applies it at no speed cost: the feet have a higher contact `priority` than the ground, so
+MuJoCo uses the foot geom's friction, and each foot's friction is set from this map at the foot's position
+every control tick. The map is ground truth (exported, logged, used in evaluation).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from scout_agent.sim.terrain import LUNAR_ROUTES, Terrain
+
+DEFAULT_MU = 0.7  # regolith (internal friction angle 35–39°, Apollo 12)
+
+
+@dataclass(frozen=True)
+class Patch:
+    """Axis-aligned rectangle [x0, x1] × [y0, y1] (map frame, m) of friction `mu`."""
+
+    x0: float
+    y0: float
+    x1: float
+    y1: float
+    mu: float
+
+    def __post_init__(self) -> None:
+        if not (self.x1 > self.x0 and self.y1 > self.y0):
+            raise ValueError(f"patch needs x0 < x1 and y0 < y1, got {self}")
+        if not 0.0 < self.mu <= 2.0:
+            raise ValueError(f"patch friction {self.mu} out of range; valid: 0 < mu <= 2")
+
+    @classmethod
+    def parse(cls, text: str) -> Patch:
+        """From 'x0,y0,x1,y1,MU'."""
+        parts = [float(v) for v in text.split(",")]
+        if len(parts) != 5:
+            raise ValueError(f"patch {text!r}: expected x0,y0,x1,y1,MU (5 numbers)")
+        return cls(*parts)
+
+
+@dataclass(frozen=True)
+class FrictionMap:
+    """Friction coefficient at any (x, y); later patches override earlier ones."""
+
+    default: float = DEFAULT_MU
+    patches: tuple[Patch, ...] = ()
+
+    def at(self, x, y) -> np.ndarray:
+        x = np.asarray(x, dtype=float)
+        y = np.asarray(y, dtype=float)
+        mu = np.full(np.broadcast(x, y).shape, self.default)
+        for p in self.patches:
+            inside = (x >= p.x0) & (x <= p.x1) & (y >= p.y0) & (y <= p.y1)
+            mu = np.where(inside, p.mu, mu)
+        return mu
+
+    def with_patches(self, *patches: Patch) -> FrictionMap:
+        return FrictionMap(self.default, self.patches + tuple(patches))
+
+    def grid(self, terrain: Terrain, res: float = 0.1) -> tuple[np.ndarray, tuple[float, float, float]]:
+        """(ny, nx) friction raster over the terrain and its (x0, y0, res) for export/logging."""
+        xa, ya, xb, yb = terrain.extent
+        xs = np.arange(xa + res / 2, xb, res)
+        ys = np.arange(ya + res / 2, yb, res)
+        X, Y = np.meshgrid(xs, ys)
+        return self.at(X, Y), (xa, ya, res)
+
+    def to_dict(self) -> dict:
+        return {"default": self.default, "patches": [[p.x0, p.y0, p.x1, p.y1, p.mu] for p in self.patches]}
+
+
+def ramp_slippery_patch(terrain: Terrain, mu: float) -> Patch:
+    """A patch over the middle half of the down-ramp, across the testbed's width."""
+    a, b = terrain.info["segments"]["down"]
+    _, ya, _, yb = terrain.extent
+    q = (b - a) / 4
+    return Patch(a + q, ya, b - q, yb, mu)
+
+
+def lunar_slippery_patches(terrain: Terrain, n: int, seed: int = 0, size_m: float = 1.6,
+                           mu_range: tuple[float, float] = (0.2, 0.35)) -> tuple[Patch, ...]:
+    """`n` seeded patches, preferably where a lunar route descends 10–20°, else anywhere on a route."""
+    rng = np.random.default_rng(seed + 1000)
+    cands, fallback = [], []
+    for route in LUNAR_ROUTES.values():
+        pts = np.asarray(route, dtype=float)
+        for a, b in zip(pts[:-1], pts[1:], strict=True):
+            length = float(np.hypot(*(b - a)))
+            u = (b - a) / length
+            for s in np.arange(2.5, length - 2.5, 0.25):
+                x, y = a + s * u
+                gx, gy = terrain.gradient(x, y)
+                descent = -np.degrees(np.arctan(gx * u[0] + gy * u[1]))
+                (cands if 10.0 <= descent <= 20.0 else fallback).append((x, y))
+    patches: list[Patch] = []
+    for pool in (cands, fallback):
+        order = rng.permutation(len(pool))
+        for k in order:
+            if len(patches) >= n:
+                break
+            x, y = pool[k]
+            if any(abs(x - (p.x0 + p.x1) / 2) < size_m * 1.5 and abs(y - (p.y0 + p.y1) / 2) < size_m * 1.5
+                   for p in patches):
+                continue
+            h = size_m / 2
+            patches.append(Patch(x - h, y - h, x + h, y + h, float(rng.uniform(*mu_range))))
+    return tuple(patches)

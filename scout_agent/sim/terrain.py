@@ -1,0 +1,320 @@
+"""Terrains as heightfields with exact ground truth: the ramp testbed and a seeded 20×20 m lunar field.
+
+A `Terrain` is a regular grid of heights (`z[iy, ix]`, row along y, column along x, `res` metres apart,
+lower-left sample at `(x0, y0)`) that MuJoCo collides with as a triangulated heightfield. `height(x, y)` and
+`slope_deg(x, y)` evaluate the very triangles MuJoCo uses (each cell split along its (ix, iy)-(ix+1, iy+1)
+diagonal), so they are exact, not interpolations of a smoother surface.
+
+Lunar terrain, after OmniLRS ("lunaryard", BSD-3): coarse uniform noise bicubic-upsampled plus fine noise;
+craters by a hard-core Poisson process per size class, ellipticity 0.85–1, random rotation, cosine bowl with
+a raised rim; rocks by a Thomas cluster process as smooth bumps. What a trot can cross is capped where
+routes run (see `LunarConfig`): craters touching a surveyed corridor get depth/diameter ≤ 0.12, rocks there
+≤ 0.1 m with smooth shoulders; elsewhere deep craters (up to 1 m deep, 2.5 m wide) remain as hazards.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.ndimage import gaussian_filter, zoom
+
+# The paper's three corner-to-corner routes on the 20 m lunar field: direct, and two via landmarks.
+LUNAR_ROUTES: dict[str, tuple[tuple[float, float], ...]] = {
+    "direct": ((1.5, 1.5), (18.5, 18.5)),
+    "west": ((1.5, 1.5), (5.0, 13.0), (18.5, 18.5)),
+    "east": ((1.5, 1.5), (13.0, 5.0), (18.5, 18.5)),
+}
+
+
+@dataclass(frozen=True)
+class Terrain:
+    """A heightfield with exact height/slope queries. Arrays are not copied; treat them as read-only."""
+
+    z: np.ndarray  # (ny, nx) heights [m], row iy along y, column ix along x
+    res: float  # grid spacing [m]
+    x0: float  # x of column 0 [m]
+    y0: float  # y of row 0 [m]
+    name: str = "terrain"
+    spawn: tuple[float, float, float] = (0.0, 0.0, 0.0)  # default start x, y, yaw
+    goal: tuple[float, float] = (0.0, 0.0)  # default goal x, y
+    info: dict = field(default_factory=dict)  # generator facts (segments, craters, hazards, ...)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.z.shape
+
+    @property
+    def extent(self) -> tuple[float, float, float, float]:
+        """(x_min, y_min, x_max, y_max) [m]."""
+        ny, nx = self.z.shape
+        return self.x0, self.y0, self.x0 + (nx - 1) * self.res, self.y0 + (ny - 1) * self.res
+
+    def _locate(self, x, y):
+        ny, nx = self.z.shape
+        u = (np.asarray(x, dtype=float) - self.x0) / self.res
+        v = (np.asarray(y, dtype=float) - self.y0) / self.res
+        u = np.clip(u, 0.0, nx - 1 - 1e-9)
+        v = np.clip(v, 0.0, ny - 1 - 1e-9)
+        ix = np.floor(u).astype(int)
+        iy = np.floor(v).astype(int)
+        return ix, iy, u - ix, v - iy
+
+    def _corners(self, ix, iy):
+        z = self.z
+        return z[iy, ix], z[iy, ix + 1], z[iy + 1, ix], z[iy + 1, ix + 1]
+
+    def height(self, x, y):
+        """Exact terrain height [m] at (x, y) (arrays broadcast); clamped to the field's edge outside it."""
+        ix, iy, fx, fy = self._locate(x, y)
+        z00, z10, z01, z11 = self._corners(ix, iy)
+        lower = fx >= fy  # triangle (00, 10, 11) below the diagonal, else (00, 11, 01)
+        h_lo = z00 + fx * (z10 - z00) + fy * (z11 - z10)
+        h_up = z00 + fy * (z01 - z00) + fx * (z11 - z01)
+        return np.where(lower, h_lo, h_up)
+
+    def gradient(self, x, y):
+        """(dz/dx, dz/dy) of the triangle under (x, y)."""
+        ix, iy, fx, fy = self._locate(x, y)
+        z00, z10, z01, z11 = self._corners(ix, iy)
+        lower = fx >= fy
+        gx = np.where(lower, z10 - z00, z11 - z01) / self.res
+        gy = np.where(lower, z11 - z10, z01 - z00) / self.res
+        return gx, gy
+
+    def normal(self, x, y) -> np.ndarray:
+        """Unit upward normal(s) (..., 3)."""
+        gx, gy = self.gradient(x, y)
+        n = np.stack([-np.asarray(gx), -np.asarray(gy), np.ones_like(gx)], axis=-1)
+        return n / np.linalg.norm(n, axis=-1, keepdims=True)
+
+    def slope_deg(self, x, y):
+        """Exact inclination of the ground at (x, y) [deg]."""
+        gx, gy = self.gradient(x, y)
+        return np.degrees(np.arctan(np.hypot(gx, gy)))
+
+    def slope_grid_deg(self) -> np.ndarray:
+        """(ny-1, nx-1) steepest-triangle slope per cell [deg]."""
+        z = self.z
+        g1 = np.hypot(z[:-1, 1:] - z[:-1, :-1], z[1:, 1:] - z[:-1, 1:])
+        g2 = np.hypot(z[1:, 1:] - z[1:, :-1], z[1:, :-1] - z[:-1, :-1])
+        return np.degrees(np.arctan(np.maximum(g1, g2) / self.res))
+
+    def slope_stats(self, mask: np.ndarray | None = None) -> dict[str, float]:
+        """Slope percentiles [deg] over the cells (optionally a boolean (ny-1, nx-1) mask)."""
+        s = self.slope_grid_deg()
+        if mask is not None:
+            s = s[mask]
+        p = np.percentile(s, [50, 95, 99, 100])
+        return {"median": float(p[0]), "p95": float(p[1]), "p99": float(p[2]), "max": float(p[3]),
+                "relief_m": float(self.z.max() - self.z.min())}
+
+    def corridor_mask(self, waypoints, half_width: float) -> np.ndarray:
+        """(ny-1, nx-1) cells whose centre lies within `half_width` of the polyline `waypoints`."""
+        ny, nx = self.z.shape
+        xs = self.x0 + (np.arange(nx - 1) + 0.5) * self.res
+        ys = self.y0 + (np.arange(ny - 1) + 0.5) * self.res
+        X, Y = np.meshgrid(xs, ys)
+        return _polyline_distance(X, Y, waypoints) <= half_width
+
+
+def _polyline_distance(X, Y, waypoints) -> np.ndarray:
+    d = np.full(np.shape(X), np.inf)
+    pts = np.asarray(waypoints, dtype=float)
+    for a, b in zip(pts[:-1], pts[1:], strict=True):
+        ab = b - a
+        t = np.clip(((X - a[0]) * ab[0] + (Y - a[1]) * ab[1]) / max(ab @ ab, 1e-12), 0.0, 1.0)
+        d = np.minimum(d, np.hypot(X - a[0] - t * ab[0], Y - a[1] - t * ab[1]))
+    return d
+
+
+# ---------------------------------------------------------------------------------------------- ramps
+
+
+@dataclass(frozen=True)
+class RampConfig:
+    """The paper's testbed along +x: flat approach, up-ramp, platform, down-ramp, flat exit."""
+
+    slope_deg: float = 15.0  # ramp angle α [deg], 0–25
+    approach_m: float = 1.5  # flat before the up-ramp [m]
+    up_m: float = 3.0  # horizontal length of the up-ramp [m]
+    platform_m: float = 2.0  # flat platform [m]
+    down_m: float = 3.0  # horizontal length of the down-ramp [m]
+    exit_m: float = 2.0  # flat after the down-ramp [m]
+    width_m: float = 3.0  # testbed width (y from -width/2) [m]
+    res: float = 0.05  # grid spacing [m]; segment boundaries are snapped to it
+
+
+def ramp_profile(cfg: RampConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Breakpoints (xs, zs) of the piecewise-linear ramp profile, boundaries snapped to the grid."""
+    snap = lambda v: round(v / cfg.res) * cfg.res  # noqa: E731
+    lengths = [snap(v) for v in (cfg.approach_m, cfg.up_m, cfg.platform_m, cfg.down_m, cfg.exit_m)]
+    xs = np.concatenate([[0.0], np.cumsum(lengths)])
+    t = np.tan(np.radians(cfg.slope_deg))
+    top = lengths[1] * t
+    zs = np.array([0.0, 0.0, top, top, top - lengths[3] * t, top - lengths[3] * t])
+    return xs, zs
+
+
+def make_ramps(cfg: RampConfig = RampConfig()) -> Terrain:
+    if not 0.0 <= cfg.slope_deg <= 25.0:
+        raise ValueError(f"ramp slope {cfg.slope_deg}° out of range; valid: 0–25°")
+    xs, zs = ramp_profile(cfg)
+    nx = int(round(xs[-1] / cfg.res)) + 1
+    ny = int(round(cfg.width_m / cfg.res)) + 1
+    gx = np.arange(nx) * cfg.res
+    row = np.interp(gx, xs, zs)
+    z = np.tile(row, (ny, 1))
+    segments = {"approach": (xs[0], xs[1]), "up": (xs[1], xs[2]), "platform": (xs[2], xs[3]),
+                "down": (xs[3], xs[4]), "exit": (xs[4], xs[5])}
+    return Terrain(z=z, res=cfg.res, x0=0.0, y0=-cfg.width_m / 2, name=f"ramps{cfg.slope_deg:g}",
+                   spawn=(0.6, 0.0, 0.0), goal=(float(xs[-1] - 0.8), 0.0),
+                   info={"segments": segments, "slope_deg": cfg.slope_deg})
+
+
+# ---------------------------------------------------------------------------------------------- lunar
+
+
+@dataclass(frozen=True)
+class LunarConfig:
+    """Seeded lunar field (OmniLRS-like). Lengths in metres, slopes in degrees."""
+
+    seed: int = 0
+    size_m: float = 20.0
+    res: float = 0.05
+    relief_m: float = 3.0  # peak-to-peak of the coarse relief (±1.5 m), before the slope cap
+    relief_cells: int = 4  # coarse noise grid (bicubic-upsampled)
+    relief_max_slope_deg: float = 10.0  # the broad relief is scaled down until its steepest slope is this
+    fine_noise_m: float = 0.004  # smoothed fine noise std
+    # crater classes: (min radius, max radius, density per m²), OmniLRS-like
+    crater_classes: tuple[tuple[float, float, float], ...] = ((0.75, 1.25, 0.02), (0.4, 0.75, 0.05), (0.15, 0.4, 0.15))
+    crossable_depth_ratio: tuple[float, float] = (0.06, 0.12)  # depth/diameter near routes (walls ≤ 21°)
+    hazard_depth_ratio: tuple[float, float] = (0.25, 0.4)  # depth/diameter of large craters off routes
+    rim_ratio: float = 0.15  # rim height / depth
+    rock_clusters_per_m2: float = 0.03
+    rocks_per_cluster: float = 6.0
+    rock_cluster_sigma_m: float = 0.6
+    rock_height_m: tuple[float, float] = (0.02, 0.08)  # rocks near routes
+    hazard_rock_height_m: tuple[float, float] = (0.15, 0.3)  # some rocks off routes
+    routes: tuple[tuple[tuple[float, float], ...], ...] = tuple(LUNAR_ROUTES.values())
+    corridor_m: float = 1.2  # half-width of the surveyed corridors along routes
+    spawn_radius_m: float = 0.9  # flattened patch around route ends
+    corridor_max_slope_deg: float = 24.0  # slopes within corridors are smoothed down to this cap
+
+
+def make_lunar(cfg: LunarConfig = LunarConfig()) -> Terrain:
+    rng = np.random.default_rng(cfg.seed)
+    n = int(round(cfg.size_m / cfg.res)) + 1
+    xs = np.arange(n) * cfg.res
+    X, Y = np.meshgrid(xs, xs)
+    # broad relief: uniform noise on a coarse grid, bicubic upsampling, then slope cap
+    coarse = rng.uniform(-0.5, 0.5, (cfg.relief_cells, cfg.relief_cells))
+    z = zoom(coarse, (n - 1) / (cfg.relief_cells - 1) + 1e-9, order=3, mode="nearest")[:n, :n]
+    z = (z - z.min()) / max(np.ptp(z), 1e-9) * cfg.relief_m - cfg.relief_m / 2
+    g = np.hypot(*np.gradient(z, cfg.res))
+    z *= min(1.0, np.tan(np.radians(cfg.relief_max_slope_deg)) / g.max())
+    z += gaussian_filter(rng.normal(0.0, 1.0, z.shape), 2.0) * cfg.fine_noise_m * 2.0 / 0.14
+
+    route_dist = np.full(z.shape, np.inf)
+    for route in cfg.routes:
+        route_dist = np.minimum(route_dist, _polyline_distance(X, Y, route))
+    routes_arr = [np.asarray(r, dtype=float) for r in cfg.routes]
+
+    def dist_to_routes(px: float, py: float) -> float:
+        return float(min(_polyline_distance(np.array(px), np.array(py), r) for r in routes_arr))
+
+    # craters: hard-core Poisson process per class, largest first
+    area = cfg.size_m**2
+    placed: list[tuple[float, float, float]] = []
+    craters = []
+    for rmin, rmax, density in cfg.crater_classes:
+        for _ in range(rng.poisson(density * area)):
+            r = rng.uniform(rmin, rmax)
+            cx, cy = rng.uniform(0, cfg.size_m, 2)
+            near = dist_to_routes(cx, cy) < r * 1.3 + cfg.corridor_m
+            gap = 1.3 if near else 0.9  # craters do not overlap where routes run
+            if any(np.hypot(cx - px, cy - py) < gap * (r + pr) for px, py, pr in placed):
+                continue
+            ends = min(np.hypot(cx - e[0], cy - e[1]) for rt in routes_arr for e in (rt[0], rt[-1]))
+            if ends < r * 1.3 + cfg.spawn_radius_m + 0.5:
+                continue
+            hazard = (not near) and r >= cfg.crater_classes[0][0]
+            ratio = rng.uniform(*(cfg.hazard_depth_ratio if hazard else cfg.crossable_depth_ratio))
+            depth = ratio * 2 * r
+            ell = rng.uniform(0.85, 1.0)
+            rot = rng.uniform(0, np.pi)
+            placed.append((cx, cy, r))
+            craters.append({"x": float(cx), "y": float(cy), "r": float(r), "depth": float(depth),
+                            "hazard": bool(hazard)})
+            win = r * 2.0
+            i0, i1 = int(max(0, (cy - win) / cfg.res)), int(min(n, (cy + win) / cfg.res + 2))
+            j0, j1 = int(max(0, (cx - win) / cfg.res)), int(min(n, (cx + win) / cfg.res + 2))
+            dx, dy = X[i0:i1, j0:j1] - cx, Y[i0:i1, j0:j1] - cy
+            u = dx * np.cos(rot) + dy * np.sin(rot)
+            v = (-dx * np.sin(rot) + dy * np.cos(rot)) / ell
+            rho = np.hypot(u, v) / r
+            bowl = np.where(rho < 1.0, -depth * 0.5 * (1.0 + np.cos(np.pi * np.minimum(rho, 1.0))), 0.0)
+            rim = cfg.rim_ratio * depth * np.exp(-(((rho - 1.0) / 0.35) ** 2))
+            z[i0:i1, j0:j1] += bowl + rim
+
+    # rocks: Thomas cluster process of smooth bumps (σ ≥ 1.6·height keeps shoulders ≤ ~21°)
+    rocks = []
+    for _ in range(rng.poisson(cfg.rock_clusters_per_m2 * area)):
+        px, py = rng.uniform(0, cfg.size_m, 2)
+        for _ in range(rng.poisson(cfg.rocks_per_cluster)):
+            cx, cy = rng.normal((px, py), cfg.rock_cluster_sigma_m)
+            if not (0 <= cx <= cfg.size_m and 0 <= cy <= cfg.size_m):
+                continue
+            dr = dist_to_routes(cx, cy)
+            hazard = dr > cfg.corridor_m + 0.6 and rng.uniform() < 0.3
+            h = rng.uniform(*(cfg.hazard_rock_height_m if hazard else cfg.rock_height_m))
+            sigma = max(1.6 * h, 0.1) if not hazard else rng.uniform(0.15, 0.25)
+            rocks.append({"x": float(cx), "y": float(cy), "h": float(h), "hazard": bool(hazard)})
+            win = 3 * sigma
+            i0, i1 = int(max(0, (cy - win) / cfg.res)), int(min(n, (cy + win) / cfg.res + 2))
+            j0, j1 = int(max(0, (cx - win) / cfg.res)), int(min(n, (cx + win) / cfg.res + 2))
+            d2 = (X[i0:i1, j0:j1] - cx) ** 2 + (Y[i0:i1, j0:j1] - cy) ** 2
+            z[i0:i1, j0:j1] += h * np.exp(-d2 / (2 * sigma**2))
+
+    # flat spawn/goal patches: blend to the local mean height
+    for route in routes_arr:
+        for ex, ey in (route[0], route[-1]):
+            d = np.hypot(X - ex, Y - ey)
+            inner = d <= cfg.spawn_radius_m
+            w = np.clip((cfg.spawn_radius_m + 0.6 - d) / 0.6, 0.0, 1.0)
+            w = w * w * (3 - 2 * w)
+            z = z * (1 - w) + float(z[inner].mean()) * w
+
+    z = _cap_corridor_slopes(z, route_dist <= cfg.corridor_m, cfg.res, cfg.corridor_max_slope_deg)
+
+    direct = LUNAR_ROUTES["direct"]
+    yaw = float(np.arctan2(direct[1][1] - direct[0][1], direct[1][0] - direct[0][0]))
+    terrain = Terrain(z=z, res=cfg.res, x0=0.0, y0=0.0, name=f"lunar{cfg.seed}",
+                      spawn=(direct[0][0], direct[0][1], yaw), goal=direct[-1],
+                      info={"seed": cfg.seed, "craters": craters, "rocks": rocks,
+                            "routes": {k: [list(p) for p in v] for k, v in LUNAR_ROUTES.items()}})
+    return terrain
+
+
+def _cap_corridor_slopes(z: np.ndarray, corridor: np.ndarray, res: float, cap_deg: float) -> np.ndarray:
+    """Smooth, locally and repeatedly, wherever the slope inside `corridor` exceeds `cap_deg`."""
+    from scipy.ndimage import binary_dilation
+
+    z = z.copy()
+    cap = np.tan(np.radians(cap_deg))
+    for _ in range(60):
+        g = np.hypot(*np.gradient(z, res))
+        bad = (g > cap) & corridor
+        if not bad.any():
+            break
+        region = binary_dilation(bad, iterations=4)
+        z[region] = gaussian_filter(z, 1.5)[region]
+    return z
+
+
+def route_slope_stats(terrain: Terrain, half_width: float = 0.5) -> dict[str, dict[str, float]]:
+    """Slope statistics of the whole field and of the cells within `half_width` of each lunar route."""
+    out = {"all": terrain.slope_stats()}
+    for name, route in LUNAR_ROUTES.items():
+        out[name] = terrain.slope_stats(terrain.corridor_mask(route, half_width))
+    return out
