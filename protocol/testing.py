@@ -1,0 +1,102 @@
+"""Builders of valid and deliberately broken wire messages, for tests of every package (no test framework needed)."""
+
+from __future__ import annotations
+
+import copy
+from typing import Any
+
+import msgpack
+import numpy as np
+
+from protocol.keys import delta_key
+from protocol.layers import LAYERS
+from protocol.messages import CellDelta
+
+MAP, SCOUT, RES = "m1", "s1", 0.4
+
+
+def layer_cells(name: str, ix, iy, rng: np.random.Generator | None = None, scale: float = 1.0) -> dict:
+    """Valid cells of `layer` with integer-valued (exactly summable) statistics."""
+    rng = rng or np.random.default_rng(0)
+    ix = np.asarray(ix, dtype=np.int32)
+    iy = np.asarray(iy, dtype=np.int32)
+    out: dict[str, np.ndarray] = {"ix": ix, "iy": iy}
+    for s in LAYERS[name].stats:
+        if s in ("min", "max"):
+            out[s] = rng.integers(-50, 50, ix.size).astype(np.float64)
+        elif s in LAYERS[name].counts:
+            out[s] = rng.integers(1, 20, ix.size).astype(np.float64) * scale
+        else:
+            out[s] = rng.integers(-100, 100, ix.size).astype(np.float64) * scale
+    return out
+
+
+def make_delta(seq: int = 0, scout: str = SCOUT, epoch: int = 7, cells=((0, 0), (1, 2), (-3, 5)),
+               layers=("slip", "elevation"), seed: int = 0) -> CellDelta:
+    rng = np.random.default_rng(seed)
+    ix = [c[0] for c in cells]
+    iy = [c[1] for c in cells]
+    return CellDelta(MAP, scout, epoch, seq, 1.5 * seq, RES, {n: layer_cells(n, ix, iy, rng) for n in layers})
+
+
+def raw_delta() -> dict[str, Any]:
+    """A valid cell_delta as the raw msgpack map, ready to be broken."""
+    d = make_delta()
+    layers = {}
+    for name, cells in d.layers.items():
+        layers[name] = {k: np.asarray(v, dtype="<i4" if k in ("ix", "iy") else "<f8").tobytes()
+                        for k, v in cells.items()}
+    return {"v": 1, "type": "cell_delta", "map": MAP, "scout": SCOUT, "epoch": 7, "seq": 0, "t": 0.0,
+            "res": RES, "layers": layers}
+
+
+def _f64(*v: float) -> bytes:
+    return np.array(v, dtype="<f8").tobytes()
+
+
+def broken(reason: str) -> tuple[str, bytes, dict[str, Any]]:
+    """(key, payload, decode kwargs) of a cell_delta that must be rejected with `reason`."""
+    key = delta_key(MAP, SCOUT)
+    kw: dict[str, Any] = {"key": key, "res": RES}
+    d = raw_delta()
+    slip = d["layers"]["slip"]
+    if reason == "decode":
+        return key, b"\xc1\x00not msgpack", kw
+    if reason == "oversize":
+        kw["max_bytes"] = 64
+    elif reason == "bad_version":
+        d["v"] = 2
+    elif reason == "bad_type":
+        d["type"] = "cell_deltas"
+    elif reason == "missing_field":
+        del d["epoch"]
+    elif reason == "wrong_type":
+        d["seq"] = "3"
+    elif reason == "bad_id":
+        d["scout"] = "s 1/x"
+    elif reason == "bad_value":
+        d["seq"] = -1
+    elif reason == "key_mismatch":
+        d["scout"] = "s2"
+    elif reason == "wrong_res":
+        d["res"] = 0.5
+    elif reason == "unknown_layer":
+        d["layers"]["cots"] = copy.deepcopy(slip)
+    elif reason == "unknown_stat":
+        slip["evnts"] = slip["events"]
+    elif reason == "bad_length":
+        slip["ix"] = slip["ix"][:-1]
+    elif reason == "length_mismatch":
+        slip["events"] = slip["events"][:-8]
+    elif reason == "nonfinite":
+        slip["events"] = _f64(1.0, np.nan, 2.0)
+    elif reason == "negative_count":
+        slip["n"] = _f64(1.0, -1.0, 2.0)
+    elif reason == "index_range":
+        slip["ix"] = np.array([0, 2**30 + 1, 2], dtype="<i4").tobytes()
+    elif reason == "duplicate_cell":
+        slip["ix"] = np.array([4, 4, 1], dtype="<i4").tobytes()
+        slip["iy"] = np.array([4, 4, 1], dtype="<i4").tobytes()
+    else:
+        raise AssertionError(f"no broken message for {reason}")
+    return key, msgpack.packb(d, use_bin_type=True), kw

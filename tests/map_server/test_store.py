@@ -1,0 +1,63 @@
+from __future__ import annotations
+
+import sqlite3
+
+import pytest
+
+from map_server.merge import Merger
+from map_server.store import MapStore
+from map_server.tiles import TiledMap
+from protocol import encode
+from protocol.keys import delta_key
+from protocol.testing import MAP, RES, SCOUT, broken, make_delta
+
+
+def open_map(path):
+    store = MapStore(path, MAP, RES, 8)
+    m = Merger(TiledMap(RES, tile=8), MAP)
+    store.load(m)
+    return store, m
+
+
+def feed(store, m, seqs, scout=SCOUT):
+    deltas = [make_delta(seq=s, scout=scout, cells=((s, 1), (-s, 30), (9, 9)), seed=s) for s in seqs]
+    r = m.ingest([(delta_key(MAP, scout), encode(d)) for d in deltas])
+    store.commit(r.accepted, m.book, r.touched)
+    return r
+
+
+def test_reopen_without_snapshot_replays_the_log_exactly(tmp_path):
+    db = tmp_path / "map.db"
+    store, m = open_map(db)
+    feed(store, m, [0, 1, 3])
+    key, bad, kw = broken("wrong_res")
+    r = m.ingest([(key, bad)])
+    store.commit(r.accepted, m.book, r.touched)
+    store.db.close()  # like kill -9: no snapshot, no clean close
+    store2, m2 = open_map(db)
+    assert m2.map.equals(m.map) and m2.map.cells == m.map.cells
+    assert m2.book.seqs[(SCOUT, 7)].hw == 1 and m2.book.seqs[(SCOUT, 7)].above == {3}
+    assert (m2.book.version, m2.book.merged, m2.book.rejected) == (3, 3, {"wrong_res": 1})
+    r = feed(store2, m2, [1, 2, 3, 4])  # resends after a crash are duplicates; the gap is filled
+    assert r.duplicates == 2 and r.acks[(SCOUT, 7)].seq == 4
+    store2.close()
+
+
+def test_snapshot_truncates_log_and_reopens_exactly(tmp_path):
+    db = tmp_path / "map.db"
+    store, m = open_map(db)
+    feed(store, m, range(5))
+    assert store.snapshot(m.map) > 0 and store.log_size() == 0
+    feed(store, m, range(5, 8))
+    assert store.log_size() == 3
+    store.close()
+    store2, m2 = open_map(db)
+    assert m2.map.equals(m.map) and m2.book.version == 8
+    assert sqlite3.connect(db).execute("PRAGMA journal_mode").fetchone()[0] == "wal"
+    store2.close()
+
+
+def test_reopening_with_other_res_is_refused(tmp_path):
+    MapStore(tmp_path / "a.db", MAP, RES, 8).close()
+    with pytest.raises(ValueError, match="holds map=m1 res=0.4"):
+        MapStore(tmp_path / "a.db", MAP, 0.5, 8)
