@@ -1,4 +1,4 @@
-"""Builders of valid and deliberately broken wire messages, for tests of every package (no test framework needed)."""
+"""Builders of valid and deliberately broken wire messages, for the tests of every package."""
 
 from __future__ import annotations
 
@@ -31,8 +31,14 @@ def layer_cells(name: str, ix, iy, rng: np.random.Generator | None = None, scale
     return out
 
 
-def make_delta(seq: int = 0, scout: str = SCOUT, epoch: int = 7, cells=((0, 0), (1, 2), (-3, 5)),
-               layers=("slip", "elevation"), seed: int = 0) -> CellDelta:
+def make_delta(
+    seq: int = 0,
+    scout: str = SCOUT,
+    epoch: int = 7,
+    cells=((0, 0), (1, 2), (-3, 5)),
+    layers=("slip", "elevation"),
+    seed: int = 0,
+) -> CellDelta:
     rng = np.random.default_rng(seed)
     ix = [c[0] for c in cells]
     iy = [c[1] for c in cells]
@@ -44,10 +50,20 @@ def raw_delta() -> dict[str, Any]:
     d = make_delta()
     layers = {}
     for name, cells in d.layers.items():
-        layers[name] = {k: np.asarray(v, dtype="<i4" if k in ("ix", "iy") else "<f8").tobytes()
-                        for k, v in cells.items()}
-    return {"v": 1, "type": "cell_delta", "map": MAP, "scout": SCOUT, "epoch": 7, "seq": 0, "t": 0.0,
-            "res": RES, "layers": layers}
+        layers[name] = {
+            k: np.asarray(v, dtype="<i4" if k in ("ix", "iy") else "<f8").tobytes() for k, v in cells.items()
+        }
+    return {
+        "v": 1,
+        "type": "cell_delta",
+        "map": MAP,
+        "scout": SCOUT,
+        "epoch": 7,
+        "seq": 0,
+        "t": 0.0,
+        "res": RES,
+        "layers": layers,
+    }
 
 
 def _f64(*v: float) -> bytes:

@@ -29,16 +29,26 @@ def delta_sets(draw):
     for k in range(n_streams):
         scout, epoch = f"s{k % 2}", 10 + k
         for seq in range(draw(st.integers(1, 5))):
-            cells = draw(st.lists(st.tuples(st.integers(-12, 12), st.integers(-12, 12)), min_size=0, max_size=6,
-                                  unique=True))
-            layers = draw(st.lists(st.sampled_from(["elevation", "slip", "giam", "contacts"]), min_size=1,
-                                   max_size=3, unique=True))
+            cells = draw(
+                st.lists(
+                    st.tuples(st.integers(-12, 12), st.integers(-12, 12)), min_size=0, max_size=6, unique=True
+                )
+            )
+            layers = draw(
+                st.lists(
+                    st.sampled_from(["elevation", "slip", "giam", "contacts"]),
+                    min_size=1,
+                    max_size=3,
+                    unique=True,
+                )
+            )
             seed = draw(st.integers(0, 2**16))
             rng = np.random.default_rng(seed)
             ix = [c[0] for c in cells]
             iy = [c[1] for c in cells]
-            deltas.append(CellDelta(MAP, scout, epoch, seq, 0.0, RES,
-                                    {n: layer_cells(n, ix, iy, rng) for n in layers}))
+            deltas.append(
+                CellDelta(MAP, scout, epoch, seq, 0.0, RES, {n: layer_cells(n, ix, iy, rng) for n in layers})
+            )
     return deltas
 
 

@@ -12,7 +12,9 @@ def dense_reference(parts, name, box):
     """Merge with a plain dict per cell (the obvious, slow implementation)."""
     ix0, iy0, ix1, iy1 = box
     stats = LAYERS[name].stats
-    ref = {s: np.full((iy1 - iy0 + 1, ix1 - ix0 + 1), {"min": np.inf, "max": -np.inf}.get(s, 0.0)) for s in stats}
+    ref = {
+        s: np.full((iy1 - iy0 + 1, ix1 - ix0 + 1), {"min": np.inf, "max": -np.inf}.get(s, 0.0)) for s in stats
+    }
     for cells in parts:
         for k in range(len(cells["ix"])):
             r, c = cells["iy"][k] - iy0, cells["ix"][k] - ix0
@@ -51,8 +53,16 @@ def test_merge_matches_reference_across_tiles_and_negative_indices(tile):
 
 def test_empty_cells_are_nan_and_tiles_only_where_data_lands():
     m = TiledMap(0.4)
-    m.merge({"slip": {"ix": np.array([1000, -1000], np.int32), "iy": np.array([5, -5], np.int32),
-                      "n": np.array([2.0, 1.0]), "events": np.array([1.0, 0.0])}})
+    m.merge(
+        {
+            "slip": {
+                "ix": np.array([1000, -1000], np.int32),
+                "iy": np.array([5, -5], np.int32),
+                "n": np.array([2.0, 1.0]),
+                "events": np.array([1.0, 0.0]),
+            }
+        }
+    )
     assert len(m.grids["slip"].tiles) == 2 and not m.grids["elevation"].tiles
     r = m.region(999, 4, 1001, 6, ["slip", "elevation"], ["value", "n", "events"])
     assert r["slip"]["value"][1, 1] == 0.5 and np.isnan(r["slip"]["value"][0, 0])

@@ -22,8 +22,18 @@ def test_keys():
     assert info.value.reason == "key_mismatch"
 
 
-@pytest.mark.parametrize("module", ["protocol", "protocol.codec", "protocol.keys", "protocol.layers",
-                                    "protocol.messages", "protocol.publisher", "protocol.errors"])
+@pytest.mark.parametrize(
+    "module",
+    [
+        "protocol",
+        "protocol.codec",
+        "protocol.keys",
+        "protocol.layers",
+        "protocol.messages",
+        "protocol.publisher",
+        "protocol.errors",
+    ],
+)
 def test_all_is_honest(module):
     mod = importlib.import_module(module)
     for name in mod.__all__:
@@ -31,7 +41,22 @@ def test_all_is_honest(module):
 
 
 def test_package_exports_interface_names():
-    for name in ("ProtocolError", "LAYERS", "merge_op", "layer_value", "cell_index", "cell_center", "CellDelta",
-                 "Ack", "MapRegion", "Status", "encode", "decode", "DeltaPublisher", "InMemoryTransport",
-                 "zenoh_config", "elevation_slope_deg"):
+    for name in (
+        "ProtocolError",
+        "LAYERS",
+        "merge_op",
+        "layer_value",
+        "cell_index",
+        "cell_center",
+        "CellDelta",
+        "Ack",
+        "MapRegion",
+        "Status",
+        "encode",
+        "decode",
+        "DeltaPublisher",
+        "InMemoryTransport",
+        "zenoh_config",
+        "elevation_slope_deg",
+    ):
         assert name in protocol.__all__

@@ -3,22 +3,47 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from protocol import LAYERS, ProtocolError, cell_center, cell_index, elevation_slope_deg, layer_value, merge_op
+from protocol import (
+    LAYERS,
+    ProtocolError,
+    cell_center,
+    cell_index,
+    elevation_slope_deg,
+    layer_value,
+    merge_op,
+)
 from protocol.layers import MIN_COT_DIST_M, layer_derived
 
 
 def elevation_stats(x, y, z) -> dict[str, np.ndarray]:
     one = lambda v: np.array([v], dtype=float)  # noqa: E731
-    return {"n": one(len(z)), "sum": one(z.sum()), "sumsq": one((z * z).sum()), "sx": one(x.sum()),
-            "sy": one(y.sum()), "sxx": one((x * x).sum()), "syy": one((y * y).sum()), "sxy": one((x * y).sum()),
-            "sxz": one((x * z).sum()), "syz": one((y * z).sum()), "min": one(z.min()), "max": one(z.max())}
+    return {
+        "n": one(len(z)),
+        "sum": one(z.sum()),
+        "sumsq": one((z * z).sum()),
+        "sx": one(x.sum()),
+        "sy": one(y.sum()),
+        "sxx": one((x * x).sum()),
+        "syy": one((y * y).sum()),
+        "sxy": one((x * y).sum()),
+        "sxz": one((x * z).sum()),
+        "syz": one((y * z).sum()),
+        "min": one(z.min()),
+        "max": one(z.max()),
+    }
 
 
 def test_layers_and_merge_rule():
     assert list(LAYERS) == ["elevation", "slip", "cot", "giim", "giam", "contacts"]
     assert LAYERS["contacts"].stats == ("n", "nonfoot")
     assert [merge_op(s) for s in ("n", "min", "min_z", "max", "max_v", "minimum")] == [
-        "add", "min", "min", "max", "max", "add"]
+        "add",
+        "min",
+        "min",
+        "max",
+        "max",
+        "add",
+    ]
     for layer in LAYERS.values():
         assert "n" in layer.stats and set(layer.counts) <= set(layer.stats)
 
@@ -46,8 +71,14 @@ def test_values_nan_where_no_data_and_cot_threshold():
     assert np.isnan(layer_value("slip", {"n": np.array([0.0]), "events": np.array([0.0])})[0])
     assert layer_value("slip", {"n": np.array([4.0]), "events": np.array([1.0])})[0] == 0.25
     assert layer_derived("slip", "events", {"n": np.array([4.0]), "events": np.array([1.0])})[0] == 1.0
-    cot = layer_value("cot", {"work": np.array([1.0, 1.0]), "dist": np.array([MIN_COT_DIST_M / 2, 2.0]),
-                              "n": np.array([3.0, 3.0])})
+    cot = layer_value(
+        "cot",
+        {
+            "work": np.array([1.0, 1.0]),
+            "dist": np.array([MIN_COT_DIST_M / 2, 2.0]),
+            "n": np.array([3.0, 3.0]),
+        },
+    )
     assert np.isnan(cot[0]) and cot[1] == 0.5
     g = {"n": np.array([2.0]), "sum": np.array([0.6]), "sumsq": np.array([0.2]), "min": np.array([0.1])}
     assert layer_value("giim", g)[0] == pytest.approx(0.3)
