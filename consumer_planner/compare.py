@@ -1,0 +1,167 @@
+"""Routes on the map with their breakdown: planned ones (`plan_route`) and given ones (`evaluate_route`).
+
+Every figure is a sum over the route's cells p_0 .. p_k with the weight w_j = half the length [m] of
+the steps entering and leaving p_j (`cell_weights`), the same weighting that defines the path cost in
+`search` (step a -> b costs len * (cost[a] + cost[b]) / 2), so:
+
+- length_m = sum w_j; cost = sum w_j cost_j (equals the search's path cost); terms[t] = sum w_j term_t,j
+  (they add up to `cost`);
+- expected_slip_events = stances_per_m * sum w_j slip_rate_j (cells without a rate count 0);
+- mean_cot, mean_giim, mean_giam = w-weighted means over cells with a value (known or inferred);
+- min_giim, min_giam = the smallest cell mean on the route; max_slope_deg = the largest cell slope;
+- unknown_fraction = share of length on cells without data; inferred_fraction = share on inferred cells.
+
+Means, minima and maxima with no cell to take them from are NaN (JSON null).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass
+
+import numpy as np
+from skimage.draw import line
+
+from consumer_planner.costs import CostMap
+from consumer_planner.errors import PlannerError
+from consumer_planner.grid import LayerGrid
+from consumer_planner.search import Method, plan_path, step_lengths
+
+__all__ = ["Breakdown", "Route", "breakdown", "cell_weights", "evaluate_route", "plan_route", "route_cells"]
+
+
+@dataclass(frozen=True)
+class Breakdown:
+    length_m: float
+    cost: float
+    expected_slip_events: float
+    mean_cot: float
+    min_giim: float
+    mean_giim: float
+    min_giam: float
+    mean_giam: float
+    max_slope_deg: float
+    unknown_fraction: float
+    inferred_fraction: float
+    impassable_cells: int
+    terms: dict[str, float]
+
+    def as_dict(self) -> dict:
+        """JSON-ready: NaN and inf become None."""
+        return _jsonable(asdict(self))
+
+
+def _jsonable(x):
+    if isinstance(x, dict):
+        return {k: _jsonable(v) for k, v in x.items()}
+    if isinstance(x, float) and not math.isfinite(x):
+        return None
+    return x
+
+
+@dataclass(frozen=True, eq=False)
+class Route:
+    """A route: `cells` (k, 2) (row, col), `path` (k, 2) map-frame cell centres [m], its breakdown."""
+
+    name: str
+    cells: np.ndarray
+    path: np.ndarray
+    breakdown: Breakdown
+
+    def as_dict(self) -> dict:
+        b = self.breakdown.as_dict()
+        return {"name": self.name, "path": self.path.round(4).tolist(), "length_m": b["length_m"],
+                "cost": b["cost"], "breakdown": b}  # fmt: skip
+
+
+def cell_weights(cells: np.ndarray, res: float) -> np.ndarray:
+    """(k,) half the length [m] of the steps entering and leaving each cell of a path (k, 2)."""
+    steps = step_lengths(cells, res)
+    w = np.zeros(len(cells))
+    w[:-1] += 0.5 * steps
+    w[1:] += 0.5 * steps
+    return w
+
+
+def _wmean(w: np.ndarray, v: np.ndarray) -> float:
+    ok = np.isfinite(v)
+    return float(np.sum(w[ok] * v[ok]) / np.sum(w[ok])) if ok.any() and np.sum(w[ok]) > 0 else math.nan
+
+
+def _extreme(fn, v: np.ndarray) -> float:
+    ok = np.isfinite(v)
+    return float(fn(v[ok])) if ok.any() else math.nan
+
+
+def breakdown(costs: CostMap, cells: np.ndarray, res: float) -> Breakdown:
+    """The figures above for a path of 8-connected cells (k, 2) on `costs`."""
+    cells = np.asarray(cells, dtype=np.int64)
+    r, c = cells[:, 0], cells[:, 1]
+    w = cell_weights(cells, res)
+    length = float(w.sum())
+    m = {k: v[r, c] for k, v in costs.metrics.items()}
+    blocked = costs.impassable[r, c]
+    cost = math.inf if blocked.any() else float(np.sum(w * costs.cost[r, c]))
+    frac = (lambda mask: float(np.sum(w[mask]) / length)) if length > 0 else (lambda mask: 0.0)
+    return Breakdown(
+        length_m=length,
+        cost=cost,
+        expected_slip_events=float(costs.config.stances_per_m * np.sum(w * np.nan_to_num(m["slip_rate"]))),
+        mean_cot=_wmean(w, m["cot"]),
+        min_giim=_extreme(np.min, m["giim"]),
+        mean_giim=_wmean(w, m["giim"]),
+        min_giam=_extreme(np.min, m["giam"]),
+        mean_giam=_wmean(w, m["giam"]),
+        max_slope_deg=_extreme(np.max, m["slope_deg"]),
+        unknown_fraction=frac(~costs.known[r, c]),
+        inferred_fraction=frac(costs.inferred[r, c]),
+        impassable_cells=int(blocked.sum()),
+        terms={k: float(np.sum(w * v[r, c])) for k, v in costs.terms.items()},
+    )
+
+
+def _cell(grid: LayerGrid, xy: Sequence[float], what: str) -> tuple[int, int]:
+    cell = grid.cell_of(float(xy[0]), float(xy[1]))
+    if cell is None:
+        xa, ya, xb, yb = grid.bounds_m()
+        raise PlannerError(
+            f"{what} ({xy[0]:g}, {xy[1]:g}) is outside the map box x {xa:g}..{xb:g}, y {ya:g}..{yb:g} m"
+        )
+    return cell
+
+
+def route_cells(grid: LayerGrid, waypoints: Sequence[Sequence[float]]) -> np.ndarray:
+    """The 8-connected cells (k, 2) visited by straight segments between map-frame waypoints [m]."""
+    if len(waypoints) < 1:
+        raise PlannerError("a route needs at least one waypoint x,y")
+    ends = [_cell(grid, p, f"waypoint {i}") for i, p in enumerate(waypoints)]
+    cells = [np.array([ends[0]])]
+    for (r0, c0), (r1, c1) in zip(ends[:-1], ends[1:], strict=True):
+        rr, cc = line(r0, c0, r1, c1)
+        cells.append(np.stack([rr, cc], axis=1)[1:])
+    return np.concatenate(cells).astype(np.int64)
+
+
+def evaluate_route(
+    grid: LayerGrid, costs: CostMap, waypoints: Sequence[Sequence[float]], name: str = "route"
+) -> Route:
+    """A given route (map-frame waypoints [m]) on the map, with its breakdown."""
+    cells = route_cells(grid, waypoints)
+    return Route(name, cells, grid.centers(cells), breakdown(costs, cells, grid.res))
+
+
+def plan_route(
+    grid: LayerGrid,
+    costs: CostMap,
+    start: Sequence[float],
+    goal: Sequence[float],
+    name: str = "plan",
+    method: Method = "auto",
+) -> Route | None:
+    """The cheapest route from `start` to `goal` (map-frame [m]); None if the goal cannot be reached."""
+    s, g = _cell(grid, start, "start"), _cell(grid, goal, "goal")
+    found = plan_path(costs.cost, s, g, grid.res, method)
+    if found is None:
+        return None
+    return Route(name, found.cells, grid.centers(found.cells), breakdown(costs, found.cells, grid.res))

@@ -1,0 +1,193 @@
+"""LayerGrid: a dense box of map layers (numpy, NaN = unknown) with map-frame <-> cell transforms.
+
+Built from one or several `protocol.MapRegion` replies (several map-server shards answer one query;
+`stitch` puts their boxes together) or from a scout's saved `.npz` map (same `map_region` layout).
+Arrays are (h, w), row = iy - iy0, column = ix - ix0; a cell's centre is x0 + (ix + 0.5) * res.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from consumer_planner.errors import PlannerError
+from protocol.layers import LAYERS, elevation_slope_deg, empty_value, layer_value
+from protocol.messages import MapRegion
+
+__all__ = ["LayerGrid", "load_npz", "stitch"]
+
+Layers = dict[str, dict[str, np.ndarray]]
+
+
+@dataclass(frozen=True, eq=False)
+class LayerGrid:
+    """Layers over cells ix0 .. ix0+w-1, iy0 .. iy0+h-1 of a map with cell size `res` [m] and origin
+    (x0, y0) [m]; `layers[layer][stat]` is float64 (h, w)."""
+
+    map: str
+    res: float
+    ix0: int
+    iy0: int
+    h: int
+    w: int
+    layers: Layers = field(default_factory=dict)
+    version: int = 0
+    x0: float = 0.0
+    y0: float = 0.0
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.h, self.w
+
+    @classmethod
+    def from_region(cls, region: MapRegion, x0: float = 0.0, y0: float = 0.0) -> LayerGrid:
+        return cls(region.map, region.res, region.ix0, region.iy0, region.h, region.w,
+                   {k: dict(v) for k, v in region.layers.items()}, region.version, x0, y0)  # fmt: skip
+
+    # --- transforms -------------------------------------------------------------------------
+    def cell_of(self, x: float, y: float) -> tuple[int, int] | None:
+        """(row, col) of the cell holding map-frame point (x, y) [m], or None when outside the box."""
+        col = int(np.floor((x - self.x0) / self.res)) - self.ix0
+        row = int(np.floor((y - self.y0) / self.res)) - self.iy0
+        if 0 <= row < self.h and 0 <= col < self.w:
+            return row, col
+        return None
+
+    def centers(self, cells: np.ndarray) -> np.ndarray:
+        """Map-frame centres [m] (k, 2) as (x, y) of cells (k, 2) given as (row, col)."""
+        cells = np.asarray(cells)
+        x = self.x0 + (cells[:, 1] + self.ix0 + 0.5) * self.res
+        y = self.y0 + (cells[:, 0] + self.iy0 + 0.5) * self.res
+        return np.stack([x, y], axis=1)
+
+    def bounds_m(self) -> tuple[float, float, float, float]:
+        """Map-frame box covered [m]: (x_min, y_min, x_max, y_max)."""
+        xa, ya = self.x0 + self.ix0 * self.res, self.y0 + self.iy0 * self.res
+        return xa, ya, xa + self.w * self.res, ya + self.h * self.res
+
+    # --- layers -----------------------------------------------------------------------------
+    def stat(self, layer: str, stat: str) -> np.ndarray:
+        """The (h, w) array of `layer`/`stat`; PlannerError naming what the grid holds otherwise."""
+        if layer not in self.layers:
+            have = ", ".join(sorted(self.layers)) or "none"
+            raise PlannerError(f"no layer {layer!r} in map {self.map!r}; layers: {have}")
+        stats = self.layers[layer]
+        if stat not in stats:
+            raise PlannerError(f"layer {layer!r} has no stat {stat!r}; stats: {', '.join(sorted(stats))}")
+        return stats[stat]
+
+    def count(self, layer: str) -> np.ndarray:
+        """Samples per cell of `layer` (its `n`; 1 where only a finite value is known); zeros if absent."""
+        stats = self.layers.get(layer)
+        if not stats:
+            return np.zeros(self.shape)
+        if "n" in stats:
+            return np.nan_to_num(stats["n"], nan=0.0)
+        return np.isfinite(stats.get("value", np.full(self.shape, np.nan))).astype(np.float64)
+
+    def value(self, layer: str) -> np.ndarray:
+        """The layer's value per cell (NaN = unknown), NaN everywhere when the layer is absent.
+
+        Recomputed from raw stats with `protocol.layers.layer_value` when they are all present (so a
+        reply with `stats=all` suffices), else the reply's `value`."""
+        stats = self.layers.get(layer)
+        if not stats:
+            return np.full(self.shape, np.nan)
+        spec = LAYERS.get(layer)
+        if spec is not None and all(s in stats for s in spec.stats):
+            return layer_value(layer, stats)
+        if "value" in stats:
+            return stats["value"]
+        raise PlannerError(
+            f"layer {layer!r} has neither 'value' nor all raw stats; stats: {', '.join(stats)}"
+        )
+
+    def slip_rate(self) -> np.ndarray:
+        """Slip events per stance phase (events / n), NaN where no stance was seen."""
+        return self.value("slip")
+
+    def slope_deg(self) -> np.ndarray:
+        """Terrain slope [deg] from the per-cell elevation plane fit; NaN where the fit is ill
+        conditioned or the plane-fit stats are absent."""
+        stats = self.layers.get("elevation", {})
+        if "slope_deg" in stats:
+            return stats["slope_deg"]
+        if all(s in stats for s in ("n", "sum", "sx", "sy", "sxx", "syy", "sxy", "sxz", "syz")):
+            return elevation_slope_deg(stats)
+        return np.full(self.shape, np.nan)
+
+
+def stitch(regions: Iterable[MapRegion], x0: float = 0.0, y0: float = 0.0) -> LayerGrid:
+    """One LayerGrid over the union box of several `map_region` replies (e.g. one per server shard).
+
+    Shards own disjoint tiles, so per cell and layer the reply with data (largest `n`) wins; cells no
+    reply covers hold the merge identity of each stat (0 for sums, +inf for min, -inf for max) and
+    `value` NaN, exactly like an empty cell on the wire. All replies must share map id and `res`."""
+    regions = [r for r in regions]
+    if not regions:
+        raise PlannerError("no map_region to stitch")
+    first = regions[0]
+    for r in regions[1:]:
+        if r.map != first.map or r.res != first.res:
+            raise PlannerError(
+                f"cannot stitch map {r.map!r} res {r.res} with map {first.map!r} res {first.res}"
+            )
+    if len(regions) == 1:
+        return LayerGrid.from_region(first, x0, y0)
+    ix0 = min(r.ix0 for r in regions)
+    iy0 = min(r.iy0 for r in regions)
+    ix1 = max(r.ix0 + r.w for r in regions)
+    iy1 = max(r.iy0 + r.h for r in regions)
+    h, w = iy1 - iy0, ix1 - ix0
+    layers: Layers = {}
+    best: dict[str, np.ndarray] = {}  # per layer: n of the reply chosen so far, -1 = none
+    for r in regions:
+        rows = slice(r.iy0 - iy0, r.iy0 - iy0 + r.h)
+        cols = slice(r.ix0 - ix0, r.ix0 - ix0 + r.w)
+        for name, stats in r.layers.items():
+            out = layers.setdefault(name, {})
+            raw = LAYERS[name].stats if name in LAYERS else ("n",)
+            for s in stats:
+                if s not in out:
+                    out[s] = np.full((h, w), empty_value(s) if s in raw else np.nan)
+            n_best = best.setdefault(name, np.full((h, w), -1.0))
+            n_here = stats["n"] if "n" in stats else np.isfinite(stats.get("value", np.zeros((r.h, r.w))))
+            take = np.asarray(n_here, dtype=np.float64) > n_best[rows, cols]
+            for s, a in stats.items():
+                out[s][rows, cols][take] = a[take]
+            n_best[rows, cols][take] = np.asarray(n_here, dtype=np.float64)[take]
+    version = max(r.version for r in regions)
+    return LayerGrid(first.map, first.res, ix0, iy0, h, w, layers, version, x0, y0)
+
+
+def load_npz(path: str | Path, map_id: str = "local", x0: float = 0.0, y0: float = 0.0) -> LayerGrid:
+    """A LayerGrid from a `.npz` in `map_region` layout (as `scout_agent.cells.LocalMap.save_npz`
+    writes): arrays `<layer>/<stat>` (h, w) and scalars res, ix0, iy0 (w, h optional)."""
+    path = Path(path)
+    if not path.is_file():
+        raise PlannerError(f"no map file {str(path)!r}")
+    try:
+        z = np.load(path)
+    except (OSError, ValueError) as exc:
+        raise PlannerError(f"{path} is not a readable .npz map: {exc}") from None
+    with z:
+        missing = [k for k in ("res", "ix0", "iy0") if k not in z.files]
+        if missing:
+            raise PlannerError(
+                f"{path} lacks {', '.join(missing)}; need res, ix0, iy0 and <layer>/<stat> arrays"
+            )
+        layers: Layers = {}
+        for key in z.files:
+            if "/" in key:
+                layer, stat = key.split("/", 1)
+                layers.setdefault(layer, {})[stat] = np.asarray(z[key], dtype=np.float64)
+        if not layers:
+            raise PlannerError(f"{path} holds no <layer>/<stat> arrays; files: {', '.join(z.files)}")
+        shapes = {a.shape for st in layers.values() for a in st.values()}
+        if len(shapes) != 1 or len(next(iter(shapes))) != 2:
+            raise PlannerError(f"{path}: layer arrays must share one (h, w) shape, got {sorted(shapes)}")
+        h, w = next(iter(shapes))
+        return LayerGrid(map_id, float(z["res"]), int(z["ix0"]), int(z["iy0"]), h, w, layers, 0, x0, y0)

@@ -1,0 +1,75 @@
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from cp_helpers import path_cost, reference_dijkstra
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from consumer_planner.errors import PlannerError
+from consumer_planner.search import plan_path
+
+
+def _random_costs(seed, h, w, blocked):
+    rng = np.random.default_rng(seed)
+    cost = rng.uniform(0.5, 5.0, (h, w))
+    cost[rng.random((h, w)) < blocked] = np.inf
+    return cost
+
+
+@pytest.mark.parametrize("method", ["native", "skimage"])
+@settings(max_examples=25, deadline=None)
+@given(
+    seed=st.integers(0, 10_000),
+    h=st.integers(1, 12),
+    w=st.integers(1, 12),
+    blocked=st.sampled_from([0, 0.2, 0.4]),
+)
+def test_optimal_against_reference_dijkstra(method, seed, h, w, blocked):
+    cost = _random_costs(seed, h, w, blocked)
+    start, goal = (0, 0), (h - 1, w - 1)
+    cost[start] = cost[goal] = 1.0
+    res = 0.4
+    ref, _ = reference_dijkstra(cost, start, goal, res)
+    got = plan_path(cost, start, goal, res, method)
+    if ref is None:
+        assert got is None
+        return
+    assert got is not None
+    assert got.cost == pytest.approx(ref, rel=1e-9)
+    cells = [tuple(c) for c in got.cells]
+    assert cells[0] == start and cells[-1] == goal
+    assert path_cost(cost, got.cells, res) == pytest.approx(ref, rel=1e-9)
+    assert all(np.isfinite(cost[c]) for c in cells), "path crosses an impassable cell"
+
+
+def test_goes_around_a_wall():
+    cost = np.ones((7, 7))
+    cost[:6, 3] = np.inf  # wall with a gap at the bottom row
+    got = plan_path(cost, (0, 0), (0, 6), 1.0)
+    assert got is not None
+    assert (got.cells[:, 0] == 6).any()
+    assert all(np.isfinite(cost[tuple(c)]) for c in got.cells)
+
+
+def test_unreachable_goal_is_none_and_bad_endpoints_raise():
+    cost = np.ones((5, 5))
+    cost[:, 2] = np.inf
+    assert plan_path(cost, (0, 0), (4, 4), 1.0) is None
+    with pytest.raises(PlannerError, match="impassable"):
+        plan_path(cost, (0, 2), (4, 4), 1.0)
+    with pytest.raises(PlannerError, match="outside the grid of 5 x 5"):
+        plan_path(cost, (0, 0), (9, 4), 1.0)
+    with pytest.raises(PlannerError, match="methods: auto, native, skimage"):
+        plan_path(cost, (0, 0), (0, 1), 1.0, "dijkstra")  # type: ignore[arg-type]
+
+
+def test_start_equals_goal():
+    got = plan_path(np.ones((3, 3)), (1, 1), (1, 1), 1.0)
+    assert got is not None and got.cost == 0.0 and got.cells.tolist() == [[1, 1]]
+
+
+def test_uniform_grid_known_answer():
+    # 3 diagonal steps then 2 straight steps on unit cost: 3*sqrt(2) + 2 [m]
+    got = plan_path(np.ones((4, 6)), (0, 0), (3, 5), 1.0)
+    assert got is not None and got.cost == pytest.approx(3 * np.sqrt(2) + 2)
