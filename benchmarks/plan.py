@@ -1,0 +1,84 @@
+"""Plan time on 1000^2 and 2000^2 cell maps vs scikit-image's route_through_array on the same cost grid.
+
+The cost grid is terrain-like: smooth costs in [1, 5] per metre plus impassable crater discs (1-3 % of
+cells), seeded; the route runs corner to corner (the search's worst case: nearly every cell is
+expanded). Both searches see the same grid and must find the same optimal cost. Prints one JSON object.
+
+    python benchmarks/plan.py [--sizes 1000,2000] [--repeat 3]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+
+import numpy as np
+from scipy import ndimage
+from skimage.graph import route_through_array
+
+from consumer_planner import _native
+from consumer_planner.search import plan_path
+
+
+def terrain_costs(n: int, seed: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    c = ndimage.gaussian_filter(rng.random((n, n)), n / 100)
+    c = 1.0 + 4.0 * (c - c.min()) / (c.max() - c.min())
+    k = n * n // 20000
+    cy, cx = rng.integers(0, n, (2, k))
+    rad = rng.integers(2, max(3, n // 80), k)
+    yy, xx = np.ogrid[:n, :n]
+    blocked = np.zeros((n, n), bool)
+    for y, x, r in zip(cy, cx, rad, strict=True):
+        y0, y1, x0, x1 = max(0, y - r), min(n, y + r + 1), max(0, x - r), min(n, x + r + 1)
+        blocked[y0:y1, x0:x1] |= (yy[y0:y1] - y) ** 2 + (xx[:, x0:x1] - x) ** 2 <= r * r
+    blocked[:3, :3] = blocked[-3:, -3:] = False
+    c[blocked] = np.inf
+    return c
+
+
+def best_of(fn, repeat: int) -> tuple[float, object]:
+    best, out = np.inf, None
+    for _ in range(repeat):
+        t = time.perf_counter()
+        out = fn()
+        best = min(best, time.perf_counter() - t)
+    return best, out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--sizes", default="1000,2000")
+    ap.add_argument("--repeat", type=int, default=3)
+    args = ap.parse_args()
+    native = _native.load() is not None
+    results = []
+    for n in (int(s) for s in args.sizes.split(",")):
+        cost = terrain_costs(n)
+        start, goal = (0, 0), (n - 1, n - 1)
+        t_plan, path = best_of(lambda: plan_path(cost, start, goal, 1.0), args.repeat)  # noqa: B023
+        sk_cost = np.where(np.isfinite(cost), cost, -1.0)
+        t_sk, (_, sk_total) = best_of(
+            lambda: route_through_array(sk_cost, start, goal, fully_connected=True, geometric=True),  # noqa: B023
+            args.repeat,
+        )
+        assert path is not None
+        results.append({
+            "cells": f"{n}x{n}",
+            "impassable_fraction": round(float(np.isinf(cost).mean()), 4),
+            "plan_s": round(t_plan, 4),
+            "skimage_route_through_array_s": round(t_sk, 4),
+            "ratio": round(t_plan / t_sk, 3),
+            "plan_cost": path.cost,
+            "skimage_cost": float(sk_total),
+            "same_optimum": bool(abs(path.cost - sk_total) <= 1e-9 * sk_total),
+            "method": path.method,
+        })  # fmt: skip
+    print(
+        json.dumps({"benchmark": "plan", "native_kernel": native, "repeat": args.repeat, "results": results})
+    )
+
+
+if __name__ == "__main__":
+    main()
