@@ -91,7 +91,7 @@ class DeltaPublisher:
         self.resent = 0
         self._pending: OrderedDict[int, _Pending] = OrderedDict()
         self._lock = threading.Lock()
-        self._resend_requested = False
+        self._resend_cutoff: float | None = None  # resend all sent at or before this clock time
 
     @property
     def unacked(self) -> int:
@@ -141,24 +141,29 @@ class DeltaPublisher:
                 released += 1
         return released
 
-    def _due(self, now: float, force: bool) -> list[tuple[int, bytes]]:
+    def _due(self, now: float, force: bool, cutoff: float | None = None) -> list[tuple[int, bytes]]:
         with self._lock:
             due = []
             for seq, p in self._pending.items():
-                if force or now - p.sent_at >= self.resend_after_s:
+                if (
+                    force
+                    or now - p.sent_at >= self.resend_after_s
+                    or (cutoff is not None and p.sent_at <= cutoff)
+                ):
                     p.sent_at = now
                     due.append((seq, p.payload))
             return due
 
     def request_resend(self) -> None:
-        """Ask the next `poll` to resend everything unacked (safe from a network callback thread)."""
-        self._resend_requested = True
+        """Ask the next `poll` to resend every delta sent until now and still unacked (safe from a
+        network callback thread; deltas sent later are not affected)."""
+        self._resend_cutoff = self.clock()
 
     def poll(self, now: float | None = None) -> int:
         """Resend (in seq order) every unacked delta whose ack is overdue, or all of them after
         `request_resend`; returns how many."""
-        force, self._resend_requested = self._resend_requested, False
-        due = self._due(self.clock() if now is None else now, force=force)
+        cutoff, self._resend_cutoff = self._resend_cutoff, None
+        due = self._due(self.clock() if now is None else now, force=False, cutoff=cutoff)
         for _, payload in due:
             self.transport.put(self.key, payload)
         self.resent += len(due)
