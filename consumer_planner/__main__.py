@@ -1,0 +1,19 @@
+"""`python -m consumer_planner plan|compare ...` (same as `psrmap plan|compare ...`)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from consumer_planner.cli import register
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="consumer_planner")
+    register(parser.add_subparsers(dest="command", metavar="COMMAND", required=True))
+    args = parser.parse_args(argv)
+    return int(args.func(args) or 0)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,213 @@
+"""`psrmap plan` and `psrmap compare`: costed paths and route breakdowns from the shared (or a saved) map.
+
+    psrmap plan --map ID --connect tcp/HOST:7447 --from x,y --to x,y [--weights cot=1,slip=2]
+                [--unknown forbid|penalty|infer] [--json] [--rrd PATH]
+    psrmap compare --map ID --connect ... --route "x,y x,y ..." [--route ...] [--json]
+
+`--npz FILE` plans on a scout's saved map instead of querying a server. Output: a table, or with
+`--json` one JSON object (`plan`: path, length_m, cost, breakdown; `compare`: routes = a list of those).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from dataclasses import asdict, replace
+
+from consumer_planner.compare import Route, evaluate_route, plan_route
+from consumer_planner.costs import TERMS, UNKNOWN_POLICIES, CostConfig, build_costs, parse_weights
+from consumer_planner.errors import PlannerError
+from consumer_planner.grid import LayerGrid, load_npz
+
+__all__ = ["register"]
+
+Point = tuple[float, float]
+
+
+def _point(text: str) -> Point:
+    try:
+        x, y = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a point; give x,y in map-frame metres") from None
+    if not (math.isfinite(x) and math.isfinite(y)):
+        raise argparse.ArgumentTypeError(f"{text!r}: coordinates must be finite")
+    return x, y
+
+
+def _route(text: str) -> list[Point]:
+    pts = [_point(p) for p in text.split()]
+    if not pts:
+        raise argparse.ArgumentTypeError('a route is "x,y x,y ..." with at least one point')
+    return pts
+
+
+def _common(p: argparse.ArgumentParser) -> None:
+    src = p.add_argument_group("map source (one of --connect, --npz)")
+    src.add_argument("--map", metavar="ID", help="map id (with --connect)")
+    src.add_argument(
+        "--connect",
+        metavar="ENDPOINT",
+        action="append",
+        default=[],
+        help="Zenoh endpoint of a router or map server, e.g. tcp/127.0.0.1:7447 (repeatable)",
+    )
+    src.add_argument(
+        "--npz", metavar="FILE", help="a saved map (.npz, map_region layout) instead of a server"
+    )
+    src.add_argument("--timeout", type=float, default=5.0, help="seconds to wait for map servers (default 5)")
+    src.add_argument(
+        "--margin", type=float, default=10.0, help="metres of map fetched around the points (default 10)"
+    )
+    p.add_argument(
+        "--weights", default="", metavar="NAME=W,...", help=f"term weights; names: {', '.join(TERMS)}"
+    )
+    p.add_argument(
+        "--unknown",
+        default="penalty",
+        metavar="POLICY",
+        help=f"unknown cells: {' | '.join(UNKNOWN_POLICIES)} (default penalty)",
+    )
+    p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
+    p.add_argument("--rrd", metavar="PATH", help="also save a Rerun recording of the cost grid and routes")
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "plan",
+        help="cheapest path on the shared map, with its breakdown",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    _common(p)
+    p.add_argument(
+        "--from",
+        dest="start",
+        type=_point,
+        required=True,
+        metavar="X,Y",
+        help="start [m]; write --from=-1,2 when x is negative",
+    )
+    p.add_argument("--to", dest="goal", type=_point, required=True, metavar="X,Y")
+    p.set_defaults(func=_run_plan, _parser=p)
+    c = subparsers.add_parser(
+        "compare",
+        help="breakdowns of given routes on the shared map",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    _common(c)
+    c.add_argument("--route", type=_route, action="append", required=True, metavar='"X,Y X,Y ..."')
+    c.set_defaults(func=_run_compare, _parser=c)
+
+
+def _config(args: argparse.Namespace) -> CostConfig:
+    if args.unknown not in UNKNOWN_POLICIES:
+        args._parser.error(f"--unknown {args.unknown!r}; choose one of: {', '.join(UNKNOWN_POLICIES)}")
+    try:
+        return replace(CostConfig(), weights=parse_weights(args.weights), unknown=args.unknown)
+    except PlannerError as exc:
+        args._parser.error(f"--weights: {exc}")
+        raise  # unreachable: error() exits
+
+
+def _load(args: argparse.Namespace, points: list[Point]) -> LayerGrid:
+    if (args.npz is None) == (not args.connect):
+        args._parser.error("give either --connect ENDPOINT (with --map ID) or --npz FILE")
+    if args.npz is not None:
+        return load_npz(args.npz, map_id=args.map or "local")
+    if not args.map:
+        args._parser.error("--connect needs --map ID")
+    from consumer_planner.client import ClientConfig, MapClient  # zenoh only when a server is asked
+
+    xs, ys = [p[0] for p in points], [p[1] for p in points]
+    m = args.margin
+    box = (min(xs) - m, min(ys) - m, max(xs) + m, max(ys) + m)
+    with MapClient(ClientConfig(connect=tuple(args.connect), timeout_s=args.timeout)) as client:
+        return client.region(args.map, box)
+
+
+_COLUMNS = (
+    ("route", "name", "{}"),
+    ("length m", "length_m", "{:.2f}"),
+    ("cost", "cost", "{:.2f}"),
+    ("slips", "expected_slip_events", "{:.1f}"),
+    ("CoT", "mean_cot", "{:.2f}"),
+    ("GIIM min/mean", ("min_giim", "mean_giim"), "{:.2f}/{:.2f}"),
+    ("GIAM min/mean", ("min_giam", "mean_giam"), "{:.2f}/{:.2f}"),
+    ("slope max", "max_slope_deg", "{:.1f}"),
+    ("unknown", "unknown_fraction", "{:.0%}"),
+    ("inferred", "inferred_fraction", "{:.0%}"),
+)
+
+
+def _table(routes: list[Route]) -> str:
+    rows = [[h for h, _, _ in _COLUMNS]]
+    for r in routes:
+        b = {"name": r.name, **asdict(r.breakdown)}
+        row = []
+        for _, key, fmt in _COLUMNS:
+            vals = [b[k] for k in (key if isinstance(key, tuple) else (key,))]
+            ok = all(not isinstance(v, float) or math.isfinite(v) for v in vals)
+            row.append(fmt.format(*vals) if ok else "-")
+        rows.append(row)
+    widths = [max(len(row[i]) for row in rows) for i in range(len(_COLUMNS))]
+    lines = ["  ".join(c.rjust(w) for c, w in zip(row, widths, strict=True)) for row in rows]
+    terms = ["", "cost by term (per route): "]
+    for r in routes:
+        parts = ", ".join(f"{k} {v:.2f}" for k, v in r.breakdown.terms.items() if v)
+        terms.append(f"  {r.name}: {parts}")
+    return "\n".join(lines + terms)
+
+
+def _finish(args: argparse.Namespace, grid: LayerGrid, costs, routes: list[Route], single: bool) -> int:
+    if args.rrd:
+        import rerun as rr
+
+        from consumer_planner.viz import log_plan
+
+        rec = rr.RecordingStream("psrmap-planner")
+        rec.save(args.rrd)
+        log_plan(rec, grid, costs, routes)
+        rec.flush()
+    head = {
+        "map": grid.map,
+        "version": grid.version,
+        "unknown": costs.config.unknown,
+        "weights": asdict(costs.config.weights),
+    }
+    if args.json:
+        body = routes[0].as_dict() if single else {"routes": [r.as_dict() for r in routes]}
+        print(json.dumps({**head, **body}))
+    else:
+        size = f"{grid.w}x{grid.h} cells of {grid.res:g} m"
+        print(f"map {grid.map} v{grid.version}, {size}, unknown={head['unknown']}")
+        print(_table(routes))
+    return 0
+
+
+def _run_plan(args: argparse.Namespace) -> int:
+    cfg = _config(args)
+    try:
+        grid = _load(args, [args.start, args.goal])
+        costs = build_costs(grid, cfg)
+        route = plan_route(grid, costs, args.start, args.goal)
+    except PlannerError as exc:
+        raise SystemExit(f"psrmap plan: {exc}") from None
+    if route is None:
+        raise SystemExit(
+            f"psrmap plan: no passable route from {args.start} to {args.goal} "
+            f"(unknown={cfg.unknown}; try --unknown penalty or relax the limits)"
+        )
+    return _finish(args, grid, costs, [route], single=True)
+
+
+def _run_compare(args: argparse.Namespace) -> int:
+    cfg = _config(args)
+    try:
+        grid = _load(args, [p for r in args.route for p in r])
+        costs = build_costs(grid, cfg)
+        routes = [evaluate_route(grid, costs, pts, name=f"route{i}") for i, pts in enumerate(args.route)]
+    except PlannerError as exc:
+        raise SystemExit(f"psrmap compare: {exc}") from None
+    return _finish(args, grid, costs, routes, single=False)

@@ -1,0 +1,109 @@
+"""The planner's only Zenoh module: region queries of the `map` queryable, fanned out to every shard.
+
+`get(psr/<map>/map?x0=..;y0=..;x1=..;y1=..;stats=all)` goes out with `target=ALL` and no
+consolidation, so every map-server shard that owns part of the box answers; the replies are decoded
+with `protocol.codec.decode` (validated) and stitched into one `LayerGrid` (`grid.stitch`). Raw stats
+(`all`) are asked for so the planner recomputes values and the elevation plane-fit slope itself.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import zenoh
+
+from consumer_planner.errors import PlannerError
+from consumer_planner.grid import LayerGrid, stitch
+from protocol.codec import decode
+from protocol.errors import ProtocolError
+from protocol.keys import map_key
+from protocol.messages import MapRegion, RegionQuery
+from protocol.session import zenoh_config
+
+__all__ = ["ClientConfig", "MapClient", "query_region"]
+
+
+@dataclass(frozen=True)
+class ClientConfig:
+    connect: tuple[str, ...] = ("tcp/127.0.0.1:7447",)  # router or server endpoints
+    mode: str = "client"
+    timeout_s: float = 5.0  # how long to wait for the shards' replies
+    max_bytes: int = 256 * 1024 * 1024  # largest map_region reply accepted
+    x0: float = 0.0  # map origin [m]
+    y0: float = 0.0
+
+
+def query_region(
+    session: zenoh.Session,
+    map_id: str,
+    box: tuple[float, float, float, float],
+    config: ClientConfig = ClientConfig(),
+    layers: Sequence[str] | None = None,
+    stats: Sequence[str] = ("all",),
+) -> LayerGrid:
+    """The map box (x0, y0, x1, y1) [m, inclusive] from every shard that answers, stitched.
+
+    Raises PlannerError when no server answers within `timeout_s` or every answer is an error."""
+    q = RegionQuery(*box, layers=tuple(layers) if layers is not None else None, stats=tuple(stats))
+    key = map_key(map_id)
+    regions: list[MapRegion] = []
+    errors: list[str] = []
+    replies = session.get(
+        f"{key}?{q.to_parameters()}",
+        target=zenoh.QueryTarget.ALL,
+        consolidation=zenoh.ConsolidationMode.NONE,
+        timeout=config.timeout_s,
+    )
+    for reply in replies:
+        if reply.ok is not None:
+            try:
+                msg = decode(
+                    reply.ok.payload.to_bytes(), expected_type="map_region", max_bytes=config.max_bytes
+                )
+            except ProtocolError as exc:
+                errors.append(f"undecodable reply: {exc}")
+                continue
+            assert isinstance(msg, MapRegion)
+            regions.append(msg)
+        else:
+            err = reply.err
+            errors.append(
+                err.payload.to_bytes().decode(errors="replace") if err is not None else "empty reply"
+            )
+    if not regions:
+        if errors:
+            raise PlannerError(f"map servers refused {key!r}: {'; '.join(errors)}")
+        raise PlannerError(
+            f"no map server answered {key!r} within {config.timeout_s:g} s via "
+            f"{', '.join(config.connect) or '(no endpoint)'}; is `psrmap server --map {map_id}` running "
+            f"and reachable?"
+        )
+    return stitch(regions, config.x0, config.y0)
+
+
+class MapClient:
+    """A Zenoh session for map queries: `with MapClient(cfg) as c: grid = c.region(map_id, box)`."""
+
+    def __init__(self, config: ClientConfig = ClientConfig()) -> None:
+        self.config = config
+        self._session: zenoh.Session | None = None
+
+    def __enter__(self) -> MapClient:
+        try:
+            self._session = zenoh.open(zenoh_config(connect=self.config.connect, mode=self.config.mode))
+        except zenoh.ZError as exc:
+            raise PlannerError(
+                f"cannot open a Zenoh session to {', '.join(self.config.connect)}: {exc}"
+            ) from None
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self._session is not None:
+            self._session.close()
+            self._session = None
+
+    def region(self, map_id: str, box: tuple[float, float, float, float]) -> LayerGrid:
+        if self._session is None:
+            raise RuntimeError("MapClient used outside its `with` block")
+        return query_region(self._session, map_id, box, self.config)

@@ -1,0 +1,74 @@
+"""`psrmap plan` / `psrmap compare` on a saved .npz map, and the Rerun recording they write."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from psrmap.cli import main
+
+
+@pytest.fixture
+def npz(tmp_path):
+    h, w = 12, 16
+    n = np.full((h, w), 10.0)
+    n[:, 7:9] = 0.0  # an unexplored band
+    arrays = {"res": 0.5, "ix0": -2, "iy0": -2, "w": w, "h": h}
+    for layer, v in (("cot", 1.2), ("giim", 0.5), ("giam", 0.8)):
+        arrays[f"{layer}/n"] = n
+        arrays[f"{layer}/value"] = np.where(n > 0, v, np.nan)
+    arrays["slip/n"] = n
+    arrays["slip/events"] = np.where(n > 0, 1.0, 0.0)
+    path = tmp_path / "map.npz"
+    np.savez(path, **arrays)
+    return path
+
+
+def test_plan_json_has_path_length_cost_breakdown(npz, tmp_path, capsys):
+    rrd = tmp_path / "plan.rrd"
+    args = ["plan", "--npz", str(npz), "--from=-0.5,-0.5", "--to", "6.5,3.5", "--unknown", "infer"]
+    assert main([*args, "--json", "--weights", "cot=2,slip=1", "--rrd", str(rrd)]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert {"path", "length_m", "cost", "breakdown"} <= set(out)
+    assert out["weights"]["cot"] == 2.0 and out["unknown"] == "infer"
+    assert out["path"][0] == [-0.25, -0.25] and out["path"][-1] == [6.75, 3.75]
+    assert out["breakdown"]["inferred_fraction"] > 0
+    assert sum(out["breakdown"]["terms"].values()) == pytest.approx(out["cost"])
+    assert rrd.stat().st_size > 0
+
+
+def test_compare_table_and_json(npz, capsys):
+    routes = ["--route", "-0.5,-0.5 6.5,3.5", "--route", "-0.5,-0.5 -0.5,3.5 6.5,3.5"]
+    assert main(["compare", "--npz", str(npz), *routes]) == 0
+    table = capsys.readouterr().out
+    assert "route0" in table and "route1" in table and "GIIM min/mean" in table
+    assert main(["compare", "--npz", str(npz), *routes, "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert [r["name"] for r in out["routes"]] == ["route0", "route1"]
+    assert out["routes"][1]["length_m"] > out["routes"][0]["length_m"]
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--unknown", "guess"], "forbid, penalty, infer"),
+        (["--weights", "cots=1"], "distance, cot, slip, giim, giam, slope, confidence"),
+    ],
+)
+def test_bad_options_name_valid_values(npz, capsys, extra, message):
+    with pytest.raises(SystemExit) as exc:
+        main(["plan", "--npz", str(npz), "--from", "0,0", "--to", "1,1", *extra])
+    assert exc.value.code == 2
+    assert message in capsys.readouterr().err
+
+
+def test_plan_errors_are_readable(npz, capsys):
+    with pytest.raises(SystemExit, match=r"outside the map box x -1..7, y -1..5 m"):
+        main(["plan", "--npz", str(npz), "--from", "0,0", "--to", "50,1"])
+    with pytest.raises(SystemExit, match="no passable route"):
+        main(["plan", "--npz", str(npz), "--from", "0,0", "--to", "6,1", "--unknown", "forbid"])
+    with pytest.raises(SystemExit):
+        main(["plan", "--from", "0,0", "--to", "6,1"])
+    assert "give either --connect ENDPOINT (with --map ID) or --npz FILE" in capsys.readouterr().err
