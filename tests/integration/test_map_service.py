@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 import zenoh
 
-from map_server.service import free_endpoint
+from map_server.service import free_endpoint, wait_for_server
 from map_server.tiles import TiledMap
 from protocol import DeltaPublisher, decode, encode, zenoh_config
 from protocol.keys import delta_key, map_key, status_key
@@ -65,8 +65,14 @@ def stop(proc: subprocess.Popen, sig: int = signal.SIGTERM, timeout_s: float = 1
         raise AssertionError(f"{proc.args} hung on signal {sig}") from None
 
 
-def get_one(session, selector: str) -> bytes:
-    replies = list(session.get(selector, timeout=10))
+def get_one(session, selector: str, timeout_s: float = 10.0) -> bytes:
+    """The single reply to `selector`; retries while the route to a just-started queryable settles."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        replies = list(session.get(selector, timeout=timeout_s))
+        if replies or time.monotonic() > deadline:
+            break
+        threading.Event().wait(0.02)
     assert replies and replies[0].ok is not None, replies and replies[0].err.payload.to_bytes()
     return replies[0].ok.payload.to_bytes()
 
@@ -119,7 +125,7 @@ def test_two_scouts_duplicates_reordering_kill9_restart_exact_totals(tmp_path, p
                 layers = scout_layers(k, i)
                 reference.merge(layers)
                 pub.send(layers, float(i))
-                sent_payloads.append((pub.key, pub._pending[pub.next_seq - 1].payload))
+                sent_payloads.append((pub.key, encode(pub.build(layers, float(i), pub.next_seq - 1))))
                 pub.poll()
             if i == 25:  # kill -9 in the middle of the stream ...
                 server.send_signal(signal.SIGKILL)
@@ -188,6 +194,7 @@ def test_two_scouts_duplicates_reordering_kill9_restart_exact_totals(tmp_path, p
         server = spawn(*server_args)
         procs.append(server)
         wait_line(server, "server")
+        assert wait_for_server(sa, MAP)
         check_exact(sa)
         assert stop(server, signal.SIGINT) == 0
     assert stop(router, signal.SIGTERM) == 0
