@@ -44,6 +44,10 @@ class CellAccumulator:
         ident = self._ident[layer]
         self._rows[layer].append((x, y, *(stats.get(s, ident[i]) for i, s in enumerate(order))))
 
+    def append(self, layer: str, row: tuple[float, ...]) -> None:
+        """Hot path: one sample `(x, y, *stats)` with the stats in `LAYERS[layer].stats` order, unchecked."""
+        self._rows[layer].append(row)
+
     def add_elevation(self, x: float, y: float, z: float) -> None:
         """One foothold (x, y, z) [m]: moments relative to its cell centre, plus min/max."""
         ix, iy = cell_index(x, y, self.res, self.x0, self.y0)
@@ -73,22 +77,28 @@ class CellAccumulator:
 def reduce_cells(
     x: np.ndarray, y: np.ndarray, values: np.ndarray, stats: tuple[str, ...], res: float, x0: float, y0: float
 ) -> dict[str, np.ndarray]:
-    """Group samples (k,) at (x, y) with (k, len(stats)) values per cell, each stat by its merge op."""
+    """Group samples (k,) at (x, y) with (k, len(stats)) values per cell, each stat by its merge op.
+
+    One sort by cell and one `reduceat` per merge op, whatever the number of stats.
+    """
     ix, iy = cell_index(x, y, res, x0, y0)
-    keys = np.stack([ix, iy], axis=1)
-    uniq, inv = np.unique(keys, axis=0, return_inverse=True)
-    inv = inv.reshape(-1)
-    m = len(uniq)
-    cells: dict[str, np.ndarray] = {"ix": uniq[:, 0].astype(np.int32), "iy": uniq[:, 1].astype(np.int32)}
-    for j, s in enumerate(stats):
-        op = merge_op(s)
-        col = values[:, j]
-        if op == "add":
-            cells[s] = np.bincount(inv, weights=col, minlength=m)
-        else:
-            acc = np.full(m, empty_value(s))
-            (np.minimum if op == "min" else np.maximum).at(acc, inv, col)
-            cells[s] = acc
+    keys = (ix.astype(np.int64) << 32) | (iy.astype(np.int64) & 0xFFFFFFFF)  # one int64 per cell
+    order = np.argsort(keys, kind="stable")
+    keys = keys[order]
+    values = values[order]
+    starts = np.flatnonzero(np.concatenate(([True], keys[1:] != keys[:-1])))
+    uniq = keys[starts]
+    cells: dict[str, np.ndarray] = {
+        "ix": (uniq >> 32).astype(np.int32),
+        "iy": (uniq & 0xFFFFFFFF).astype(np.uint32).astype(np.int32),
+    }
+    for op, ufunc in (("add", np.add), ("min", np.minimum), ("max", np.maximum)):
+        cols = [j for j, s in enumerate(stats) if merge_op(s) == op]
+        if not cols:
+            continue
+        red = ufunc.reduceat(values[:, cols], starts, axis=0)
+        for c, j in enumerate(cols):
+            cells[stats[j]] = red[:, c].copy()
     return cells
 
 

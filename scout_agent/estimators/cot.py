@@ -8,6 +8,7 @@ real robot's state estimate does, and it does not pick up position noise tick to
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -49,8 +50,11 @@ class CotMeter:
     def update(self, t: float, tau: np.ndarray, dq: np.ndarray, base_vel_world: np.ndarray) -> tuple[float, float]:
         dt = 0.0 if self._t_prev is None else t - self._t_prev
         self._t_prev = t
-        e = joint_power(tau, dq) * dt
-        d = float(np.hypot(base_vel_world[0], base_vel_world[1])) * dt
+        p = tau * dq
+        np.abs(p, out=p)
+        e = float(p.sum()) * dt
+        vx, vy = base_vel_world[0], base_vel_world[1]
+        d = math.sqrt(vx * vx + vy * vy) * dt
         self.energy_j += e
         self.dist_m += d
         return e / self._mg, d

@@ -16,6 +16,7 @@ not explain: f_ext = m·(a_GIA,feet − a_GIA,imu) (foot forces vs accelerometer
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import Any, Protocol
@@ -25,9 +26,9 @@ import numpy as np
 from scout_agent.signals import ProprioSample
 
 from .cot import CotConfig, CotMeter
-from .elevation import plane_moments, terrain_normal
+from .elevation import terrain_normal
 from .slip import SlipConfig, SlipDetector, SlipTick
-from .stability import gia_from_forces, gia_from_imu, margins
+from .stability import margins_fast, order_ccw_xy
 
 __all__ = ["EstimatorPipeline", "Kinematics", "PipelineConfig", "TickEstimates", "quat_to_matrix", "record"]
 
@@ -101,21 +102,30 @@ _EMPTY3 = np.zeros((0, 3))
 
 
 class EstimatorPipeline:
-    """Slip, CoT, GIIM/GIAM, elevation and non-foot contacts from proprioception, one tick at a time."""
+    """Slip, CoT, GIIM/GIAM, elevation and non-foot contacts from proprioception, one tick at a time.
+
+    The per-tick path works on Python scalars wherever arrays would hold 3 or 4 numbers (numpy's per-call
+    overhead dominates at that size); `benchmarks/estimators.py` measures it.
+    """
 
     def __init__(self, kinematics: Kinematics, config: PipelineConfig | None = None) -> None:
         self.kin = kinematics
         self.config = c = config or PipelineConfig()
         self.slip = SlipDetector(c.slip)
-        self.slip_paper = SlipDetector(SlipConfig(**{**c.slip.__dict__, "form": "paper"})) if c.paper_slip else None
-        self.cot = CotMeter(CotConfig(**{**c.cot.__dict__, "mass_kg": c.mass_kg, "gravity_mps2": c.gravity_mps2}))
-        self._com_b = np.asarray(c.com_offset_base, dtype=float)
-        self._normal = np.array([0.0, 0.0, 1.0])
-        self._last_foot = np.full((4, 3), np.nan)  # each foot's current or last stance point (sphere centre) [m]
-        self._td_xy = np.zeros((4, 2))  # foothold of the current stance at touchdown [m]
-        self._fh_sum = np.zeros((4, 3))  # sum of settled contact points this stance [m]
-        self._fh_n = np.zeros(4)
-        self._f_ext = np.zeros(3)
+        self.slip_paper = (
+            SlipDetector(dataclasses.replace(c.slip, form="paper")) if c.paper_slip else None
+        )
+        self.cot = CotMeter(dataclasses.replace(c.cot, mass_kg=c.mass_kg, gravity_mps2=c.gravity_mps2))
+        self._com_b = tuple(float(v) for v in c.com_offset_base)
+        self._normal = (0.0, 0.0, 1.0)
+        self._last_foot: list[list[float] | None] = [None] * 4  # each foot's current or last stance point [m]
+        self._known: list[int] = []  # feet with a foothold, leg order
+        self._order: list[int] = []  # the same, CCW about their centroid
+        self._reorder = False
+        self._td_xy = [(0.0, 0.0)] * 4  # foothold of the current stance at touchdown [m]
+        self._fh_sum = [[0.0, 0.0, 0.0] for _ in range(4)]  # sum of settled contact points this stance [m]
+        self._fh_n = [0] * 4
+        self._f_ext = [0.0, 0.0, 0.0]
         self._t_prev: float | None = None
         self._combined = getattr(kinematics, "feet_base_and_vel", None)
 
@@ -128,67 +138,89 @@ class EstimatorPipeline:
         else:
             feet_b, vel_b = self.kin.feet_base(s.q), self.kin.feet_vel_base(s.q, s.dq)
         rot = quat_to_matrix(s.base.quat)
-        base_pos = s.base.pos
-        feet_w = base_pos + feet_b @ rot.T  # (4, 3) sphere centres, world
-        com = base_pos + rot @ self._com_b
-
         st = self.slip.update(s.t, s.stance_planned, s.contact, feet_b, vel_b, rot, s.base.vel, s.base.omega)
         stp = None
         if self.slip_paper is not None:
             stp = self.slip_paper.update(s.t, s.stance_planned, s.contact, feet_b, vel_b, rot, s.base.vel, s.base.omega)
 
+        fw = (feet_b @ rot.T + s.base.pos).tolist()  # (4, 3) foot sphere centres, world [m]
+        R = rot.tolist()
+        bx, by, bz = s.base.pos.tolist()
+        c0, c1, c2 = self._com_b
+        com = (
+            bx + R[0][0] * c0 + R[0][1] * c1 + R[0][2] * c2,
+            by + R[1][0] * c0 + R[1][1] * c1 + R[1][2] * c2,
+            bz + R[2][0] * c0 + R[2][1] * c1 + R[2][2] * c2,
+        )
+        r = c.foot_radius_m
+        contact = s.contact.tolist()
+        lf = self._last_foot
+
         # footholds: slip layer n at touchdown, events at the same foothold, elevation at the end of the stance
-        ground_off = c.foot_radius_m * self._normal
         stance_xy = slip_xy = _EMPTY2
         footholds = _EMPTY3
-        if st.touchdown.any():
-            self._td_xy[st.touchdown] = feet_w[st.touchdown, :2] - ground_off[:2]
-            self._fh_sum[st.touchdown] = 0.0
-            self._fh_n[st.touchdown] = 0.0
-            stance_xy = self._td_xy[st.touchdown].copy()
-        if st.event.any():
-            slip_xy = self._td_xy[st.event].copy()
-        if st.settled.any():
-            self._fh_sum[st.settled] += feet_w[st.settled]
-            self._fh_n[st.settled] += 1.0
-        if st.stance_end.any():
-            done = st.stance_end & ~st.slipped & (self._fh_n > 0)
-            if done.any():
-                centres = self._fh_sum[done] / self._fh_n[done, None]
-                self._normal = terrain_normal(self._last_foot[~np.isnan(self._last_foot[:, 0])])
-                footholds = centres - c.foot_radius_m * self._normal
-            self._fh_n[st.stance_end] = 0.0
-        contact = s.contact
-        self._last_foot[contact] = feet_w[contact]
+        if True in st.touchdown or True in st.event or True in st.stance_end:
+            footholds, stance_xy, slip_xy = self._stance_changes(st, fw)
+        for i in range(4):
+            if st.settled[i]:
+                f, acc = fw[i], self._fh_sum[i]
+                acc[0] += f[0]
+                acc[1] += f[1]
+                acc[2] += f[2]
+                self._fh_n[i] += 1
+            if contact[i]:
+                if lf[i] is None:
+                    self._known = [k for k in range(4) if lf[k] is not None or k == i]
+                    self._reorder = True
+                lf[i] = fw[i]
+        if self._reorder:
+            self._reorder = False
+            pts = [lf[i] for i in self._known]
+            self._order = [self._known[j] for j in order_ccw_xy(pts)] if len(pts) > 2 else list(self._known)
 
         # CoT
         work, dist = self.cot.update(s.t, s.tau, s.dq, s.base.vel)
 
-        # GIA and margins over the four most recent footholds
-        gia_f = gia_from_forces(s.foot_force_world, c.mass_kg)
-        gia_i = gia_from_imu(s.imu_acc, rot)
+        # GIA (world) from the foot forces and from the IMU
+        (f0, f1, f2, f3) = s.foot_force_world.tolist()
+        m = c.mass_kg
+        gia_f = (-(f0[0] + f1[0] + f2[0] + f3[0]) / m, -(f0[1] + f1[1] + f2[1] + f3[1]) / m,
+                 -(f0[2] + f1[2] + f2[2] + f3[2]) / m)
+        ax, ay, az = s.imu_acc.tolist()
+        gia_i = (-(R[0][0] * ax + R[0][1] * ay + R[0][2] * az), -(R[1][0] * ax + R[1][1] * ay + R[1][2] * az),
+                 -(R[2][0] * ax + R[2][1] * ay + R[2][2] * az))
         gia = gia_f if c.gia_source == "forces" else gia_i
-        known = ~np.isnan(self._last_foot[:, 0])
-        support = self._last_foot[known] - ground_off
-        giim, giam = margins(support, com, gia) if len(support) >= 2 else _NAN2
-        guarded = bool((st.slipped & s.stance_planned).any())
+
+        # margins over the four most recent footholds, CCW. The support points are the ground points
+        # (sphere centres − r·n̂); shifting the CoM by +r·n̂ instead is the same geometry and copies nothing.
+        nx, ny, nz = self._normal
+        g_c = (com[0] + r * nx, com[1] + r * ny, com[2] + r * nz)
+        giim, giam = margins_fast([lf[i] for i in self._order], g_c, gia)  # type: ignore[misc]
+        guarded = (st.slipped[0] and contact[0]) or (st.slipped[1] and contact[1]) or (
+            st.slipped[2] and contact[2]) or (st.slipped[3] and contact[3])
         extra: dict[str, Any] = {}
         if c.paper_margins:
-            extra["giim_paper"], extra["giam_paper"] = margins(support, com, gia, "paper") if len(support) >= 2 else _NAN2
+            extra["giim_paper"], extra["giam_paper"] = margins_fast(
+                [lf[i] for i in self._known], g_c, gia, absolute=True  # type: ignore[misc]
+            )
         if c.stance_margins:
-            pts = feet_w[contact] - ground_off
-            extra["giim_stance"], extra["giam_stance"] = margins(pts, com, gia) if len(pts) >= 2 else _NAN2
+            pts = [fw[i] for i in range(4) if contact[i]]
+            if len(pts) > 2:
+                pts = [pts[j] for j in order_ccw_xy(pts)]
+            extra["giim_stance"], extra["giam_stance"] = margins_fast(pts, g_c, gia)
         if stp is not None:
             extra["slip_paper"] = stp
 
         # non-foot contacts: external force the feet do not explain, low-pass filtered
         alpha = dt / (c.nonfoot_tau_s + dt) if dt > 0 else 1.0
-        self._f_ext += alpha * (c.mass_kg * (gia_f - gia_i) - self._f_ext)
-        f_ext = math.sqrt(float(self._f_ext @ self._f_ext))
+        fe = self._f_ext
+        for k in range(3):
+            fe[k] += alpha * (m * (gia_f[k] - gia_i[k]) - fe[k])
+        f_ext = math.sqrt(fe[0] * fe[0] + fe[1] * fe[1] + fe[2] * fe[2])
 
         return TickEstimates(
             t=s.t,
-            com_xy=(float(com[0]), float(com[1])),
+            com_xy=(com[0], com[1]),
             work_m=work,
             dist_m=dist,
             giim=giim,
@@ -203,18 +235,55 @@ class EstimatorPipeline:
             **extra,
         )
 
+    def _stance_changes(self, st: SlipTick, fw: list[list[float]]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Touchdowns, slip events and stance ends of this tick → (footholds (m, 3), stance_xy, slip_xy)."""
+        r = self.config.foot_radius_m
+        nx, ny, nz = self._normal
+        stances, slips, done = [], [], []
+        for i in range(4):
+            if st.touchdown[i]:
+                f = fw[i]
+                self._td_xy[i] = (f[0] - r * nx, f[1] - r * ny)
+                self._fh_sum[i] = [0.0, 0.0, 0.0]
+                self._fh_n[i] = 0
+                stances.append(self._td_xy[i])
+                self._reorder = True
+            if st.event[i]:
+                slips.append(self._td_xy[i])
+            if st.stance_end[i]:
+                if not st.slipped[i] and self._fh_n[i] > 0:
+                    n = self._fh_n[i]
+                    done.append([v / n for v in self._fh_sum[i]])
+                self._fh_n[i] = 0
+        footholds = _EMPTY3
+        if done:
+            known = [f for f in self._last_foot if f is not None]
+            if len(known) >= 3:
+                self._normal = tuple(terrain_normal(np.array(known)).tolist())
+            footholds = np.array(done) - r * np.array(self._normal)
+        return (
+            footholds,
+            np.array(stances) if stances else _EMPTY2,
+            np.array(slips) if slips else _EMPTY2,
+        )
+
 
 def record(est: TickEstimates, acc: Any) -> None:
-    """Add one tick's estimates to a `CellAccumulator` (layer stats per DESIGN.md)."""
+    """Add one tick's estimates to a `CellAccumulator` (layer stats per DESIGN.md / protocol.layers)."""
     x, y = est.com_xy
-    acc.add("cot", x, y, work=est.work_m, dist=est.dist_m, n=1.0)
-    if not est.stability_guarded and not math.isnan(est.giim):
-        acc.add("giim", x, y, n=1.0, sum=est.giim, sumsq=est.giim * est.giim, min=est.giim)
-        acc.add("giam", x, y, n=1.0, sum=est.giam, sumsq=est.giam * est.giam, min=est.giam)
-    acc.add("contacts", x, y, n=1.0, nonfoot=1.0 if est.nonfoot else 0.0)
-    for fx, fy in est.stance_xy:
-        acc.add("slip", fx, fy, n=1.0, events=0.0)
-    for fx, fy in est.slip_xy:
-        acc.add("slip", fx, fy, n=0.0, events=1.0)
-    for fx, fy, fz in est.footholds:
-        acc.add_elevation(fx, fy, fz)
+    acc.append("cot", (x, y, est.work_m, est.dist_m, 1.0))  # work, dist, n
+    g = est.giim
+    if g == g and not est.stability_guarded:  # not NaN
+        a = est.giam
+        acc.append("giim", (x, y, 1.0, g, g * g, g))  # n, sum, sumsq, min
+        acc.append("giam", (x, y, 1.0, a, a * a, a))
+    acc.append("contacts", (x, y, 1.0, 1.0 if est.nonfoot else 0.0))  # n, nonfoot
+    if len(est.stance_xy):
+        for fx, fy in est.stance_xy.tolist():
+            acc.append("slip", (fx, fy, 1.0, 0.0))  # n, events
+    if len(est.slip_xy):
+        for fx, fy in est.slip_xy.tolist():
+            acc.append("slip", (fx, fy, 0.0, 1.0))
+    if len(est.footholds):
+        for fx, fy, fz in est.footholds.tolist():
+            acc.add_elevation(fx, fy, fz)

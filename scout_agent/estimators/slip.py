@@ -30,6 +30,7 @@ knows, so only relative motion within a stance matters (no dependence on absolut
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -45,9 +46,8 @@ class SlipConfig:
     eps_v_percentile: float = 95.0  # ε_v = this percentile of recent ΔV
     eps_v_window_s: float = 1.5  # window of recent ΔV [s]
     eps_v_floor: float = 1.5  # ε_v never below this (dimensionless, like ΔV)
-    eps_v_every: int = 25  # recompute ε_v every this many ticks
+    eps_v_every: int = 25  # recompute ε_v every this many ticks (0.2 s at 125 Hz)
     settle_s: float = 0.05  # start-of-stance settling skipped [s] (default form)
-    nominal_dt_s: float = 0.002  # control period used to size the ΔV ring buffer [s]
 
     def __post_init__(self) -> None:
         if self.form not in ("default", "paper"):
@@ -73,44 +73,57 @@ def delta_p_vector(pos_des: np.ndarray, pos: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True, slots=True)
 class SlipTick:
-    """What the detector saw at one tick (arrays of the 4 legs, LEG_NAMES order)."""
+    """What the detector saw at one tick; each field holds the 4 legs in LEG_NAMES order."""
 
-    touchdown: np.ndarray  # (4,) bool, the stance's reference was taken this tick
-    event: np.ndarray  # (4,) bool, a slip event was declared this tick (at most once per stance)
-    stance_end: np.ndarray  # (4,) bool, the planned stance ended this tick (after a touchdown)
-    slipped: np.ndarray  # (4,) bool, this stance (current, or the one just ended) holds a slip event
-    settled: np.ndarray  # (4,) bool, in contact inside a touched-down stance, past the settling time
-    dv: np.ndarray  # (4,) ΔV
-    dp: np.ndarray  # (4,) ΔP of the configured form [m]
+    touchdown: tuple[bool, ...]  # the stance's reference was taken this tick
+    event: tuple[bool, ...]  # a slip event was declared this tick (at most once per stance)
+    stance_end: tuple[bool, ...]  # the planned stance ended this tick (after a touchdown)
+    slipped: tuple[bool, ...]  # this stance (current, or the one just ended) holds a slip event
+    settled: tuple[bool, ...]  # in contact inside a touched-down stance, past the settling time
+    dv: tuple[float, ...]  # ΔV; NaN where not settled (computed only where it is used)
+    dp: tuple[float, ...]  # ΔP of the configured form [m]; NaN where not settled
     eps_v: float  # current ε_v
 
 
+_F4 = (False, False, False, False)
+
+
 class SlipDetector:
-    """Stateful detector for the 4 legs; feed it one tick at a time with `update`."""
+    """Stateful detector for the 4 legs; feed it one tick at a time with `update`.
+
+    The per-tick path runs on Python scalars, and ΔV/ΔP only for settled stance feet: at 4 legs numpy's
+    per-call overhead (≈ 1 µs a call) outweighs the arithmetic. `delta_v`/`delta_p_*` above are the
+    vectorised reference forms (tests check the two agree).
+    """
 
     def __init__(self, config: SlipConfig | None = None) -> None:
         self.config = config or SlipConfig()
         c = self.config
         self._paper = c.form == "paper"
-        n = max(1, int(round(c.eps_v_window_s / c.nominal_dt_s)))
-        self._ring = np.zeros((n, 4))
-        self._ring_ok = np.zeros((n, 4), dtype=bool)
+        # ΔV ring buffer, sized from the control period seen at the second tick
+        self._ring = np.zeros((0, 4))
+        self._ring_ok = np.zeros((0, 4), dtype=bool)
         self._ring_i = 0
         self._ring_full = False
         self._tick = 0
         self.eps_v = c.eps_v_floor
         self._t_prev: float | None = None
-        self._p_base = np.zeros(3)  # base position integrated from the known velocity [m]
-        self._planned_prev = np.zeros(4, dtype=bool)
-        self._contact_prev = np.zeros(4, dtype=bool)
-        self._touched = np.zeros(4, dtype=bool)
-        self._t_td = np.zeros(4)
-        self._p_td = np.zeros((4, 3))  # touchdown foot points, integration frame [m]
-        self._vflag = np.zeros(4, dtype=bool)
-        self._slipped = np.zeros(4, dtype=bool)
+        self._pb = [0.0, 0.0, 0.0]  # base position integrated from the known velocity [m]
+        self._planned_prev = [False] * 4
+        self._contact_prev = [False] * 4
+        self._touched = [False] * 4
+        self._t_td = [0.0] * 4
+        self._p_td = [[0.0, 0.0, 0.0] for _ in range(4)]  # touchdown foot points, integration frame [m]
+        self._vflag = [False] * 4
+        self._slipped = [False] * 4
 
     def reset(self) -> None:
         self.__init__(self.config)  # type: ignore[misc]
+
+    @property
+    def base_pos_integrated(self) -> tuple[float, float, float]:
+        """The base position integrated from the base velocity since the first tick [m]."""
+        return tuple(self._pb)  # type: ignore[return-value]
 
     def update(
         self,
@@ -126,60 +139,94 @@ class SlipDetector:
         c = self.config
         dt = 0.0 if self._t_prev is None else t - self._t_prev
         self._t_prev = t
-        self._p_base += base_vel_world * dt
-        v_b = base_vel_world @ world_R_base  # R^T v
-        vel_des = -(v_b + np.cross(base_omega, foot_pos))
-        dv = delta_v(vel_des, foot_vel, c.h_mps)
+        if dt > 0 and len(self._ring) == 0:
+            n = max(10, int(round(c.eps_v_window_s / dt)))
+            self._ring = np.zeros((n, 4))
+            self._ring_ok = np.zeros((n, 4), dtype=bool)
+        vx, vy, vz = base_vel_world.tolist()
+        pb = self._pb
+        pb[0] += vx * dt
+        pb[1] += vy * dt
+        pb[2] += vz * dt
+        planned = stance_planned.tolist()
+        cont = contact.tolist()
+        paper = self._paper
+        eps_v, eps_p = self.eps_v, c.eps_p_m
+        touched, vflag, slipped = self._touched, self._vflag, self._slipped
+        rot = fpos = fvel = None
+        vb = (0.0, 0.0, 0.0)
+        wx = wy = wz = 0.0
+        h = c.h_mps
+        dvl = [math.nan] * 4
+        td = [False] * 4
+        ev = [False] * 4
+        end = [False] * 4
+        slip_out = [False] * 4
+        settled = [False] * 4
+        dp = [math.nan] * 4
+        for i in range(4):
+            p = planned[i]
+            if p != self._planned_prev[i]:  # a planned stance starts or ends: clear the per-stance state
+                if not p and touched[i]:
+                    end[i] = True
+                    slip_out[i] = slipped[i]
+                touched[i] = vflag[i] = slipped[i] = False
+            if not p:
+                continue
+            ci = cont[i]
+            if ci and (not self._contact_prev[i] if paper else not touched[i]):
+                if rot is None:
+                    rot, fpos = world_R_base.tolist(), foot_pos.tolist()
+                td[i] = touched[i] = True
+                vflag[i] = False if paper else vflag[i]
+                self._t_td[i] = t
+                f = fpos[i]
+                self._p_td[i] = [pb[k] + rot[k][0] * f[0] + rot[k][1] * f[1] + rot[k][2] * f[2] for k in range(3)]
+            if not (ci and touched[i]) or (not paper and t - self._t_td[i] < c.settle_s - 1e-9):
+                slip_out[i] = slip_out[i] or slipped[i]
+                continue
+            settled[i] = True
+            if rot is None:
+                rot, fpos = world_R_base.tolist(), foot_pos.tolist()
+            if fvel is None:
+                fvel = foot_vel.tolist()
+                vb = tuple(rot[0][k] * vx + rot[1][k] * vy + rot[2][k] * vz for k in range(3))  # R^T v
+                wx, wy, wz = base_omega.tolist()
+            f = fpos[i]
+            # ΔV (eq. 1): ẋ_des = −(R^T v + ω × x)
+            e0 = -(vb[0] + wy * f[2] - wz * f[1])
+            e1 = -(vb[1] + wz * f[0] - wx * f[2])
+            e2 = -(vb[2] + wx * f[1] - wy * f[0])
+            fv = fvel[i]
+            r0 = (e0 - fv[0]) / (abs(e0) + h)
+            r1 = (e1 - fv[1]) / (abs(e1) + h)
+            r2 = (e2 - fv[2]) / (abs(e2) + h)
+            dvi = dvl[i] = math.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
+            # x_des = R^T (p_td − p_base): the touchdown point in the base frame now
+            ptd = self._p_td[i]
+            d0, d1, d2 = ptd[0] - pb[0], ptd[1] - pb[1], ptd[2] - pb[2]
+            xd = [rot[0][k] * d0 + rot[1][k] * d1 + rot[2][k] * d2 for k in range(3)]
+            if paper:  # eq. 2: | ‖x_des‖ − ‖x‖ |
+                dpi = abs(math.sqrt(xd[0] ** 2 + xd[1] ** 2 + xd[2] ** 2) - math.sqrt(f[0] ** 2 + f[1] ** 2 + f[2] ** 2))
+                hit = dvi > eps_v and dpi > eps_p
+            else:  # ‖x_des − x‖, ΔV flag held within the stance
+                dpi = math.sqrt((xd[0] - f[0]) ** 2 + (xd[1] - f[1]) ** 2 + (xd[2] - f[2]) ** 2)
+                if dvi > eps_v:
+                    vflag[i] = True
+                hit = vflag[i] and dpi > eps_p
+            dp[i] = dpi
+            if hit and not slipped[i]:
+                ev[i] = slipped[i] = True
+            slip_out[i] = slipped[i]
+        self._planned_prev = planned
+        self._contact_prev = cont
+        if True in settled:
+            self._push_dv(dvl, settled)
+        return SlipTick(tuple(td), tuple(ev), tuple(end), tuple(slip_out), tuple(settled), tuple(dvl), tuple(dp), eps_v)
 
-        planned = stance_planned
-        stance_end = self._planned_prev & ~planned & self._touched
-        ended_slipped = stance_end & self._slipped
-        # a new planned stance clears the per-stance state
-        start = planned & ~self._planned_prev
-        if start.any() or stance_end.any():
-            clear = start | stance_end
-            self._touched[clear] = False
-            self._vflag[clear] = False
-            self._slipped[clear] = False
-        if self._paper:
-            touchdown = contact & ~self._contact_prev & planned
-        else:
-            touchdown = contact & planned & ~self._touched
-        if touchdown.any():
-            self._touched |= touchdown
-            self._t_td[touchdown] = t
-            self._p_td[touchdown] = self._p_base + foot_pos[touchdown] @ world_R_base.T
-            if self._paper:
-                self._vflag[touchdown] = False
-        # x_des: touchdown point in the base frame now
-        pos_des = (self._p_td - self._p_base) @ world_R_base
-        active = self._touched & contact & planned
-        if self._paper:
-            dp = delta_p_paper(pos_des, foot_pos)
-            settled = active
-            cand = settled & (dv > self.eps_v) & (dp > c.eps_p_m)
-        else:
-            dp = delta_p_vector(pos_des, foot_pos)
-            settled = active & (t - self._t_td >= c.settle_s - 1e-9)
-            self._vflag |= settled & (dv > self.eps_v)
-            cand = settled & self._vflag & (dp > c.eps_p_m)
-        event = cand & ~self._slipped
-        self._slipped |= event
-        self._push_dv(dv, settled)
-        self._planned_prev = planned.copy()
-        self._contact_prev = contact.copy()
-        return SlipTick(
-            touchdown=touchdown,
-            event=event,
-            stance_end=stance_end,
-            slipped=self._slipped | ended_slipped,
-            settled=settled,
-            dv=dv,
-            dp=dp,
-            eps_v=self.eps_v,
-        )
-
-    def _push_dv(self, dv: np.ndarray, ok: np.ndarray) -> None:
+    def _push_dv(self, dv: list[float], ok: list[bool]) -> None:
+        if len(self._ring) == 0:
+            return
         i = self._ring_i
         self._ring[i] = dv
         self._ring_ok[i] = ok
@@ -188,9 +235,9 @@ class SlipDetector:
             self._ring_full = True
         self._tick += 1
         if self._tick % self.config.eps_v_every == 0:
-            vals = self._ring[self._ring_ok] if self._ring_full else self._ring[: self._ring_i][
-                self._ring_ok[: self._ring_i]
-            ]
+            n = len(self._ring) if self._ring_full else self._ring_i
+            vals = self._ring[:n][self._ring_ok[:n]]
             if vals.size >= 10:
-                p = float(np.percentile(vals, self.config.eps_v_percentile))
+                k = min(vals.size - 1, int(round(self.config.eps_v_percentile / 100.0 * (vals.size - 1))))
+                p = float(np.partition(vals, k)[k])
                 self.eps_v = max(p, self.config.eps_v_floor)

@@ -27,7 +27,7 @@ import math
 
 import numpy as np
 
-__all__ = ["gia_from_forces", "gia_from_imu", "margins", "margins_per_face", "order_ccw"]
+__all__ = ["gia_from_forces", "gia_from_imu", "margins", "margins_fast", "margins_per_face", "order_ccw", "order_ccw_xy"]
 
 _EPS_N = 1e-9
 
@@ -92,3 +92,47 @@ def margins(
     if variant == "paper":
         return abs(m_i), abs(m_a)
     return m_i, m_a
+
+
+def order_ccw_xy(points: list[list[float]]) -> list[int]:
+    """`order_ccw` on a short list of [x, y, ...] points (Python scalars: cheaper than numpy at k ≤ 4)."""
+    k = len(points)
+    cx = sum(p[0] for p in points) / k
+    cy = sum(p[1] for p in points) / k
+    return sorted(range(k), key=lambda i: math.atan2(points[i][1] - cy, points[i][0] - cx))
+
+
+def margins_fast(
+    points: list[list[float]], p_g: list[float] | tuple[float, ...], gia: list[float] | tuple[float, ...],
+    absolute: bool = False,
+) -> tuple[float, float]:
+    """`margins` for points already in face order, on Python scalars (the per-tick path).
+
+    Uses GIIM_ab = asin(GIAM_ab / ‖a‖) (the identity above), so only the faces' GIAM is needed and the face
+    with the least GIAM also has the least GIIM. `absolute` gives the paper variant's |min|.
+    """
+    k = len(points)
+    gx, gy, gz = gia
+    a_norm = math.sqrt(gx * gx + gy * gy + gz * gz)
+    if k < 2 or a_norm == 0.0:
+        return math.nan, math.nan
+    px, py, pz = p_g
+    us = [(p[0] - px, p[1] - py, p[2] - pz) for p in points]
+    tol = _EPS_N  # faces of a robot's support are ~0.1 m²; a degenerate one is ~0
+    best = math.inf
+    for i in range(k):
+        ux, uy, uz = us[i]
+        wx, wy, wz = us[(i + 1) % k]
+        nx, ny, nz = uy * wz - uz * wy, uz * wx - ux * wz, ux * wy - uy * wx
+        nn = math.sqrt(nx * nx + ny * ny + nz * nz)
+        if nn <= tol:
+            continue
+        giam = -(nx * gx + ny * gy + nz * gz) / nn
+        if giam < best:
+            best = giam
+    if best == math.inf:
+        return math.nan, math.nan
+    giim = math.asin(max(-1.0, min(1.0, best / a_norm)))
+    if absolute:
+        return abs(giim), abs(best)
+    return giim, best
