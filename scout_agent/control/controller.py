@@ -44,6 +44,8 @@ class ControllerConfig:
     swing_kd: float = 1.0  # [N·m·s/rad]
     stance_kd: float = 0.3
     early_contact: float = 0.5  # swing progress after which a contact ends the swing
+    search_speed: float = 0.4  # late touchdown: the foot keeps descending at this speed [m/s]
+    search_depth: float = 0.12  # ... up to this far below its target [m]
 
 
 @dataclass(frozen=True, slots=True)
@@ -111,6 +113,8 @@ class TrotController:
         self.p_ref = state.pos[:2].copy()
         self.yaw_ref = float(np.arctan2(state.R[1, 0], state.R[0, 0]))
         self.f_prev = np.zeros((4, 3))
+        self.sched_td_t = np.zeros(4)
+        self.targets = feet_w.copy()  # (4, 3) current swing targets, world
         self.t0 = state.t
         self._initialized = True
 
@@ -132,16 +136,18 @@ class TrotController:
         phase = self.gait.phase(s.t - self.t0)
         sched = self.gait.stance(phase)
         sw = self.gait.swing_progress(phase)
-        # stance bookkeeping: touchdown when the schedule says so, or early on contact late in swing
+        # stance bookkeeping. A leg is in stance once it is scheduled in stance *and* has touched down
+        # (late touchdown: it keeps searching downwards); a contact late in swing ends the swing early.
         for i in range(4):
             if sched[i] and not self.prev_stance_sched[i]:
-                if not self.in_stance[i]:
+                self.sched_td_t[i] = s.t
+                if not self.in_stance[i] and s.contact[i]:
+                    self.in_stance[i] = True
                     self.footholds[i] = feet_w[i]
-                self.in_stance[i] = True
             elif not sched[i] and self.prev_stance_sched[i]:
                 self.in_stance[i] = False
                 self.liftoff[i] = feet_w[i]
-            elif not sched[i] and not self.in_stance[i] and s.contact[i] and sw[i] > c.early_contact:
+            elif not self.in_stance[i] and s.contact[i] and (sched[i] or sw[i] > c.early_contact):
                 self.in_stance[i] = True
                 self.footholds[i] = feet_w[i]
         self.prev_stance_sched = sched
@@ -217,7 +223,14 @@ class TrotController:
             target = np.empty((sw_idx.size, 3))
             target[:, :2] = hips_w[:, :2] + v_des[:2] * rem + off
             target[:, 2] = target[:, :2] @ grad + z0 - 0.01
-            p_w, v_w = swing_point(self.liftoff[sw_idx], target, sw[sw_idx], c.swing_height, T_sw)
+            late = sched[sw_idx]  # scheduled stance, no touchdown yet: hold xy, search downwards
+            if late.any():
+                li = sw_idx[late]
+                target[late] = self.targets[li]
+                target[late, 2] -= np.minimum(c.search_speed * (s.t - self.sched_td_t[li]), c.search_depth)
+            self.targets[sw_idx] = target
+            prog = np.where(late, 1.0, sw[sw_idx])
+            p_w, v_w = swing_point(self.liftoff[sw_idx], target, prog, c.swing_height, T_sw)
             p_b = (p_w - s.pos) @ R
             v_b = (v_w - s.vel) @ R - np.cross(s.omega, p_b)
             pos_des_b[sw_idx] = p_b

@@ -1,0 +1,61 @@
+"""The full walking sets of issue 3, one JSON object on stdout.
+
+    python3 experiments/walk_sets.py [--sets ramps,lunar] [--speed 0.2] [--runs 4] [--seeds 0,1,2]
+
+Ramps: `--runs` runs × α ∈ {5, 10, 15, 20}° (runs differ by the base-velocity noise seed only — the
+simulation is deterministic, so identical physics is expected; the paper's 4 runs per angle are kept).
+Lunar: the three corner-to-corner routes (direct, west and east via landmarks) × `--seeds` terrains.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from scout_agent.run import ScoutRunConfig, run_scout  # noqa: E402
+from scout_agent.sim.terrain import LUNAR_ROUTES  # noqa: E402
+
+KEEP = ("fell", "fall_xy", "reached_goal", "distance_m", "mean_speed_mps", "sim_seconds", "real_time_factor",
+        "nonfoot_contact_ticks")
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--sets", default="ramps,lunar")
+    ap.add_argument("--speed", type=float, default=0.2)
+    ap.add_argument("--runs", type=int, default=4)
+    ap.add_argument("--angles", default="5,10,15,20")
+    ap.add_argument("--seeds", default="0,1,2")
+    args = ap.parse_args()
+    sets = args.sets.split(",")
+    out: dict = {"speed_cmd_mps": args.speed}
+    if "ramps" in sets:
+        rows = []
+        for a in [float(v) for v in args.angles.split(",")]:
+            for run in range(args.runs):
+                s = run_scout(ScoutRunConfig(scene="ramps", slope_deg=a, seed=run, speed=args.speed), progress=False)
+                rows.append({"slope_deg": a, "run": run, **{k: s[k] for k in KEEP}})
+                print(json.dumps(rows[-1]), file=sys.stderr)
+        ok = [r for r in rows if not r["fell"] and r["reached_goal"]
+              and abs(r["mean_speed_mps"] - args.speed) <= 0.1 * args.speed]
+        out["ramps"] = {"runs": rows, "passed": len(ok), "total": len(rows)}
+    if "lunar" in sets:
+        rows = []
+        for seed in [int(v) for v in args.seeds.split(",")]:
+            for route in LUNAR_ROUTES:
+                s = run_scout(ScoutRunConfig(scene="lunar", seed=seed, route=route, speed=args.speed),
+                              progress=False)
+                rows.append({"seed": seed, "route": route, **{k: s[k] for k in KEEP}})
+                print(json.dumps(rows[-1]), file=sys.stderr)
+        ok = [r for r in rows if not r["fell"] and r["reached_goal"]]
+        out["lunar"] = {"runs": rows, "passed": len(ok), "total": len(rows)}
+    print(json.dumps(out))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

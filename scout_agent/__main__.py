@@ -1,0 +1,20 @@
+"""`python -m scout_agent …` runs the scout commands (same as `psrmap scout …`)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from scout_agent.cli import register
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m scout_agent")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    register(sub)
+    args = parser.parse_args(argv)
+    return int(args.func(args) or 0)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

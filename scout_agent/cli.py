@@ -1,0 +1,131 @@
+"""`psrmap scout`: walk one simulated Aliengo on the ramps or the lunar field, headless.
+
+    psrmap scout --scene ramps --slope 15 [--slippery 0.25]
+    psrmap scout --scene lunar --seed 7 [--route west | --start x,y,yaw --goal x,y --via x,y …]
+                 [--slippery-patches 4] [--patch x0,y0,x1,y1,MU …] --speed 0.2 [--sim-seconds S]
+                 [--rrd PATH] [--json]
+
+`add_scout_arguments` and `config_from_args` are public so other commands (e.g. `evaluate`) reuse them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from dataclasses import replace
+
+from scout_agent.run import SCENES, ScoutRunConfig, build_world, run_scout
+from scout_agent.sim.friction import Patch
+from scout_agent.sim.simulator import NoiseConfig, SimConfig
+from scout_agent.sim.terrain import LUNAR_ROUTES
+
+
+def _floats(n_min: int, n_max: int, what: str):
+    def parse(text: str) -> tuple[float, ...]:
+        try:
+            vals = tuple(float(v) for v in text.split(","))
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{what}: expected numbers separated by commas, got {text!r}") from None
+        if not n_min <= len(vals) <= n_max:
+            raise argparse.ArgumentTypeError(f"{what}: expected {what.split()[0]} ({n_min}–{n_max} numbers), got {text!r}")
+        return vals
+
+    return parse
+
+
+def _patch(text: str) -> Patch:
+    try:
+        return Patch.parse(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def add_scout_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--scene", choices=SCENES, default="ramps", help="ramps testbed or 20×20 m lunar field")
+    p.add_argument("--slope", type=float, default=15.0, help="ramps: angle α in degrees, 0–25 (default 15)")
+    p.add_argument("--seed", type=int, default=0, help="lunar terrain and sensor-noise seed")
+    p.add_argument("--route", choices=tuple(LUNAR_ROUTES), help="lunar: a named corner-to-corner route")
+    p.add_argument("--start", type=_floats(2, 3, "x,y[,yaw] start"), help="start x,y[,yaw] [m, rad]")
+    p.add_argument("--goal", type=_floats(2, 2, "x,y goal"), help="goal x,y [m]")
+    p.add_argument("--via", type=_floats(2, 2, "x,y via point"), action="append", default=[],
+                   help="intermediate waypoint x,y (repeatable)")
+    p.add_argument("--speed", type=float, default=0.2, help="commanded speed [m/s] (default 0.2)")
+    p.add_argument("--sim-seconds", type=float, help="simulated time limit [s]")
+    p.add_argument("--friction", type=float, default=0.7, help="regolith friction (default 0.7)")
+    p.add_argument("--slippery", type=float, metavar="MU", help="ramps: slippery patch over the down-ramp")
+    p.add_argument("--slippery-patches", type=int, default=0, metavar="N", help="lunar: N seeded slippery patches")
+    p.add_argument("--patch", type=_patch, action="append", default=[], metavar="x0,y0,x1,y1,MU",
+                   help="friction rectangle (repeatable)")
+    p.add_argument("--vel-noise", type=float, default=0.03, help="white noise on base velocity [m/s]")
+    p.add_argument("--vel-bias", type=float, default=0.02, help="bias on base velocity [m/s]")
+    p.add_argument("--scout-id", default="scout1")
+
+
+def config_from_args(args: argparse.Namespace, parser: argparse.ArgumentParser) -> ScoutRunConfig:
+    if not 0.0 <= args.slope <= 25.0:
+        parser.error(f"--slope {args.slope}: valid range is 0–25 degrees")
+    if not 0.0 < args.speed <= 0.5:
+        parser.error(f"--speed {args.speed}: valid range is 0 < speed ≤ 0.5 m/s")
+    if args.slippery is not None and args.scene != "ramps":
+        parser.error("--slippery applies to --scene ramps; on lunar use --slippery-patches N or --patch")
+    if args.slippery is not None and not 0.0 < args.slippery <= 2.0:
+        parser.error(f"--slippery {args.slippery}: valid range is 0 < MU ≤ 2")
+    if args.slippery_patches and args.scene != "lunar":
+        parser.error("--slippery-patches applies to --scene lunar; on ramps use --slippery MU or --patch")
+    if args.slippery_patches < 0:
+        parser.error("--slippery-patches must be ≥ 0")
+    if args.route and args.scene != "lunar":
+        parser.error(f"--route applies to --scene lunar (routes: {', '.join(LUNAR_ROUTES)})")
+    cfg = ScoutRunConfig(
+        scene=args.scene, slope_deg=args.slope, seed=args.seed, route=args.route, start=args.start,
+        goal=tuple(args.goal) if args.goal else None, via=tuple(tuple(v) for v in args.via), speed=args.speed,
+        sim_seconds=args.sim_seconds, friction_default=args.friction, slippery_mu=args.slippery,
+        slippery_patches=args.slippery_patches, patches=tuple(args.patch), scout_id=args.scout_id,
+        sim=replace(SimConfig(), noise=NoiseConfig(vel_white_std=args.vel_noise, vel_bias=args.vel_bias)))
+    try:
+        build_world(cfg)
+    except ValueError as exc:
+        parser.error(str(exc))
+    return cfg
+
+
+def cmd_scout(args: argparse.Namespace) -> int:
+    cfg = config_from_args(args, args._parser)
+    world = build_world(cfg)
+    on_tick = None
+    logger = None
+    if args.rrd:
+        from scout_agent import viz
+
+        rec = viz.open_recording(args.rrd)
+        viz.log_terrain(rec, world.terrain)
+        viz.log_friction(rec, world.friction, world.terrain)
+        logger = viz.ScoutLogger(rec, cfg.scout_id)
+        on_tick = lambda sample, truth, sim: logger.log_tick(sample, truth)  # noqa: E731
+    summary = run_scout(cfg, on_tick=on_tick, progress=not args.quiet, world=world)
+    if logger is not None:
+        logger.finish()
+        logger.rec.flush()
+    if args.json:
+        print(json.dumps(summary))
+    else:
+        state = "FELL at {}".format(summary["fall_xy"]) if summary["fell"] else (
+            "reached the goal" if summary["reached_goal"] else "stopped (time limit)")
+        print(f"{summary['terrain']}: {state}; {summary['distance_m']:.2f} m at {summary['mean_speed_mps']:.3f} m/s, "
+              f"{summary['sim_seconds']:.1f} s simulated, {summary['real_time_factor']}× real time")
+    return 1 if summary["fell"] else 0
+
+
+def register(subparsers) -> argparse.ArgumentParser:
+    p = subparsers.add_parser("scout", help="walk a simulated Aliengo (ramps or lunar terrain)",
+                              description=__doc__.split("\n\n")[0])
+    add_scout_arguments(p)
+    p.add_argument("--rrd", metavar="PATH", help="write a Rerun recording")
+    p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_scout, _parser=p)
+    return p
+
+
+__all__ = ["add_scout_arguments", "cmd_scout", "config_from_args", "register"]

@@ -1,0 +1,167 @@
+"""The scout's run loop, reusable: build the world from a `ScoutRunConfig`, walk the path, summarise.
+
+`run_scout(config, on_tick=callback)` calls `callback(sample, truth, sim)` every control tick, so the
+estimators and the map publisher plug into the same loop the `scout` command uses.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from scout_agent.control.follower import FollowerConfig, PathFollower
+from scout_agent.signals import GroundTruth, ProprioSample
+from scout_agent.sim.friction import (DEFAULT_MU, FrictionMap, Patch, lunar_slippery_patches,
+                                      ramp_slippery_patch)
+from scout_agent.sim.simulator import NoiseConfig, ScoutSim, SimConfig
+from scout_agent.sim.terrain import (LUNAR_ROUTES, LunarConfig, RampConfig, Terrain, make_lunar, make_ramps,
+                                     route_slope_stats)
+
+SCENES = ("ramps", "lunar")
+OnTick = Callable[[ProprioSample, GroundTruth, ScoutSim], object]
+
+
+@dataclass(frozen=True)
+class ScoutRunConfig:
+    scene: str = "ramps"  # one of SCENES
+    slope_deg: float = 15.0  # ramps: α [deg]
+    ramp: RampConfig = field(default_factory=RampConfig)  # ramps: lengths (slope_deg overrides its α)
+    seed: int = 0  # lunar terrain (and noise) seed
+    route: str | None = None  # lunar: a named route of LUNAR_ROUTES (start, via, goal)
+    start: tuple[float, ...] | None = None  # x, y [m][, yaw [rad]]; default: the scene's spawn; yaw
+    # defaults to the heading of the first path segment
+    goal: tuple[float, float] | None = None
+    via: tuple[tuple[float, float], ...] = ()
+    speed: float = 0.2  # commanded horizontal speed [m/s]
+    sim_seconds: float | None = None  # time limit [s]; default: 2 × path length / speed + 10
+    friction_default: float = DEFAULT_MU
+    slippery_mu: float | None = None  # ramps: patch over the middle of the down-ramp
+    slippery_patches: int = 0  # lunar: seeded patches, μ 0.2–0.35, preferably on 10–20° descents
+    patches: tuple[Patch, ...] = ()  # any scene: explicit rectangles
+    sim: SimConfig = field(default_factory=SimConfig)
+    scout_id: str = "scout1"
+
+
+@dataclass(frozen=True)
+class World:
+    terrain: Terrain
+    friction: FrictionMap
+    waypoints: np.ndarray  # (k, 2) start, via…, goal
+    start: tuple[float, float, float]
+
+
+def build_world(cfg: ScoutRunConfig) -> World:
+    if cfg.scene == "ramps":
+        terrain = make_ramps(replace(cfg.ramp, slope_deg=cfg.slope_deg))
+    elif cfg.scene == "lunar":
+        terrain = make_lunar(LunarConfig(seed=cfg.seed))
+    else:
+        raise ValueError(f"unknown scene {cfg.scene!r}; valid: {', '.join(SCENES)}")
+    patches: list[Patch] = []
+    if cfg.slippery_mu is not None:
+        if cfg.scene != "ramps":
+            raise ValueError("slippery_mu applies to the ramps scene; use slippery_patches on lunar")
+        patches.append(ramp_slippery_patch(terrain, cfg.slippery_mu))
+    if cfg.slippery_patches:
+        if cfg.scene != "lunar":
+            raise ValueError("slippery_patches applies to the lunar scene; use slippery_mu on ramps")
+        patches.extend(lunar_slippery_patches(terrain, cfg.slippery_patches, seed=cfg.seed))
+    patches.extend(cfg.patches)
+    friction = FrictionMap(cfg.friction_default, tuple(patches))
+    if cfg.route is not None:
+        if cfg.scene != "lunar" or cfg.route not in LUNAR_ROUTES:
+            raise ValueError(f"unknown route {cfg.route!r}; valid (lunar): {', '.join(LUNAR_ROUTES)}")
+        pts = LUNAR_ROUTES[cfg.route]
+        start_xy, via, goal = pts[0], pts[1:-1], pts[-1]
+    else:
+        start_xy, via, goal = terrain.spawn[:2], cfg.via, terrain.goal
+    if cfg.start is not None:
+        start_xy = cfg.start[:2]
+    if cfg.goal is not None:
+        goal = cfg.goal
+    if cfg.via:
+        via = cfg.via
+    waypoints = np.array([start_xy, *via, goal], dtype=float)
+    xa, ya, xb, yb = terrain.extent
+    for p in waypoints:
+        if not (xa <= p[0] <= xb and ya <= p[1] <= yb):
+            raise ValueError(f"waypoint {tuple(float(v) for v in p)} outside the terrain [{xa}, {xb}] × [{ya}, {yb}]")
+    if cfg.start is not None and len(cfg.start) == 3:
+        yaw = float(cfg.start[2])
+    else:
+        d = waypoints[1] - waypoints[0]
+        yaw = float(np.arctan2(d[1], d[0]))
+    return World(terrain, friction, waypoints, (float(start_xy[0]), float(start_xy[1]), yaw))
+
+
+def path_length(waypoints: np.ndarray) -> float:
+    return float(np.sum(np.hypot(*np.diff(waypoints, axis=0).T)))
+
+
+def run_scout(cfg: ScoutRunConfig, on_tick: OnTick | None = None, progress: bool = True,
+              world: World | None = None) -> dict:
+    """Walk the configured path until the goal, a fall or the time limit; return the JSON summary."""
+    world = world or build_world(cfg)
+    sim_cfg = replace(cfg.sim, noise=replace(cfg.sim.noise, seed=cfg.seed))
+    sim = ScoutSim(world.terrain, world.friction, sim_cfg, start=world.start)
+    follower = PathFollower(world.waypoints, FollowerConfig(speed=cfg.speed))
+    limit = cfg.sim_seconds or 2.0 * path_length(world.waypoints) / max(cfg.speed, 0.05) + 10.0
+    n_ticks = int(np.ceil(limit / sim.control_dt))
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=n_ticks, unit="tick", desc=f"{cfg.scout_id} {world.terrain.name}", leave=False)
+    wall0 = time.perf_counter()
+    prev_xy = np.array(world.start[:2])
+    distance = 0.0
+    walk_t0 = None
+    nonfoot_ticks = 0
+    for k in range(n_ticks):
+        st = sim.robot_state()
+        yaw = float(np.arctan2(st.R[1, 0], st.R[0, 0]))
+        v, w = follower.command(st.pos[:2], yaw, st.vel[:2], sim.control_dt)
+        if sim.t < sim.config.settle_s:
+            follower.integral = 0.0
+        sample, truth = sim.step(v, w)
+        if walk_t0 is None and sim.t >= sim.config.settle_s:
+            walk_t0 = sim.t
+            prev_xy = truth.base.pos[:2].copy()
+        if walk_t0 is not None:
+            xy = truth.base.pos[:2]
+            distance += float(np.hypot(*(xy - prev_xy)))
+            prev_xy = xy.copy()
+        nonfoot_ticks += truth.nonfoot_contacts > 0
+        if on_tick is not None:
+            on_tick(sample, truth, sim)
+        if bar is not None and k % 50 == 0:
+            bar.update(50)
+        if sim.fell or follower.reached:
+            break
+    if bar is not None:
+        bar.close()
+    wall = time.perf_counter() - wall0
+    walked = sim.t - (walk_t0 or sim.t)
+    pos = sim.data.qpos[0:3]
+    return {
+        "scene": cfg.scene, "terrain": world.terrain.name, "scout": cfg.scout_id,
+        "waypoints": world.waypoints.round(3).tolist(), "speed_cmd_mps": cfg.speed,
+        "fell": bool(sim.fell), "fall_xy": list(sim.fall_xy) if sim.fall_xy else None,
+        "reached_goal": bool(follower.reached), "final_xy": [float(pos[0]), float(pos[1])],
+        "distance_m": round(distance, 3), "mean_speed_mps": round(distance / walked, 4) if walked > 0 else 0.0,
+        "sim_seconds": round(sim.t, 3), "wall_seconds": round(wall, 2),
+        "real_time_factor": round(sim.t / wall, 2) if wall > 0 else None,
+        "nonfoot_contact_ticks": int(nonfoot_ticks), "friction": world.friction.to_dict(),
+    }
+
+
+def terrain_stats(world: World) -> dict:
+    if world.terrain.name.startswith("lunar"):
+        return route_slope_stats(world.terrain)
+    return world.terrain.slope_stats()
+
+
+__all__ = ["SCENES", "NoiseConfig", "ScoutRunConfig", "World", "build_world", "run_scout", "terrain_stats"]

@@ -1,0 +1,55 @@
+"""Friction maps, and the simulator applying them to the feet."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from scout_agent.robot.constants import FOOT_GEOMS
+from scout_agent.sim.friction import FrictionMap, Patch, lunar_slippery_patches, ramp_slippery_patch
+from scout_agent.sim.simulator import ScoutSim
+from scout_agent.sim.terrain import LunarConfig, RampConfig, make_lunar, make_ramps
+
+
+def test_default_and_patches_later_override():
+    fm = FrictionMap(0.7, (Patch(0, 0, 2, 2, 0.3), Patch(1, 1, 3, 3, 0.2)))
+    np.testing.assert_allclose(fm.at([-1, 0.5, 1.5, 2.5], [0, 0.5, 1.5, 2.5]), [0.7, 0.3, 0.2, 0.2])
+    assert fm.at(5.0, 5.0) == pytest.approx(0.7)
+
+
+def test_patch_parse_and_validation():
+    assert Patch.parse("1,2,3,4,0.25") == Patch(1, 2, 3, 4, 0.25)
+    with pytest.raises(ValueError, match="x0,y0,x1,y1,MU"):
+        Patch.parse("1,2,3")
+    with pytest.raises(ValueError, match="x0 < x1"):
+        Patch(3, 0, 1, 1, 0.3)
+
+
+def test_ramp_patch_covers_the_middle_of_the_down_ramp():
+    t = make_ramps(RampConfig(slope_deg=10.0))
+    p = ramp_slippery_patch(t, 0.25)
+    a, b = t.info["segments"]["down"]
+    assert a < p.x0 < p.x1 < b and p.mu == 0.25
+    assert (p.x0 + p.x1) / 2 == pytest.approx((a + b) / 2)
+
+
+def test_lunar_patches_are_seeded_slippery_and_on_descents():
+    t = make_lunar(LunarConfig(seed=1))
+    ps = lunar_slippery_patches(t, 4, seed=1)
+    assert len(ps) == 4 and ps == lunar_slippery_patches(t, 4, seed=1)
+    assert all(0.2 <= p.mu <= 0.35 for p in ps)
+    slopes = [float(t.slope_deg((p.x0 + p.x1) / 2, (p.y0 + p.y1) / 2)) for p in ps]
+    assert np.median(slopes) > 5.0
+
+
+def test_feet_take_friction_from_the_map():
+    t = make_ramps(RampConfig(slope_deg=0.0))
+    fm = FrictionMap(0.7, (Patch(0.0, -2.0, 0.6, 2.0, 0.25),))  # under the rear feet only
+    sim = ScoutSim(t, fm)
+    for _ in range(5):
+        _, truth = sim.step(0.0, 0.0)
+    ids = [sim.model.geom(n).id for n in FOOT_GEOMS]
+    mu = sim.model.geom_friction[ids, 0]
+    np.testing.assert_allclose(mu, [0.7, 0.7, 0.25, 0.25])
+    np.testing.assert_allclose(truth.friction_at_feet, mu)
+    assert sim.model.geom_priority[ids].min() > sim.model.geom_priority[sim.model.geom("terrain").id]

@@ -1,0 +1,85 @@
+"""ScoutSim: the per-tick records, contact flags and forces, honest base-state noise, fall detection."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from scout_agent.robot.constants import FOOT_RADIUS, LUNAR_G, TOTAL_MASS
+from scout_agent.signals import GroundTruth, ProprioSample
+from scout_agent.sim.simulator import NoiseConfig, ScoutSim, SimConfig
+from scout_agent.sim.terrain import RampConfig, make_ramps
+
+
+@pytest.fixture(scope="module")
+def standing():
+    sim = ScoutSim(make_ramps(RampConfig(slope_deg=0.0)))
+    records = [sim.step(0.0, 0.0) for _ in range(int(1.5 / sim.control_dt))]
+    return sim, records
+
+
+def test_records_have_the_fixed_shapes(standing):
+    sim, records = standing
+    sample, truth = records[-1]
+    assert isinstance(sample, ProprioSample) and isinstance(truth, GroundTruth)
+    assert sample.q.shape == sample.dq.shape == sample.tau.shape == (12,)
+    assert sample.contact.dtype == bool and sample.contact.shape == (4,)
+    assert sample.foot_force_world.shape == (4, 3)
+    assert sample.foot_pos_des_base.shape == sample.foot_vel_des_base.shape == (4, 3)
+    assert sample.phase.shape == (4,) and ((sample.phase >= 0) & (sample.phase < 1)).all()
+    assert truth.foot_pos_world.shape == (4, 3)
+    assert sim.control_dt == pytest.approx(0.002 * sim.config.decimation)
+    assert sim.model.opt.timestep == 0.002 and sim.model.opt.impratio == 10
+
+
+def test_standing_feet_carry_the_lunar_weight(standing):
+    _, records = standing
+    sample, truth = records[-1]
+    window = np.array([s.foot_force_world.sum(axis=0) for s, _ in records[-178:]])  # two gait cycles
+    assert window[:, 2].mean() == pytest.approx(TOTAL_MASS * LUNAR_G, rel=0.08)
+    assert truth.nonfoot_contacts == 0
+    # accelerometer reads the specific force: +g up when still
+    assert np.linalg.norm(np.mean([s.imu_acc for s, _ in records[-60:]], axis=0)) == pytest.approx(LUNAR_G, rel=0.1)
+    # in contact, the foot centre sits a foot radius above the exact terrain
+    c = sample.contact
+    assert c.any()
+    np.testing.assert_allclose(truth.foot_pos_world[c, 2] - truth.terrain_height_at_feet[c], FOOT_RADIUS, atol=4e-3)
+
+
+def test_base_velocity_noise_is_honest_and_truth_is_exact(standing):
+    sim, records = standing
+    noisy = np.array([s.base.vel for s, _ in records])
+    true = np.array([g.base.vel for _, g in records])
+    err = noisy - true
+    assert np.linalg.norm(err.mean(axis=0)) == pytest.approx(0.02, abs=0.01)  # the bias
+    assert err.std(axis=0).mean() == pytest.approx(0.03, rel=0.25)  # the white noise
+    np.testing.assert_array_equal(records[-1][1].base.vel, sim.data.qvel[:3])
+    quiet = ScoutSim(make_ramps(RampConfig(slope_deg=0.0)),
+                     config=replace(SimConfig(), noise=NoiseConfig(vel_white_std=0.0, vel_bias=0.0)))
+    s, g = quiet.step(0.0, 0.0)
+    np.testing.assert_array_equal(s.base.vel, g.base.vel)
+
+
+def test_contact_flags_follow_the_trot(standing):
+    sim = ScoutSim(make_ramps(RampConfig(slope_deg=0.0)))
+    flags, planned, disp = [], [], []
+    for _ in range(int(3.0 / sim.control_dt)):
+        s, g = sim.step(0.2, 0.0)
+        flags.append(s.contact)
+        planned.append(s.stance_planned)
+        disp.append(g.stance_disp)
+    flags, planned = np.array(flags[200:]), np.array(planned[200:])
+    assert (flags == planned).mean() > 0.85  # contact sensors agree with the schedule
+    assert np.nanmax(np.array(disp[200:])) < 0.02  # no slip on 0.7 friction
+
+
+def test_falls_are_detected():
+    sim = ScoutSim(make_ramps(RampConfig(slope_deg=0.0)))
+    sim.data.qpos[3:7] = (np.cos(np.pi / 4), np.sin(np.pi / 4), 0.0, 0.0)  # rolled 90°
+    for _ in range(50):
+        sim.step(0.0, 0.0)
+        if sim.fell:
+            break
+    assert sim.fell and sim.fall_xy is not None
