@@ -10,9 +10,9 @@ from consumer_planner.errors import PlannerError
 from consumer_planner.search import plan_path
 
 
-def _random_costs(seed, h, w, blocked):
+def _random_costs(seed, h, w, blocked, low=0.5):
     rng = np.random.default_rng(seed)
-    cost = rng.uniform(0.5, 5.0, (h, w))
+    cost = rng.uniform(low, 5.0, (h, w))
     cost[rng.random((h, w)) < blocked] = np.inf
     return cost
 
@@ -73,3 +73,27 @@ def test_uniform_grid_known_answer():
     # 3 diagonal steps then 2 straight steps on unit cost: 3*sqrt(2) + 2 [m]
     got = plan_path(np.ones((4, 6)), (0, 0), (3, 5), 1.0)
     assert got is not None and got.cost == pytest.approx(3 * np.sqrt(2) + 2)
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 10_000), n=st.integers(2, 12))
+def test_free_cells_use_the_heap_search_and_stay_optimal(seed, n):
+    # cells of cost 0 make the bucket queue impossible (zero-width buckets): the A* heap path runs
+    cost = _random_costs(seed, n, n, 0.2, low=0.0)
+    cost[np.random.default_rng(seed).random((n, n)) < 0.3] = 0.0
+    start, goal = (0, 0), (n - 1, n - 1)
+    cost[start] = cost[goal] = 0.0
+    ref, _ = reference_dijkstra(cost, start, goal, 1.0)
+    got = plan_path(cost, start, goal, 1.0, "native")
+    assert (got is None) == (ref is None)
+    if got is not None:
+        assert got.cost == pytest.approx(ref, rel=1e-9, abs=1e-12)
+        assert path_cost(cost, got.cells, 1.0) == pytest.approx(ref, rel=1e-9, abs=1e-12)
+
+
+def test_wide_cost_range_matches_reference():
+    rng = np.random.default_rng(7)
+    cost = np.exp(rng.uniform(0, 8, (15, 15)))  # ratio ~3000: many buckets, still exact
+    ref, _ = reference_dijkstra(cost, (0, 0), (14, 14), 0.3)
+    got = plan_path(cost, (0, 0), (14, 14), 0.3)
+    assert got is not None and got.cost == pytest.approx(ref, rel=1e-9)
