@@ -1,0 +1,605 @@
+"""`psrmap mission`: a whole mission on one machine — router, map server, N scouts, a rover planner.
+
+The mission process itself runs the Zenoh router (the Python package's embedded router, on loopback) and
+starts every component as its own process (`multiprocessing`, `spawn`: Zenoh sessions do not survive a
+fork) through the same `psrmap` subcommands a team would start by hand on several machines. Each process
+writes its console output and its Rerun recording into the run folder; all recordings share one recording id
+and are merged into `mission.rrd` at the end.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import dataclasses
+import json
+import multiprocessing as mp
+import os
+import shutil
+import socket
+import subprocess
+import sys
+import time
+import tomllib
+import uuid
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+__all__ = ["MissionConfig", "ScoutPlan", "load_config", "register", "run_mission"]
+
+SCENES = ("lunar", "ramps")
+UNKNOWN_POLICIES = ("forbid", "penalty", "infer")
+
+
+class MissionError(ValueError):
+    """A mission config or flag that cannot run; the message names what would have been valid."""
+
+
+@dataclass(frozen=True)
+class ScoutPlan:
+    """One scout: id, start pose (x [m], y [m], yaw [rad]) in the map frame, goal (x, y), waypoints."""
+
+    id: str
+    start: tuple[float, float, float]
+    goal: tuple[float, float]
+    via: tuple[tuple[float, float], ...] = ()
+
+    def route(self) -> list[tuple[float, float]]:
+        """The route as map-frame points, start to goal."""
+        return [(self.start[0], self.start[1]), *self.via, self.goal]
+
+
+@dataclass(frozen=True)
+class MissionConfig:
+    """Everything a mission needs; `load_config` reads it from TOML, flags replace fields once."""
+
+    map: str = "moon"
+    res: float = 0.4  # cell size [m]
+    sim_seconds: float = 75.0  # cap on each scout's walk [s]
+    speed: float = 0.2  # [m/s]
+    rate_hz: float = 5.0  # deltas per second per scout
+    out: str = "runs"
+    scene: str = "lunar"
+    seed: int = 7
+    slope: float = 15.0  # ramps scene only [deg]
+    slippery_patches: int = 4
+    scouts: tuple[ScoutPlan, ...] = ()
+    plan_from: tuple[float, float] = (-6.0, -6.0)
+    plan_to: tuple[float, float] = (3.0, 3.0)
+    unknown: str = "infer"
+    weights: dict[str, float] = field(default_factory=dict)
+    rrd: bool = True  # write Rerun recordings
+    timeout_s: float = 900.0  # the whole mission gives up after this long [s wall clock]
+
+
+def _pair(v: Any, what: str) -> tuple[float, float]:
+    try:
+        x, y = (float(c) for c in v)
+    except (TypeError, ValueError):
+        raise MissionError(f"{what} = {v!r}: need [x, y] in metres") from None
+    return (x, y)
+
+
+def _scout(d: dict[str, Any], i: int) -> ScoutPlan:
+    where = f"[[scouts]] #{i + 1}"
+    try:
+        sid = str(d["id"])
+        start = tuple(float(c) for c in d["start"])
+        goal = _pair(d["goal"], f"{where} goal")
+    except KeyError as exc:
+        raise MissionError(
+            f"{where}: missing {exc.args[0]!r}; a scout needs id, start, goal (via optional)"
+        ) from None
+    except (TypeError, ValueError):
+        raise MissionError(f"{where}: start must be [x, y, yaw]") from None
+    if len(start) != 3:
+        raise MissionError(f"{where} start = {d['start']!r}: need [x, y, yaw]")
+    via = tuple(_pair(p, f"{where} via") for p in d.get("via", []))
+    return ScoutPlan(sid, (start[0], start[1], start[2]), goal, via)
+
+
+def load_config(path: str | Path | None = None) -> MissionConfig:
+    """The mission config from a TOML file (None: the embedded default `mission_default.toml`)."""
+    if path is None:
+        text = resources.files("psrmap").joinpath("mission_default.toml").read_text()
+        where = "the embedded default mission"
+    else:
+        try:
+            text = Path(path).read_text()
+        except OSError as exc:
+            raise MissionError(f"mission config {path}: {exc.strerror}") from None
+        where = str(path)
+    try:
+        doc = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise MissionError(f"{where}: not valid TOML ({exc})") from None
+    known = {"mission", "terrain", "scouts", "planner"}
+    unknown = set(doc) - known
+    if unknown:
+        raise MissionError(f"{where}: unknown section(s) {sorted(unknown)}; sections: {sorted(known)}")
+    m, t, p = doc.get("mission", {}), doc.get("terrain", {}), doc.get("planner", {})
+    base = MissionConfig()
+    cfg = dataclasses.replace(
+        base,
+        map=str(m.get("map", base.map)),
+        res=float(m.get("res", base.res)),
+        sim_seconds=float(m.get("sim_seconds", base.sim_seconds)),
+        speed=float(m.get("speed", base.speed)),
+        rate_hz=float(m.get("rate_hz", base.rate_hz)),
+        out=str(m.get("out", base.out)),
+        scene=str(t.get("scene", base.scene)),
+        seed=int(t.get("seed", base.seed)),
+        slope=float(t.get("slope", base.slope)),
+        slippery_patches=int(t.get("slippery_patches", base.slippery_patches)),
+        scouts=tuple(_scout(s, i) for i, s in enumerate(doc.get("scouts", []))),
+        plan_from=_pair(p.get("from", base.plan_from), "[planner] from"),
+        plan_to=_pair(p.get("to", base.plan_to), "[planner] to"),
+        unknown=str(p.get("unknown", base.unknown)),
+        weights={str(k): float(v) for k, v in p.get("weights", {}).items()},
+    )
+    validate(cfg)
+    return cfg
+
+
+def validate(cfg: MissionConfig) -> None:
+    """Raise `MissionError` naming the valid choices when the config cannot run."""
+    if cfg.scene not in SCENES:
+        raise MissionError(f"scene {cfg.scene!r}; scenes: {', '.join(SCENES)}")
+    if cfg.unknown not in UNKNOWN_POLICIES:
+        raise MissionError(f"unknown policy {cfg.unknown!r}; policies: {', '.join(UNKNOWN_POLICIES)}")
+    if not cfg.scouts:
+        raise MissionError("no scouts: give at least one [[scouts]] entry (id, start, goal)")
+    ids = [s.id for s in cfg.scouts]
+    if len(set(ids)) != len(ids):
+        raise MissionError(f"scout ids must be unique, got {ids}")
+    for name, v in (
+        ("res", cfg.res),
+        ("sim_seconds", cfg.sim_seconds),
+        ("speed", cfg.speed),
+        ("rate_hz", cfg.rate_hz),
+    ):
+        if not v > 0:
+            raise MissionError(f"{name} = {v}: must be > 0")
+
+
+def with_scouts(cfg: MissionConfig, n: int) -> MissionConfig:
+    """`cfg` with exactly `n` scouts: the first `n` of its list, more generated around the terrain if needed."""
+    if n < 1:
+        raise MissionError(f"--scouts {n}: need at least 1")
+    scouts = list(cfg.scouts[:n])
+    k = 0
+    while len(scouts) < n:  # extra scouts start on a ring and walk through the centre
+        import math
+
+        a = 2 * math.pi * (k + 0.5) / max(n, 1)
+        r = 7.0
+        sx, sy = r * math.cos(a), r * math.sin(a)
+        scouts.append(ScoutPlan(f"scout{len(scouts) + 1}", (sx, sy, a + math.pi), (-0.5 * sx, -0.5 * sy)))
+        k += 1
+    return dataclasses.replace(cfg, scouts=tuple(scouts))
+
+
+# --------------------------------------------------------------------------------------------------------
+# processes
+
+
+def free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def _run_cli(argv: list[str], log_path: str, out_path: str | None, env: dict[str, str]) -> None:
+    """Process target: run one `psrmap` subcommand with stdout/stderr sent to files (at the fd level)."""
+    os.environ.update(env)
+    log = os.open(log_path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+    os.dup2(log, 2)
+    if out_path:
+        out = os.open(out_path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+        os.dup2(out, 1)
+    else:
+        os.dup2(log, 1)
+    sys.stdout = open(1, "w", buffering=1, closefd=False)  # noqa: SIM115
+    sys.stderr = open(2, "w", buffering=1, closefd=False)  # noqa: SIM115
+    from psrmap.cli import main
+
+    code = main(argv)
+    sys.stdout.flush()
+    sys.exit(code)
+
+
+@dataclass
+class _Proc:
+    name: str
+    proc: Any
+    log: Path
+    out: Path | None
+
+
+def _spawn(ctx: Any, name: str, argv: list[str], run_dir: Path, env: dict[str, str], json_out: bool) -> _Proc:
+    log = run_dir / "logs" / f"{name}.log"
+    out = run_dir / "logs" / f"{name}.json" if json_out else None
+    p = ctx.Process(
+        target=_run_cli, args=(argv, str(log), str(out) if out else None, env), name=name, daemon=False
+    )
+    p.start()
+    return _Proc(name, p, log, out)
+
+
+def scout_argv(cfg: MissionConfig, s: ScoutPlan, endpoint: str, run_dir: Path) -> list[str]:
+    argv = [
+        "scout",
+        "--scout-id", s.id,
+        "--map", cfg.map,
+        "--res", str(cfg.res),
+        "--connect", endpoint,
+        "--scene", cfg.scene,
+        "--speed", str(cfg.speed),
+        "--sim-seconds", str(cfg.sim_seconds),
+        "--rate", str(cfg.rate_hz),
+        "--save-map", str(run_dir / f"{s.id}_local.npz"),
+        "--json",
+    ]  # fmt: skip
+    if cfg.scene == "lunar":
+        argv += ["--seed", str(cfg.seed), "--slippery-patches", str(cfg.slippery_patches)]
+        argv += ["--start", ",".join(f"{v:g}" for v in s.start), "--goal", ",".join(f"{v:g}" for v in s.goal)]
+        for p in s.via:
+            argv += ["--via", ",".join(f"{v:g}" for v in p)]
+    else:
+        argv += ["--slope", str(cfg.slope)]
+    if cfg.rrd:
+        argv += ["--rrd", str(run_dir / "recordings" / f"{s.id}.rrd")]
+    return argv
+
+
+def _status(session: Any, map_id: str, timeout: float = 2.0) -> Any | None:
+    from protocol.codec import decode
+    from protocol.keys import status_key
+
+    for reply in session.get(status_key(map_id), timeout=timeout):
+        if reply.ok is not None:
+            return decode(reply.ok.payload.to_bytes(), expected_type="status")
+    return None
+
+
+def _wait_for_server(session: Any, map_id: str, procs: Sequence[_Proc], deadline: float) -> Any:
+    while time.monotonic() < deadline:
+        st = _status(session, map_id, timeout=1.0)
+        if st is not None:
+            return st
+        for p in procs:
+            if not p.proc.is_alive():
+                raise RuntimeError(f"{p.name} exited early with code {p.proc.exitcode}; see {p.log}")
+        time.sleep(0.2)
+    raise RuntimeError(
+        f"the map server did not answer within the mission's start-up time; see {procs[0].log}"
+    )
+
+
+def _read_json(path: Path | None) -> dict[str, Any] | None:
+    if path is None or not path.exists():
+        return None
+    text = path.read_text().strip()
+    if not text:
+        return None
+    try:
+        return json.loads(text.splitlines()[-1])
+    except json.JSONDecodeError:
+        return None
+
+
+def _rerun_exe() -> list[str]:
+    exe = shutil.which("rerun")
+    return [exe] if exe else [sys.executable, "-m", "rerun"]
+
+
+def merge_recordings(run_dir: Path) -> Path | None:
+    """Merge every process's .rrd of the run into `mission.rrd` (the recordings share one recording id)."""
+    parts = sorted((run_dir / "recordings").glob("*.rrd"))
+    if not parts:
+        return None
+    dst = run_dir / "mission.rrd"
+    res = subprocess.run(
+        [*_rerun_exe(), "rrd", "merge", *map(str, parts), "-o", str(dst)],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    if res.returncode != 0:
+        print(
+            f"warning: rerun rrd merge failed ({res.stderr.strip()[:300]}); the per-process recordings stay",
+            file=sys.stderr,
+        )
+        return None
+    return dst
+
+
+def run_mission(cfg: MissionConfig, run_dir: Path | None = None, progress: bool = True) -> dict[str, Any]:
+    """Run the mission, return its summary (also written to `<run_dir>/summary.json`)."""
+    import zenoh
+    from tqdm import tqdm
+
+    from protocol.session import zenoh_config
+
+    validate(cfg)
+    if run_dir is None:
+        run_dir = Path(cfg.out) / time.strftime("%Y%m%d-%H%M%S")
+    run_dir.mkdir(parents=True, exist_ok=True)
+    (run_dir / "logs").mkdir(exist_ok=True)
+    (run_dir / "recordings").mkdir(exist_ok=True)
+    recording_id = f"psrmap-{cfg.map}-{uuid.uuid4().hex[:12]}"
+    env = {"PSRMAP_RECORDING_ID": recording_id, "PYTHONUNBUFFERED": "1"}
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    ctx = mp.get_context("spawn")
+    t0 = time.monotonic()
+    deadline = t0 + cfg.timeout_s
+    summary: dict[str, Any] = {
+        "run_dir": str(run_dir),
+        "recording_id": recording_id,
+        "router": endpoint,
+        "config": _config_json(cfg),
+    }
+    (run_dir / "mission.json").write_text(json.dumps(summary["config"], indent=2))
+    say = print if progress else (lambda *a, **k: None)
+    procs: list[_Proc] = []
+    server: _Proc | None = None
+    with zenoh.open(zenoh_config(listen=[endpoint], mode="router")) as session:
+        say(f"[mission] router listening on {endpoint}; run folder {run_dir}")
+        try:
+            server_argv = [
+                "server",
+                "--map",
+                cfg.map,
+                "--res",
+                str(cfg.res),
+                "--db",
+                str(run_dir / "map.db"),
+                "--connect",
+                endpoint,
+            ]
+            if cfg.rrd:
+                server_argv += ["--rrd", str(run_dir / "recordings" / "server.rrd")]
+            server = _spawn(ctx, "server", server_argv, run_dir, env, json_out=False)
+            _wait_for_server(session, cfg.map, [server], min(deadline, time.monotonic() + 60))
+            say(f"[mission] map server up (map {cfg.map!r}, res {cfg.res} m, db {run_dir / 'map.db'})")
+            _log_context(cfg, run_dir, recording_id)
+            for s in cfg.scouts:
+                procs.append(
+                    _spawn(ctx, s.id, scout_argv(cfg, s, endpoint, run_dir), run_dir, env, json_out=True)
+                )
+            say(
+                f"[mission] {len(procs)} scouts walking (≤ {cfg.sim_seconds:g} s each): "
+                + ", ".join(p.name for p in procs)
+            )
+            total = cfg.sim_seconds * len(procs)
+            bar = tqdm(
+                total=round(total), unit="sim-s", desc="scouts", disable=not progress, dynamic_ncols=True
+            )
+            last_line = 0.0
+            while any(p.proc.is_alive() for p in procs):
+                if time.monotonic() > deadline:
+                    raise RuntimeError(f"mission timed out after {cfg.timeout_s:g} s")
+                st = _status(session, cfg.map, timeout=1.0)
+                if st is not None:
+                    walked = sum(
+                        min((v.last_seq + 1) / cfg.rate_hz, cfg.sim_seconds) for v in st.scouts.values()
+                    )
+                    bar.n = min(round(walked), round(total))
+                    bar.set_postfix(
+                        deltas=st.merged, cells=st.cells, alive=sum(v.alive for v in st.scouts.values())
+                    )
+                    bar.refresh()
+                    if not bar.disable and time.monotonic() - last_line > 15:
+                        last_line = time.monotonic()
+                if server is not None and not server.proc.is_alive():
+                    raise RuntimeError(f"the map server died (code {server.proc.exitcode}); see {server.log}")
+                time.sleep(0.5)
+            bar.n = bar.total
+            bar.close()
+            scouts: dict[str, Any] = {}
+            for p in procs:
+                p.proc.join()
+                res = _read_json(p.out)
+                scouts[p.name] = (
+                    res if res is not None else {"error": f"exit code {p.proc.exitcode}; see {p.log}"}
+                )
+            summary["scouts"] = scouts
+            summary["status"] = _status_json(_await_totals(session, cfg, scouts))
+            say(
+                f"[mission] scouts done; server merged {summary['status']['merged']} deltas into {summary['status']['cells']} cells"
+            )
+            summary["plan"], summary["comparison"] = _plan_and_compare(ctx, cfg, endpoint, run_dir, env)
+        finally:
+            for p in procs:
+                if p.proc.is_alive():
+                    p.proc.terminate()
+                p.proc.join(timeout=10)
+            if server is not None:
+                server.proc.terminate()  # SIGTERM: the server flushes and closes its session
+                server.proc.join(timeout=20)
+                if server.proc.is_alive():
+                    server.proc.kill()
+    merged = merge_recordings(run_dir) if cfg.rrd else None
+    summary["recording"] = str(merged) if merged else None
+    summary["wall_seconds"] = round(time.monotonic() - t0, 1)
+    (run_dir / "summary.json").write_text(json.dumps(summary, indent=2, default=_json_default))
+    if progress:
+        _print_report(summary)
+    return summary
+
+
+def _await_totals(session: Any, cfg: MissionConfig, scouts: dict[str, Any], wait_s: float = 15.0) -> Any:
+    """The server's status once every scout's last delta is merged (scouts wait for acks before exiting)."""
+    end = time.monotonic() + wait_s
+    st = None
+    while time.monotonic() < end:
+        st = _status(session, cfg.map)
+        if st is not None:
+            done = all(
+                sid in st.scouts and st.scouts[sid].last_seq + 1 >= int(info.get("deltas_sent", 0))
+                for sid, info in scouts.items()
+                if "error" not in info
+            )
+            if done:
+                return st
+        time.sleep(0.3)
+    return st
+
+
+def _status_json(st: Any) -> dict[str, Any]:
+    if st is None:
+        return {"error": "no status reply"}
+    return {
+        "map": st.map,
+        "res": st.res,
+        "version": st.version,
+        "cells": st.cells,
+        "merged": st.merged,
+        "duplicates": st.duplicates,
+        "rejected": dict(st.rejected),
+        "scouts": {
+            k: {"epoch": v.epoch, "last_seq": v.last_seq, "alive": v.alive} for k, v in st.scouts.items()
+        },
+    }
+
+
+def _plan_and_compare(
+    ctx: Any, cfg: MissionConfig, endpoint: str, run_dir: Path, env: dict[str, str]
+) -> tuple[Any, Any]:
+    common = ["--map", cfg.map, "--connect", endpoint, "--json"]
+    weights = ",".join(f"{k}={v:g}" for k, v in cfg.weights.items())
+    plan_argv = [
+        "plan",
+        *common,
+        "--from",
+        "{:g},{:g}".format(*cfg.plan_from),
+        "--to",
+        "{:g},{:g}".format(*cfg.plan_to),
+    ]
+    plan_argv += ["--unknown", cfg.unknown]
+    if weights:
+        plan_argv += ["--weights", weights]
+    if cfg.rrd:
+        plan_argv += ["--rrd", str(run_dir / "recordings" / "planner.rrd")]
+    p = _spawn(ctx, "plan", plan_argv, run_dir, env, json_out=True)
+    p.proc.join(timeout=300)
+    plan = _read_json(p.out) or {"error": f"plan failed (exit {p.proc.exitcode}); see {p.log}"}
+    cmp_argv = ["compare", *common, "--unknown", cfg.unknown]
+    if weights:
+        cmp_argv += ["--weights", weights]
+    for s in cfg.scouts:
+        cmp_argv += ["--route", " ".join(f"{x:g},{y:g}" for x, y in s.route()), "--name", s.id]
+    if isinstance(plan, dict) and plan.get("path"):
+        cmp_argv += ["--route", " ".join(f"{x:g},{y:g}" for x, y in plan["path"]), "--name", "planned"]
+    c = _spawn(ctx, "compare", cmp_argv, run_dir, env, json_out=True)
+    c.proc.join(timeout=300)
+    comparison = _read_json(c.out) or {"error": f"compare failed (exit {c.proc.exitcode}); see {c.log}"}
+    return plan, comparison
+
+
+def _log_context(cfg: MissionConfig, run_dir: Path, recording_id: str) -> None:
+    """The terrain mesh, friction map and default blueprint, in the mission's own recording."""
+    if not cfg.rrd:
+        return
+    try:
+        from psrmap.viz import log_mission_context
+    except ImportError:
+        return
+    log_mission_context(cfg, run_dir / "recordings" / "mission.rrd", recording_id)
+
+
+def _config_json(cfg: MissionConfig) -> dict[str, Any]:
+    return json.loads(json.dumps(dataclasses.asdict(cfg), default=_json_default))
+
+
+def _json_default(o: Any) -> Any:
+    if isinstance(o, Path):
+        return str(o)
+    if hasattr(o, "tolist"):
+        return o.tolist()
+    return str(o)
+
+
+def _print_report(summary: dict[str, Any]) -> None:
+    print()
+    print(f"Mission finished in {summary['wall_seconds']} s — run folder {summary['run_dir']}")
+    st = summary.get("status", {})
+    print(
+        f"  map server: {st.get('merged')} deltas merged, {st.get('cells')} cells, rejected {st.get('rejected')}"
+    )
+    for sid, s in summary.get("scouts", {}).items():
+        if "error" in s:
+            print(f"  {sid}: {s['error']}")
+            continue
+        print(
+            f"  {sid}: {s.get('distance_m', float('nan')):.1f} m in {s.get('sim_seconds', float('nan')):.0f} s, "
+            f"fell={s.get('fell')}, reached_goal={s.get('reached_goal')}, deltas={s.get('deltas_sent')}"
+        )
+    plan = summary.get("plan") or {}
+    if "error" in plan:
+        print(f"  plan: {plan['error']}")
+    else:
+        print(
+            f"  plan: {plan.get('length_m', float('nan')):.1f} m, cost {plan.get('cost', float('nan')):.2f}"
+        )
+    comparison = summary.get("comparison") or {}
+    if "table" in comparison:
+        print()
+        print(comparison["table"])
+    elif "error" in comparison:
+        print(f"  comparison: {comparison['error']}")
+    if summary.get("recording"):
+        print(f"\nRecording: rerun {summary['recording']}")
+
+
+# --------------------------------------------------------------------------------------------------------
+# CLI
+
+
+def register(sub: Any) -> None:
+    p = sub.add_parser(
+        "mission",
+        help="run a whole mission: router, map server, N scouts, a planner query (embedded defaults)",
+        description="Start a Zenoh router, the map server and N scouts on a seeded lunar terrain; when they are "
+        "done, plan a path across the explored area and compare the scouts' routes. Everything lands in "
+        "runs/<timestamp>/.",
+    )
+    p.add_argument("--config", help="mission TOML file (default: the embedded mission_default.toml)")
+    p.add_argument("--scouts", type=int, help="number of scouts (default: as many as the config lists, 3)")
+    p.add_argument("--seed", type=int, help="terrain seed")
+    p.add_argument("--sim-seconds", type=float, help="cap on each scout's walk [s of simulated time]")
+    p.add_argument("--out", help="parent folder of the run folder (default runs/)")
+    p.add_argument("--run-dir", help="exact run folder (default <out>/<timestamp>)")
+    p.add_argument("--no-rrd", action="store_true", help="do not write Rerun recordings")
+    p.add_argument("--quiet", action="store_true", help="no progress output, only the final JSON path")
+    p.set_defaults(func=_cmd_mission, parser=p)
+
+
+def _cmd_mission(args: argparse.Namespace) -> int:
+    try:
+        cfg = load_config(args.config)
+        if args.scouts is not None:
+            cfg = with_scouts(cfg, args.scouts)
+        changes: dict[str, Any] = {}
+        if args.seed is not None:
+            changes["seed"] = args.seed
+        if args.sim_seconds is not None:
+            changes["sim_seconds"] = args.sim_seconds
+        if args.out is not None:
+            changes["out"] = args.out
+        if args.no_rrd:
+            changes["rrd"] = False
+        cfg = dataclasses.replace(cfg, **changes)
+        validate(cfg)
+    except MissionError as exc:
+        args.parser.error(str(exc))
+    summary = run_mission(cfg, Path(args.run_dir) if args.run_dir else None, progress=not args.quiet)
+    if args.quiet:
+        print(Path(summary["run_dir"]) / "summary.json")
+    ok = all("error" not in s for s in summary.get("scouts", {}).values())
+    with contextlib.suppress(Exception):
+        ok = ok and "error" not in summary["plan"]
+    return 0 if ok else 1
