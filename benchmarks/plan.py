@@ -2,7 +2,10 @@
 
 The cost grid is terrain-like: smooth costs in [1, 5] per metre plus impassable crater discs (1-3 % of
 cells), seeded; the route runs corner to corner (the search's worst case: nearly every cell is
-expanded). Both searches see the same grid and must find the same optimal cost. Prints one JSON object.
+expanded). Both searches see the same grid and must find the same optimal cost. `plan_s` is the
+search alone (`search.plan_path`, what route_through_array does); `build_costs_infer_s` is, for
+reference, turning an n x n map of all layers (10 % unexplored, unknown=infer) into a cost grid.
+Prints one JSON object.
 
     python benchmarks/plan.py [--sizes 1000,2000] [--repeat 3]
 """
@@ -18,6 +21,8 @@ from scipy import ndimage
 from skimage.graph import route_through_array
 
 from consumer_planner import _native
+from consumer_planner.costs import CostConfig, build_costs
+from consumer_planner.grid import LayerGrid
 from consumer_planner.search import plan_path
 
 
@@ -36,6 +41,17 @@ def terrain_costs(n: int, seed: int = 0) -> np.ndarray:
     blocked[:3, :3] = blocked[-3:, -3:] = False
     c[blocked] = np.inf
     return c
+
+
+def layer_grid(n: int, seed: int = 0) -> LayerGrid:
+    """A map with every layer (value + n) of n x n cells, 10 % of them unexplored."""
+    rng = np.random.default_rng(seed)
+    count = np.where(rng.random((n, n)) < 0.1, 0.0, 10.0)
+    layers = {
+        name: {"value": np.where(count > 0, lo + (hi - lo) * rng.random((n, n)), np.nan), "n": count}
+        for name, lo, hi in (("cot", 0.9, 1.5), ("slip", 0.0, 0.1), ("giim", 0.3, 0.8), ("giam", 0.5, 1.1))
+    }
+    return LayerGrid("bench", 0.4, 0, 0, n, n, layers)
 
 
 def best_of(fn, repeat: int) -> tuple[float, object]:
@@ -64,6 +80,8 @@ def main() -> None:
             args.repeat,
         )
         assert path is not None
+        grid = layer_grid(n)
+        t_costs, _ = best_of(lambda: build_costs(grid, CostConfig(unknown="infer")), 1)  # noqa: B023
         results.append({
             "cells": f"{n}x{n}",
             "impassable_fraction": round(float(np.isinf(cost).mean()), 4),
@@ -74,6 +92,7 @@ def main() -> None:
             "skimage_cost": float(sk_total),
             "same_optimum": bool(abs(path.cost - sk_total) <= 1e-9 * sk_total),
             "method": path.method,
+            "build_costs_infer_s": round(t_costs, 4),
         })  # fmt: skip
     print(
         json.dumps({"benchmark": "plan", "native_kernel": native, "repeat": args.repeat, "results": results})

@@ -135,19 +135,23 @@ class CostMap:
     config: CostConfig
 
 
-def gaussian_fill(values: np.ndarray, sigma_cells: float) -> np.ndarray:
+def gaussian_fill(values: np.ndarray, sigma_cells: float, weight: np.ndarray | None = None) -> np.ndarray:
     """Paper eq. 17 normalised over known cells: NaN cells get sum(w * v) / sum(w) of the finite cells
-    within 3 sigma (Gaussian weights w); NaN where none is in reach. Finite cells are kept."""
+    within 3 sigma (Gaussian weights w); NaN where none is in reach. Finite cells are kept.
+    `weight`: the filtered finite-mask, when the caller already has it for this exact mask."""
     mask = np.isfinite(values)
     if mask.all() or not mask.any():
         return values.copy()
-    kw = {"sigma": sigma_cells, "mode": "constant", "cval": 0.0, "truncate": 3.0}
-    num = ndimage.gaussian_filter(np.where(mask, values, 0.0), **kw)
-    den = ndimage.gaussian_filter(mask.astype(np.float64), **kw)
+    num = _smooth(np.where(mask, values, 0.0), sigma_cells)
+    den = _smooth(mask.astype(np.float64), sigma_cells) if weight is None else weight
     out = values.copy()
     reach = ~mask & (den > 1e-12)
     out[reach] = num[reach] / den[reach]
     return out
+
+
+def _smooth(a: np.ndarray, sigma_cells: float) -> np.ndarray:
+    return ndimage.gaussian_filter(a, sigma=sigma_cells, mode="constant", cval=0.0, truncate=3.0)
 
 
 def read_metrics(grid: LayerGrid) -> tuple[dict[str, np.ndarray], np.ndarray]:
@@ -186,9 +190,15 @@ def build_costs(grid: LayerGrid, config: CostConfig | None = None) -> CostMap:
     raw, count = read_metrics(grid)
     known = count > 0
     metrics: dict[str, np.ndarray] = {}
+    known_weight: np.ndarray | None = None  # the fill's denominator, shared by metrics known on `known`
     for name, m in raw.items():
         keep = np.where(known, m, np.nan)  # only samples of known cells feed the fill
-        filled = gaussian_fill(keep, config.infer_sigma_cells)
+        weight = None
+        if np.array_equal(np.isfinite(keep), known):
+            if known_weight is None:
+                known_weight = _smooth(known.astype(np.float64), config.infer_sigma_cells)
+            weight = known_weight
+        filled = gaussian_fill(keep, config.infer_sigma_cells, weight)
         if config.unknown != "infer":
             filled = np.where(known, filled, np.nan)
         metrics[name] = filled
@@ -217,6 +227,8 @@ def build_costs(grid: LayerGrid, config: CostConfig | None = None) -> CostMap:
     terms["distance"] = np.where(penalized, config.weights.distance, terms["distance"])
     terms["unknown"] = np.where(penalized, config.unknown_penalty, 0.0)
     impassable = (costed & over) | (~costed & ~penalized)
-    cost = np.sum(list(terms.values()), axis=0)
+    cost = np.zeros(grid.shape)
+    for t in terms.values():
+        cost += t
     cost[impassable] = np.inf
     return CostMap(cost, terms, metrics, known, inferred, impassable, config)

@@ -154,3 +154,25 @@ def test_stitch_two_shards_and_npz_roundtrip(tmp_path):
     assert back.cell_of(2.9, 0.1) == (0, 5) and back.cell_of(3.1, 0.1) is None
     with pytest.raises(PlannerError, match="no map file"):
         load_npz(tmp_path / "nope.npz")
+
+
+def test_slope_term_and_limit_from_elevation_plane_fit():
+    import consumer_planner
+
+    # footholds on a plane tilted 20 deg along x in every cell, x, y relative to the cell centre
+    h, w = 3, 4
+    xs = np.array([-0.1, 0.1, -0.1, 0.1, 0.0])
+    ys = np.array([-0.1, -0.1, 0.1, 0.1, 0.0])
+    zs = np.tan(np.radians(20.0)) * xs + 0.3
+    sums = {"n": len(xs), "sum": zs.sum(), "sumsq": (zs**2).sum(), "sx": xs.sum(), "sy": ys.sum(),
+            "sxx": (xs**2).sum(), "syy": (ys**2).sum(), "sxy": (xs * ys).sum(), "sxz": (xs * zs).sum(),
+            "syz": (ys * zs).sum(), "min": zs.min(), "max": zs.max()}  # fmt: skip
+    g = make_grid((h, w))
+    g.layers["elevation"] = {k: np.full((h, w), float(v)) for k, v in sums.items()}
+    cm = build_costs(g, CostConfig(weights=Weights(cot=0, slip=0, giim=0, giam=0, confidence=0, slope=3)))
+    np.testing.assert_allclose(cm.metrics["slope_deg"], 20.0)
+    np.testing.assert_allclose(cm.cost, 1 + 3 * 20 / 30)
+    steep = build_costs(g, CostConfig(limits=Limits(max_slope_deg=15.0)))
+    assert steep.impassable.all()
+    assert sorted(consumer_planner.__all__) == consumer_planner.__all__
+    assert all(hasattr(consumer_planner, name) for name in consumer_planner.__all__)
