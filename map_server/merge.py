@@ -12,7 +12,10 @@ from collections import Counter
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from map_server.tiles import TiledMap
+from protocol.batch import DeltaBatch, decode_delta_batch
 from protocol.codec import DEFAULT_MAX_BYTES, decode
 from protocol.errors import ProtocolError
 from protocol.messages import Ack, CellDelta
@@ -108,15 +111,22 @@ class Merger:
 
     def ingest(self, samples: Iterable[tuple[str, bytes]]) -> IngestResult:
         """Validate, deduplicate and merge a batch; returns what happened (acks for every scout touched)."""
+        samples = list(samples)
         res = IngestResult()
         book = self.book
-        for key, payload in samples:
-            try:
-                delta = self.validate(key, payload)
-            except ProtocolError as exc:
-                book.rejected[exc.reason] += 1
-                res.rejected.append((exc.reason, str(exc)))
-                log.warning("rejected delta on %s: %s", key, exc)
+        batch = decode_delta_batch(samples, res=self.map.res, max_bytes=self.max_bytes, views=False)
+        take = np.zeros(len(samples), dtype=bool)
+        for i, delta in enumerate(batch.results):
+            key = samples[i][0]
+            if isinstance(delta, CellDelta):
+                try:
+                    self._check_map(delta)
+                except ProtocolError as exc:
+                    delta = exc
+            if isinstance(delta, ProtocolError):
+                book.rejected[delta.reason] += 1
+                res.rejected.append((delta.reason, str(delta)))
+                log.warning("rejected delta on %s: %s", key, delta)
                 continue
             sk = (delta.scout, delta.epoch)
             st = book.seqs.get(sk)
@@ -127,23 +137,53 @@ class Merger:
                 res.duplicates += 1
             else:
                 st.mark(delta.seq)
-                res.accepted.append(Accepted(delta, bytes(payload)))
+                take[i] = True
+                res.accepted.append(Accepted(delta, bytes(samples[i][1])))
                 res.touched.add(sk)
             if st.hw >= 0:
                 res.acks[sk] = Ack(self.map_id, delta.scout, delta.epoch, st.hw)
         if res.accepted:
-            self.map.merge_many([a.delta.layers for a in res.accepted])
+            self._merge_columns(batch, take)
             book.merged += len(res.accepted)
             book.version += len(res.accepted)
         return res
 
+    def _check_map(self, delta: CellDelta) -> None:
+        if delta.map != self.map_id:
+            raise ProtocolError(
+                "key_mismatch", f"delta for map {delta.map!r}; this server holds {self.map_id!r}"
+            )
+        for name in delta.layers:
+            if name not in self.map.grids:
+                raise ProtocolError(
+                    "unknown_layer", f"map has no layer {name!r}; layers: {', '.join(self.map.grids)}"
+                )
+
+    def _merge_columns(self, batch: DeltaBatch, take: np.ndarray) -> None:
+        everything = bool(take.all())
+        for name, c in batch.columns.items():
+            if everything:
+                self.map.merge_columns(name, c.ix, c.iy, c.vals)
+            else:
+                keep = take[c.seg]
+                if keep.any():
+                    self.map.merge_columns(name, c.ix[keep], c.iy[keep], c.vals[:, keep])
+
     def replay(self, payloads: Iterable[bytes]) -> int:
         """Merge already-accepted payloads (from the store's log) without touching bookkeeping."""
-        deltas = []
+        n = 0
+        chunk: list[tuple[str | None, bytes]] = []
         for p in payloads:
-            d = decode(p, expected_type="cell_delta", res=self.map.res, max_bytes=max(self.max_bytes, len(p)))
-            assert isinstance(d, CellDelta)
-            deltas.append(d.layers)
-        for i in range(0, len(deltas), 512):
-            self.map.merge_many(deltas[i : i + 512])
-        return len(deltas)
+            chunk.append((None, p))
+            if len(chunk) == 512:
+                n += self._replay_chunk(chunk)
+                chunk = []
+        if chunk:
+            n += self._replay_chunk(chunk)
+        return n
+
+    def _replay_chunk(self, chunk: list[tuple[str | None, bytes]]) -> int:
+        batch = decode_delta_batch(chunk, res=self.map.res, max_bytes=2**62, views=False)
+        take = np.array([isinstance(r, CellDelta) for r in batch.results])
+        self._merge_columns(batch, take)
+        return int(take.sum())

@@ -107,6 +107,17 @@ class TiledMap:
             done += self._merge_layer(name, grid, ix, iy, vals)
         return done
 
+    def merge_columns(self, name: str, ix: np.ndarray, iy: np.ndarray, vals: np.ndarray) -> int:
+        """Merge one layer's cells given as columns: ix, iy (N,), vals (S, N) in the layer's stat order."""
+        grid = self.grids.get(name)
+        if grid is None:
+            raise ProtocolError(
+                "unknown_layer", f"map has no layer {name!r}; layers: {', '.join(self.grids)}"
+            )
+        if not ix.size:
+            return 0
+        return self._merge_layer(name, grid, ix.astype(np.int64), iy.astype(np.int64), vals)
+
     def _merge_layer(
         self, name: str, grid: LayerGrid, ix: np.ndarray, iy: np.ndarray, vals: np.ndarray
     ) -> int:

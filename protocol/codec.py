@@ -10,7 +10,7 @@ import numpy as np
 
 from protocol.errors import ProtocolError
 from protocol.keys import parse_ack_key, parse_delta_key, validate_id
-from protocol.layers import get_layer
+from protocol.layers import Layer, get_layer
 from protocol.messages import VERSION, Ack, CellDelta, MapRegion, ScoutStatus, Status
 
 __all__ = ["DEFAULT_MAX_BYTES", "INDEX_LIMIT", "Message", "decode", "encode"]
@@ -154,7 +154,11 @@ def _check_map(got: str, key_map: str | None, where: str) -> None:
         )
 
 
-def _decode_layer(name: str, raw: Any) -> dict[str, np.ndarray]:
+def _layer_buffers(name: str, raw: Any) -> tuple[Layer, Any, Any, list[Any], int]:
+    """Structural checks of one layer (names, types, lengths) without touching the numbers.
+
+    Returns (layer, ix bytes, iy bytes, stat bytes in the layer's order, N).
+    """
     where = f"layers.{name}"
     layer = get_layer(name)
     raw = _dict(raw, where)
@@ -162,47 +166,70 @@ def _decode_layer(name: str, raw: Any) -> dict[str, np.ndarray]:
     for k in raw:
         if k not in allowed:
             raise ProtocolError("unknown_stat", f"{where} has no stat {k!r}; stats: {', '.join(allowed)}")
-    ix = _buf(_get(raw, "ix", where), _I32, f"{where}.ix")
-    iy = _buf(_get(raw, "iy", where), _I32, f"{where}.iy")
-    n = len(ix)
-    if len(iy) != n:
-        raise ProtocolError("length_mismatch", f"{where}.iy has {len(iy)} cells, ix has {n}")
-    cols = []
-    for stat in layer.stats:
-        a = _buf(_get(raw, stat, where), _F64, f"{where}.{stat}")
-        if len(a) != n:
-            raise ProtocolError("length_mismatch", f"{where}.{stat} has {len(a)} values, ix has {n} cells")
-        cols.append(a)
-    block = np.stack(cols) if cols else np.empty((0, n))  # (S, N)
-    if n:
-        if not np.isfinite(block).all():
-            bad = [s for s, a in zip(layer.stats, cols, strict=True) if not np.isfinite(a).all()]
+    bufs = []
+    for k in allowed:
+        v = _get(raw, k, where)
+        dtype = _I32 if k in ("ix", "iy") else _F64
+        if not isinstance(v, bytes | bytearray):
             raise ProtocolError(
-                "nonfinite", f"{where} stats {bad} hold NaN/inf; every statistic must be finite"
+                "wrong_type",
+                f"{where}.{k} must be bytes ({dtype.name} little-endian), got {type(v).__name__}",
             )
-        for stat, a in zip(layer.stats, cols, strict=True):
-            if stat in layer.counts and a.min() < 0:
-                raise ProtocolError(
-                    "negative_count", f"{where}.{stat} has {a.min()} < 0; counts must be >= 0"
-                )
-        lo, hi = min(ix.min(), iy.min()), max(ix.max(), iy.max())
-        if lo < -INDEX_LIMIT or hi > INDEX_LIMIT:
+        if len(v) % dtype.itemsize:
             raise ProtocolError(
-                "index_range",
-                f"{where} has index {lo if lo < -INDEX_LIMIT else hi}; indices must be within +-2**30",
+                "bad_length",
+                f"{where}.{k} has {len(v)} bytes, not a multiple of {dtype.itemsize} ({dtype.name})",
             )
-        keys = (ix.astype(np.int64) << 32) | (iy.astype(np.int64) & 0xFFFFFFFF)
-        if n > 1 and len(np.unique(keys)) != n:
+        bufs.append(v)
+    n = len(bufs[0]) // 4
+    if len(bufs[1]) != 4 * n:
+        raise ProtocolError("length_mismatch", f"{where}.iy has {len(bufs[1]) // 4} cells, ix has {n}")
+    for stat, v in zip(layer.stats, bufs[2:], strict=True):
+        if len(v) != 8 * n:
             raise ProtocolError(
-                "duplicate_cell", f"{where} lists a cell more than once; each cell at most once"
+                "length_mismatch", f"{where}.{stat} has {len(v) // 8} values, ix has {n} cells"
             )
-    out = {"ix": ix, "iy": iy}
+    return layer, bufs[0], bufs[1], bufs[2:], n
+
+
+def check_cells(where: str, layer: Any, ix: np.ndarray, iy: np.ndarray, block: np.ndarray) -> None:
+    """Numeric checks of one layer's cells: finite stats, counts >= 0, index range, no duplicate cell."""
+    n = ix.size
+    if not n:
+        return
+    if not np.isfinite(block).all():
+        bad = [s for s, a in zip(layer.stats, block, strict=True) if not np.isfinite(a).all()]
+        raise ProtocolError("nonfinite", f"{where} stats {bad} hold NaN/inf; every statistic must be finite")
+    for stat, a in zip(layer.stats, block, strict=True):
+        if stat in layer.counts and a.min() < 0:
+            raise ProtocolError("negative_count", f"{where}.{stat} has {a.min()} < 0; counts must be >= 0")
+    lo, hi = min(ix.min(), iy.min()), max(ix.max(), iy.max())
+    if lo < -INDEX_LIMIT or hi > INDEX_LIMIT:
+        raise ProtocolError(
+            "index_range",
+            f"{where} has index {lo if lo < -INDEX_LIMIT else hi}; indices must be within +-2**30",
+        )
+    keys = (ix.astype(np.int64) << 32) | (iy.astype(np.int64) & 0xFFFFFFFF)
+    if n > 1 and len(np.unique(keys)) != n:
+        raise ProtocolError("duplicate_cell", f"{where} lists a cell more than once; each cell at most once")
+
+
+def _decode_layer(name: str, raw: Any) -> dict[str, np.ndarray]:
+    layer, ixb, iyb, statb, n = _layer_buffers(name, raw)
+    ix = np.frombuffer(ixb, dtype=_I32)
+    iy = np.frombuffer(iyb, dtype=_I32)
+    block = np.frombuffer(b"".join(statb), dtype=_F64).reshape(len(statb), n)  # (S, N)
+    check_cells(f"layers.{name}", layer, ix, iy, block)
+    out: dict[str, np.ndarray] = {"ix": ix, "iy": iy}
     for stat, a in zip(layer.stats, block, strict=True):
         out[stat] = a
     return out
 
 
-def _decode_delta(d: dict, key: str | None, res: float | None) -> CellDelta:
+def delta_header(
+    d: dict, key: str | None, res: float | None
+) -> tuple[str, str, int, int, float, float, dict]:
+    """Checks of a cell_delta's scalar fields -> (map, scout, epoch, seq, t, res, raw layers)."""
     w = "cell_delta"
     map_id = validate_id(_get(d, "map", w), "map")
     scout = validate_id(_get(d, "scout", w), "scout")
@@ -220,6 +247,11 @@ def _decode_delta(d: dict, key: str | None, res: float | None) -> CellDelta:
     if res is not None and r != res:
         raise ProtocolError("wrong_res", f"{w}.res={r} but map {map_id!r} has res {res}")
     raw_layers = _dict(_get(d, "layers", w), f"{w}.layers")
+    return map_id, scout, epoch, seq, t, r, raw_layers
+
+
+def _decode_delta(d: dict, key: str | None, res: float | None) -> CellDelta:
+    map_id, scout, epoch, seq, t, r, raw_layers = delta_header(d, key, res)
     layers = {name: _decode_layer(name, raw) for name, raw in raw_layers.items()}
     return CellDelta(map_id, scout, epoch, seq, t, r, layers)
 
@@ -301,6 +333,19 @@ def decode(
     expected_type: reject other types (`bad_type`); key: the key expression the message arrived on
     (its map / scout must agree); res: the map's resolution (`wrong_res` otherwise).
     """
+    d = unpack_envelope(data, expected_type, max_bytes)
+    typ = d["type"]
+    if typ == "cell_delta":
+        return _decode_delta(d, key, res)
+    if typ == "ack":
+        return _decode_ack(d, key)
+    if typ == "map_region":
+        return _decode_region(d, res)
+    return _decode_status(d)
+
+
+def unpack_envelope(data: bytes | bytearray | memoryview, expected_type: str | None, max_bytes: int) -> dict:
+    """msgpack -> dict with a supported `v` and a known (or the expected) `type`."""
     if len(data) > max_bytes:
         raise ProtocolError("oversize", f"payload has {len(data)} bytes; the limit is {max_bytes}")
     try:
@@ -316,10 +361,4 @@ def decode(
         raise ProtocolError("bad_type", f"type={typ!r}; types: {', '.join(TYPES)}")
     if expected_type is not None and typ != expected_type:
         raise ProtocolError("bad_type", f"type={typ!r} but {expected_type!r} is expected here")
-    if typ == "cell_delta":
-        return _decode_delta(d, key, res)
-    if typ == "ack":
-        return _decode_ack(d, key)
-    if typ == "map_region":
-        return _decode_region(d, res)
-    return _decode_status(d)
+    return d

@@ -86,3 +86,25 @@ def test_missing_stat_of_a_layer_is_missing_field():
 def test_protocol_error_rejects_unknown_reason():
     with pytest.raises(ValueError, match="reasons: decode"):
         ProtocolError("nope", "x")
+
+
+@pytest.mark.parametrize("reason", REASONS)
+def test_batch_decode_agrees_with_single_decode(reason):
+    from protocol.batch import decode_delta_batch
+
+    key, bad, kw = broken(reason)
+    good = [(delta_key(MAP, SCOUT), encode(make_delta(seq=i, seed=i))) for i in range(3)]
+    opts = {k: v for k, v in kw.items() if k != "key"}
+    batch = decode_delta_batch([good[0], (key, bad), good[1], good[2]], **opts)
+    err = batch.results[1]
+    assert isinstance(err, ProtocolError) and err.reason == reason
+    with pytest.raises(ProtocolError) as info:
+        decode(bad, **kw)
+    assert str(err) == str(info.value)
+    if reason != "oversize":  # with a tiny max_bytes every delta is oversize
+        for i, j in ((0, 0), (2, 1), (3, 2)):
+            single = decode(good[j][1])
+            for name, cells in single.layers.items():
+                for s, a in cells.items():
+                    np.testing.assert_array_equal(batch.results[i].layers[name][s], a)
+        assert sum(c.ix.size for c in batch.columns.values()) == 3 * 2 * 3
