@@ -21,6 +21,8 @@ from scout_agent.robot import kinematics as K
 
 _NOMINAL_FEET = K.fk(C.HOME_Q)  # (4, 3) base frame
 _NOMINAL_FEET[:, 2] = 0.0
+_EPS3 = 1e-6 * np.eye(3)
+_EZ = np.array([0.0, 0.0, 1.0])
 
 
 @dataclass(frozen=True)
@@ -75,9 +77,32 @@ class ControlOutput:
     stance_forces: np.ndarray  # (4, 3) QP forces on the feet, world frame [N]
 
 
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Cross product of (..., 3) arrays without np.cross's axis bookkeeping (hot path)."""
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    out[..., 0] = a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1]
+    out[..., 1] = a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2]
+    out[..., 2] = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+    return out
+
+
+def _fit_plane(P: np.ndarray) -> tuple[np.ndarray, float]:
+    """Least-squares plane z = a x + b y + c through points P (n, 3); level through their mean if degenerate."""
+    m = P.mean(axis=0)
+    d = P - m
+    sxx, syy, sxy = float(d[:, 0] @ d[:, 0]), float(d[:, 1] @ d[:, 1]), float(d[:, 0] @ d[:, 1])
+    sxz, syz = float(d[:, 0] @ d[:, 2]), float(d[:, 1] @ d[:, 2])
+    det = sxx * syy - sxy * sxy
+    if det < 1e-9:
+        return np.zeros(2), float(m[2])
+    a = (sxz * syy - syz * sxy) / det
+    b = (syz * sxx - sxz * sxy) / det
+    return np.array([a, b]), float(m[2] - a * m[0] - b * m[1])
+
+
 def _rotvec(R: np.ndarray) -> np.ndarray:
     """Rotation vector (log map) of a rotation matrix."""
-    c = np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)
+    c = min(1.0, max(-1.0, (R[0, 0] + R[1, 1] + R[2, 2] - 1.0) / 2.0))
     angle = np.arccos(c)
     v = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
     if angle < 1e-6:
@@ -108,8 +133,8 @@ class TrotController:
         feet_w = state.pos + K.fk(state.q) @ state.R.T
         self.footholds = feet_w.copy()  # (4, 3) last stance points, world
         self.liftoff = feet_w.copy()
-        self.in_stance = np.ones(4, bool)
-        self.prev_stance_sched = np.ones(4, bool)
+        self.in_stance = [True] * 4
+        self.prev_stance_sched = [True] * 4
         self.p_ref = state.pos[:2].copy()
         self.yaw_ref = float(np.arctan2(state.R[1, 0], state.R[0, 0]))
         self.f_prev = np.zeros((4, 3))
@@ -120,10 +145,7 @@ class TrotController:
 
     def plane(self) -> tuple[np.ndarray, float]:
         """Foothold plane z = g·(x, y) + c through the last footholds (foot-sphere centres)."""
-        P = self.footholds
-        A = np.c_[P[:, 0], P[:, 1], np.ones(4)]
-        sol = np.linalg.lstsq(A, P[:, 2], rcond=None)[0]
-        return sol[:2], float(sol[2])
+        return _fit_plane(self.footholds)
 
     def step(self, s: RobotState, dt: float) -> ControlOutput:
         if not self._initialized:
@@ -138,20 +160,22 @@ class TrotController:
         sw = self.gait.swing_progress(phase)
         # stance bookkeeping. A leg is in stance once it is scheduled in stance *and* has touched down
         # (late touchdown: it keeps searching downwards); a contact late in swing ends the swing early.
+        sched_l, sw_l, con_l, prev = sched.tolist(), sw.tolist(), s.contact.tolist(), self.prev_stance_sched
+        ins = self.in_stance
         for i in range(4):
-            if sched[i] and not self.prev_stance_sched[i]:
+            if sched_l[i] and not prev[i]:
                 self.sched_td_t[i] = s.t
-                if not self.in_stance[i] and s.contact[i]:
-                    self.in_stance[i] = True
+                if not ins[i] and con_l[i]:
+                    ins[i] = True
                     self.footholds[i] = feet_w[i]
-            elif not sched[i] and self.prev_stance_sched[i]:
-                self.in_stance[i] = False
+            elif not sched_l[i] and prev[i]:
+                ins[i] = False
                 self.liftoff[i] = feet_w[i]
-            elif not self.in_stance[i] and s.contact[i] and (sched[i] or sw[i] > c.early_contact):
-                self.in_stance[i] = True
+            elif not ins[i] and con_l[i] and (sched_l[i] or sw_l[i] > c.early_contact):
+                ins[i] = True
                 self.footholds[i] = feet_w[i]
-        self.prev_stance_sched = sched
-        stance = self.in_stance.copy()
+        self.prev_stance_sched = sched_l
+        stance = np.array(ins)
 
         grad, z0 = self.plane()
         n = np.array([-grad[0], -grad[1], 1.0])
@@ -169,18 +193,18 @@ class TrotController:
         if norm > c.max_pos_err:
             self.p_ref = s.pos[:2] + err * (c.max_pos_err / norm)
         self.yaw_ref += self.yaw_rate_cmd * dt
-        self.yaw_ref = yaw + float(np.clip((self.yaw_ref - yaw + np.pi) % (2 * np.pi) - np.pi, -0.2, 0.2))
+        self.yaw_ref = yaw + min(0.2, max(-0.2, (self.yaw_ref - yaw + np.pi) % (2 * np.pi) - np.pi))
         z_des = grad @ s.pos[:2] + z0 + c.height / n[2]
         pos_err = np.array([self.p_ref[0] - s.pos[0], self.p_ref[1] - s.pos[1], z_des - s.pos[2]])
         F = c.mass * (self._kp_pos * pos_err + self._kd_pos * (v_des - s.vel))
         F[2] += c.mass * c.gravity
 
-        up = c.terrain_tilt * n + (1.0 - c.terrain_tilt) * np.array([0.0, 0.0, 1.0])
+        up = c.terrain_tilt * n + (1.0 - c.terrain_tilt) * _EZ
         up /= np.linalg.norm(up)
         hx = np.array([np.cos(self.yaw_ref), np.sin(self.yaw_ref), 0.0])
         x_axis = hx - (hx @ up) * up
         x_axis /= np.linalg.norm(x_axis)
-        R_des = np.column_stack([x_axis, np.cross(up, x_axis), up])
+        R_des = np.column_stack([x_axis, _cross(up, x_axis), up])
         e_rot_w = _rotvec(R_des @ R.T)
         omega_w = R @ s.omega
         w_des = np.array([0.0, 0.0, self.yaw_rate_cmd])
@@ -205,10 +229,10 @@ class TrotController:
         f_b = forces @ R  # rows: R^T f
         # stance feet: touchdown point held still in the world
         p_hold_b = (self.footholds - s.pos) @ R
-        v_hold_b = -(s.vel @ R + np.cross(s.omega, p_hold_b))
+        v_hold_b = -(s.vel @ R + _cross(s.omega, p_hold_b))
+        tau_st = -np.einsum("lji,lj->li", J, f_b) + c.stance_kd * np.linalg.solve(J + _EPS3, v_hold_b[..., None])[..., 0]
         for i in idx:
-            dq_des = np.linalg.solve(J[i] + 1e-6 * np.eye(3), v_hold_b[i])
-            tau[3 * i : 3 * i + 3] = -J[i].T @ f_b[i] + c.stance_kd * dq_des
+            tau[3 * i : 3 * i + 3] = tau_st[i]
         pos_des_b[idx] = p_hold_b[idx]
         vel_des_b[idx] = v_hold_b[idx]
 
@@ -232,15 +256,15 @@ class TrotController:
             prog = np.where(late, 1.0, sw[sw_idx])
             p_w, v_w = swing_point(self.liftoff[sw_idx], target, prog, c.swing_height, T_sw)
             p_b = (p_w - s.pos) @ R
-            v_b = (v_w - s.vel) @ R - np.cross(s.omega, p_b)
+            v_b = (v_w - s.vel) @ R - _cross(s.omega, p_b)
             pos_des_b[sw_idx] = p_b
             vel_des_b[sw_idx] = v_b
             q_ik = K.ik(pos_des_b).reshape(4, 3)
+            dq_sw = np.linalg.solve(J[sw_idx] + _EPS3, v_b[..., None])[..., 0]
             for k, i in enumerate(sw_idx):
                 sl = slice(3 * i, 3 * i + 3)
                 q_des[sl] = q_ik[i]
-                dq_des = np.linalg.solve(J[i] + 1e-6 * np.eye(3), v_b[k])
                 kp[sl] = c.swing_kp
                 kd[sl] = c.swing_kd
-                tau[sl] += c.swing_kd * dq_des
+                tau[sl] += c.swing_kd * dq_sw[k]
         return ControlOutput(tau, q_des, kp, kd, pos_des_b, vel_des_b, sched, phase, forces)

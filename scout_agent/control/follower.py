@@ -50,7 +50,7 @@ class PathFollower:
                 break
         a, b = pts[self.segment], pts[self.segment + 1]
         ab = b - a
-        t = np.clip((p - a) @ ab / (ab @ ab), 0.0, 1.0)
+        t = min(1.0, max(0.0, float((p - a) @ ab / (ab @ ab))))
         target = a + ab * t
         remaining = self.config.lookahead_m
         seg = self.segment
@@ -72,10 +72,10 @@ class PathFollower:
         target = self._lookahead(pos_xy)
         heading = np.arctan2(target[1] - pos_xy[1], target[0] - pos_xy[0])
         err = (heading - yaw + np.pi) % (2 * np.pi) - np.pi
-        yaw_rate = float(np.clip(c.yaw_gain * err, -c.max_yaw_rate, c.max_yaw_rate))
+        yaw_rate = min(c.max_yaw_rate, max(-c.max_yaw_rate, float(c.yaw_gain * err)))
         scale = 1.0 if abs(err) < c.slow_heading_err_rad else max(0.0, np.cos(err))
         v_ref = c.speed * scale
         v_meas = float(vel_xy @ np.array([np.cos(yaw), np.sin(yaw)]))
         if scale == 1.0:
-            self.integral = float(np.clip(self.integral + c.ki * (v_ref - v_meas) * dt, -0.05, c.max_boost))
+            self.integral = min(c.max_boost, max(-0.05, self.integral + c.ki * (v_ref - v_meas) * dt))
         return v_ref + self.integral * scale, yaw_rate

@@ -25,10 +25,6 @@ class StanceQPConfig:
     smooth: float = 1e-3  # β
 
 
-def _skew(v: np.ndarray) -> np.ndarray:
-    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
-
-
 class StanceQP:
     def __init__(self, config: StanceQPConfig = StanceQPConfig()) -> None:
         self.config = config
@@ -44,16 +40,22 @@ class StanceQP:
         n = 3 * k
         A = np.zeros((6, n))
         for i in range(k):
-            A[0:3, 3 * i : 3 * i + 3] = np.eye(3)
-            A[3:6, 3 * i : 3 * i + 3] = _skew(r[i])
+            x, y, z = r[i]
+            j = 3 * i
+            A[0, j] = A[1, j + 1] = A[2, j + 2] = 1.0
+            A[3, j + 1], A[3, j + 2] = -z, y
+            A[4, j], A[4, j + 2] = z, -x
+            A[5, j], A[5, j + 1] = -y, x
         AS = A.T * self._S
-        G = AS @ A + (c.reg + c.smooth) * np.eye(n)
+        G = AS @ A
+        G[np.diag_indices(n)] += c.reg + c.smooth
         a = AS @ wrench
         if f_prev is not None:
             a += c.smooth * f_prev.ravel()
-        t1 = np.cross(normal, [0.0, 1.0, 0.0] if abs(normal[0]) < 0.9 else [1.0, 0.0, 0.0])
-        t1 /= np.linalg.norm(t1)
-        t2 = np.cross(normal, t1)
+        nx, ny, nz = normal
+        t1 = np.array([-nz, 0.0, nx]) if abs(nx) < 0.9 else np.array([ny, -nx, 0.0])  # ⊥ normal
+        t1 /= np.sqrt(t1 @ t1)
+        t2 = np.array([ny * t1[2] - nz * t1[1], nz * t1[0] - nx * t1[2], nx * t1[1] - ny * t1[0]])
         rows = np.array([normal, -normal, c.mu * normal - t1, c.mu * normal + t1,
                          c.mu * normal - t2, c.mu * normal + t2])  # (6, 3)
         lo = np.array([c.f_min, -c.f_max, 0.0, 0.0, 0.0, 0.0])

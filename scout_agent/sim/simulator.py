@@ -1,6 +1,6 @@
 """`ScoutSim`: MuJoCo physics + the trot controller, one `(ProprioSample, GroundTruth)` per control tick.
 
-Timing: physics at `dt` = 0.002 s; the controller every `decimation` physics steps (default 4 → 125 Hz),
+Timing: physics at `dt` = 0.002 s; the controller every `decimation` physics steps (default 5 → 100 Hz),
 while the joint PD servos act at every physics step inside MuJoCo. A tick's joint state and base state are
 those after the last physics step; contact forces, contact points and the IMU come from that step's
 dynamics (one physics step, 2 ms, older), as a sensor's latest reading would.
@@ -44,7 +44,7 @@ class SimConfig:
     physics: PhysicsConfig = field(default_factory=PhysicsConfig)
     controller: ControllerConfig = field(default_factory=ControllerConfig)
     noise: NoiseConfig = field(default_factory=NoiseConfig)
-    decimation: int = 4  # physics steps per control tick
+    decimation: int = 5  # physics steps per control tick (100 Hz control; PD servos at 500 Hz)
     contact_threshold_n: float = 1.0  # [N]
     fall_tilt_deg: float = 60.0  # trunk tilt from vertical that counts as a fall
     fall_min_height_m: float = 0.12  # trunk origin above the terrain below which it counts as a fall
@@ -117,7 +117,8 @@ class ScoutSim:
     def _apply_friction(self) -> None:
         d = self.data
         feet = d.xpos[self.model.geom_bodyid[self._foot_geoms]]
-        self.model.geom_friction[self._foot_geoms, 0] = self.friction.at(feet[:, 0], feet[:, 1])
+        self._mu_feet = self.friction.at(feet[:, 0], feet[:, 1])
+        self.model.geom_friction[self._foot_geoms, 0] = self._mu_feet
 
     # ----------------------------------------------------------------------------------------- state
     def robot_state(self) -> RobotState:
@@ -197,6 +198,10 @@ class ScoutSim:
         omega = d.qvel[3:6].copy()
         q = d.qpos[7:].copy()
         feet_w = pos + K.fk(q) @ R.T
+        xy = np.empty((2, 5))
+        xy[:, :4] = feet_w[:, :2].T
+        xy[:, 4] = pos[:2]
+        ground = self.terrain.height(xy[0], xy[1])  # feet, base
         # stance displacement of the contact point since the stance's first contact
         for i in range(4):
             if not out.stance_planned[i]:
@@ -217,10 +222,10 @@ class ScoutSim:
         truth = GroundTruth(
             t=self.t, base=truth_base, foot_pos_world=feet_w,
             contact_point_world=np.where(contact[:, None], points, np.nan), stance_disp=disp,
-            terrain_height_at_feet=self.terrain.height(feet_w[:, 0], feet_w[:, 1]),
-            friction_at_feet=self.friction.at(feet_w[:, 0], feet_w[:, 1]), nonfoot_contacts=n_nonfoot)
+            terrain_height_at_feet=ground[:4],
+            friction_at_feet=self._mu_feet.copy(), nonfoot_contacts=n_nonfoot)
         tilt = np.degrees(np.arccos(np.clip(R[2, 2], -1.0, 1.0)))
-        clearance = pos[2] - float(self.terrain.height(pos[0], pos[1]))
+        clearance = pos[2] - float(ground[4])
         if not self.fell and (tilt > cfg.fall_tilt_deg or clearance < cfg.fall_min_height_m or trunk_touch):
             self.fell = True
             self.fall_xy = (float(pos[0]), float(pos[1]))

@@ -1,0 +1,77 @@
+"""Controller parts (gait, stance QP, swing, follower) and short walks: flat, a short ramp, a lunar leg."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from scout_agent.control.follower import FollowerConfig, PathFollower
+from scout_agent.control.gait import GaitConfig, TrotGait
+from scout_agent.control.stance import StanceQP, StanceQPConfig
+from scout_agent.control.swing import swing_point
+from scout_agent.run import ScoutRunConfig, run_scout
+from scout_agent.sim.terrain import RampConfig
+
+
+def test_trot_schedule_pairs_diagonals():
+    g = TrotGait(GaitConfig(freq_hz=1.4, duty=0.6))
+    for t in np.linspace(0, 2, 37):
+        st = g.stance(g.phase(t))
+        assert st[0] == st[3] and st[1] == st[2]  # FL+RR, FR+RL
+        assert st.sum() >= 2
+    assert g.stance_s + g.swing_s == pytest.approx(1 / 1.4)
+
+
+def test_stance_qp_meets_wrench_within_friction_cone():
+    qp = StanceQP(StanceQPConfig(mu=0.5))
+    r = np.array([[0.24, 0.13, -0.33], [-0.24, -0.13, -0.33], [0.24, -0.13, -0.33], [-0.24, 0.13, -0.33]])
+    n = np.array([0.0, 0.0, 1.0])
+    w = np.array([2.0, 0.0, 33.4, 0.0, 0.0, 0.0])
+    f = qp.solve(r, n, w)
+    np.testing.assert_allclose(f.sum(axis=0), w[:3], atol=0.1)
+    assert (f[:, 2] >= 2.0 - 1e-6).all()
+    assert (np.hypot(f[:, 0], f[:, 1]) <= 0.5 * np.sqrt(2) * f[:, 2] + 1e-6).all()
+    # tilted ground: the cone follows the normal
+    n2 = np.array([-np.sin(0.3), 0.0, np.cos(0.3)])
+    f2 = qp.solve(r[:2], n2, w)
+    t = np.cross(n2, [0, 1, 0])
+    assert (np.abs(f2 @ t) <= 0.5 * (f2 @ n2) + 1e-6).all()
+
+
+def test_swing_starts_ends_and_clears():
+    p0, p1 = np.array([[0.0, 0.0, 0.0]]), np.array([[0.2, 0.0, 0.1]])
+    p, v = swing_point(p0, p1, np.array([0.0]), 0.08, 0.3)
+    np.testing.assert_allclose(p, p0)
+    p, v = swing_point(p0, p1, np.array([1.0]), 0.08, 0.3)
+    np.testing.assert_allclose(p, p1, atol=1e-12)
+    np.testing.assert_allclose(v[0, :2], 0.0, atol=1e-12)
+    p, _ = swing_point(p0, p1, np.array([0.5]), 0.08, 0.3)
+    assert p[0, 2] == pytest.approx(0.05 + 0.08)
+
+
+def test_follower_turns_toward_via_points_and_stops_at_goal():
+    f = PathFollower([(0, 0), (2, 0), (2, 2)], FollowerConfig(speed=0.2))
+    v, w = f.command(np.array([0.0, 0.0]), 0.0, np.zeros(2), 0.01)
+    assert v == pytest.approx(0.2, abs=0.01) and abs(w) < 1e-9  # plus the velocity loop's integral
+    v, w = f.command(np.array([1.9, 0.0]), 0.0, np.zeros(2), 0.01)
+    assert w > 0  # turning left toward (2, 2)
+    v, w = f.command(np.array([2.0, 1.9]), np.pi / 2, np.zeros(2), 0.01)
+    assert f.reached and v == 0.0
+
+
+def test_short_flat_walk_holds_speed():
+    s = run_scout(ScoutRunConfig(scene="ramps", slope_deg=0.0, goal=(3.6, 0.0)), progress=False)
+    assert s["reached_goal"] and not s["fell"]
+    assert s["mean_speed_mps"] == pytest.approx(0.2, rel=0.1)
+
+
+def test_short_ramp_up_platform_down():
+    ramp = RampConfig(approach_m=1.0, up_m=1.2, platform_m=0.8, down_m=1.2, exit_m=1.0)
+    s = run_scout(ScoutRunConfig(scene="ramps", slope_deg=15.0, ramp=ramp), progress=False)
+    assert s["reached_goal"] and not s["fell"]
+    assert s["mean_speed_mps"] == pytest.approx(0.2, rel=0.1)
+
+
+def test_short_lunar_leg():
+    s = run_scout(ScoutRunConfig(scene="lunar", seed=1, start=(1.5, 1.5), goal=(4.5, 4.5)), progress=False)
+    assert s["reached_goal"] and not s["fell"]
