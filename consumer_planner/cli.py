@@ -98,6 +98,13 @@ def register(subparsers) -> None:
     )
     _common(c)
     c.add_argument("--route", type=_route, action="append", required=True, metavar='"X,Y X,Y ..."')
+    c.add_argument(
+        "--name",
+        action="append",
+        default=[],
+        metavar="NAME",
+        help="name of each --route, in order (default route0, route1, ...)",
+    )
     c.set_defaults(func=_run_compare, _parser=c)
 
 
@@ -204,10 +211,13 @@ def _run_plan(args: argparse.Namespace) -> int:
 
 def _run_compare(args: argparse.Namespace) -> int:
     cfg = _config(args)
+    if len(args.name) > len(args.route):
+        args._parser.error(f"{len(args.name)} --name for {len(args.route)} --route: give at most one name per route")
+    names = [*args.name, *(f"route{i}" for i in range(len(args.name), len(args.route)))]
     try:
         grid = _load(args, [p for r in args.route for p in r])
         costs = build_costs(grid, cfg)
-        routes = [evaluate_route(grid, costs, pts, name=f"route{i}") for i, pts in enumerate(args.route)]
+        routes = [evaluate_route(grid, costs, pts, name=name) for name, pts in zip(names, args.route, strict=True)]
     except PlannerError as exc:
         raise SystemExit(f"psrmap compare: {exc}") from None
     return _finish(args, grid, costs, routes, single=False)

@@ -72,3 +72,14 @@ def test_plan_errors_are_readable(npz, capsys):
     with pytest.raises(SystemExit):
         main(["plan", "--from", "0,0", "--to", "6,1"])
     assert "give either --connect ENDPOINT (with --map ID) or --npz FILE" in capsys.readouterr().err
+
+
+def test_compare_names_routes_in_order(npz, capsys):
+    routes = ["--route", "-0.5,-0.5 6.5,3.5", "--route", "-0.5,-0.5 -0.5,3.5 6.5,3.5"]
+    assert main(["compare", "--npz", str(npz), *routes, "--name", "direct", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert [r["name"] for r in out["routes"]] == ["direct", "route1"]
+    with pytest.raises(SystemExit) as exc:
+        main(["compare", "--npz", str(npz), routes[0], routes[1], "--name", "a", "--name", "b"])
+    assert exc.value.code == 2
+    assert "at most one name per route" in capsys.readouterr().err
