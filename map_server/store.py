@@ -117,7 +117,8 @@ class MapStore:
         try:
             db.executemany(
                 "INSERT OR REPLACE INTO tiles VALUES (?, ?, ?, ?)",
-                [(layer, tx, ty, tiled.tile_blob(layer, tx, ty)) for layer, tx, ty in sorted(dirty)],
+                # a generator: one tile's blob at a time, never a second copy of the whole map
+                ((layer, tx, ty, tiled.tile_blob(layer, tx, ty)) for layer, tx, ty in sorted(dirty)),
             )
             db.execute("DELETE FROM deltas")
             db.execute("COMMIT")
