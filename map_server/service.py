@@ -185,11 +185,12 @@ class MapService:
                 self.store.commit(res.accepted, self.merger.book, res.touched)
                 if self.store.since_snapshot >= self.config.snapshot_every:
                     self.store.snapshot(self.map)
-            dirty = set(self.map.dirty) if self._viz is not None else set()
+            touched = self.map.take_touched() if self._viz is not None else set()
+            version = self.merger.book.version
         for ack in res.acks.values():
             self._session.put(ack_key(ack.map, ack.scout), encode(ack))
-        if self._viz is not None and dirty:
-            self._viz.log_tiles(self.map, dirty, self.lock)
+        if self._viz is not None and touched:
+            self._viz.log_tiles(self.map, touched, self.lock, version)
 
     # ------------------------------------------------------------------ queries
 

@@ -59,6 +59,7 @@ class TiledMap:
         self.occupied: dict[TileKey, np.ndarray] = {}  # (T*T,) bool: cell holds data in some layer
         self.cells = 0  # cells holding any data
         self.dirty: set[tuple[str, int, int]] = set()  # (layer, tx, ty) changed since `clear_dirty`
+        self.touched: set[tuple[str, int, int]] = set()  # changed since `take_touched` (visualisation)
 
     # ------------------------------------------------------------------ merging
 
@@ -162,6 +163,7 @@ class TiledMap:
                 occ[fresh] = True
                 self.cells += int(fresh.size)
             self.dirty.add((name, kx, ky))
+            self.touched.add((name, kx, ky))
         return int(vals.size)
 
     # ------------------------------------------------------------------ reading
@@ -283,6 +285,10 @@ class TiledMap:
         before = int(np.count_nonzero(occ))
         occ |= n > 0
         self.cells += int(np.count_nonzero(occ)) - before
+
+    def take_touched(self) -> set[tuple[str, int, int]]:
+        touched, self.touched = self.touched, set()
+        return touched
 
     def clear_dirty(self) -> set[tuple[str, int, int]]:
         dirty, self.dirty = self.dirty, set()

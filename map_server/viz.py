@@ -1,0 +1,75 @@
+"""Rerun logging of merged layers (the only module of `map_server` that imports rerun).
+
+Each changed tile of each layer is logged as an `rr.GridMap` at `map/<layer>/<tx>_<ty>` (8-bit,
+value scaled per layer, 0 = no data), at most once per `interval_s`; untouched tiles are never re-sent.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+import rerun as rr
+
+from map_server.tiles import TiledMap
+
+__all__ = ["MapViz"]
+
+# value range mapped to 1..255 per layer (0 = unknown)
+RANGES = {
+    "elevation": (-2.0, 2.0),
+    "slip": (0.0, 1.0),
+    "cot": (0.0, 3.0),
+    "giim": (0.0, 0.8),
+    "giam": (0.0, 5.0),
+    "contacts": (0.0, 1.0),
+}
+
+
+class MapViz:
+    def __init__(
+        self, rrd_path: str, map_id: str, recording_id: str | None = None, interval_s: float = 1.0
+    ) -> None:
+        self.stream = rr.RecordingStream("psrmap", recording_id=recording_id or f"psrmap-{map_id}")
+        self.stream.save(rrd_path)
+        self.interval_s = interval_s
+        self._last = 0.0
+        self._pending: set[tuple[str, int, int]] = set()
+
+    def log_tiles(
+        self, tiled: TiledMap, dirty: set[tuple[str, int, int]], lock: threading.Lock, version: int = 0
+    ) -> int:
+        """Queue `dirty` tiles; every `interval_s` log the queued ones. Returns tiles logged."""
+        self._pending |= dirty
+        now = time.monotonic()
+        if now - self._last < self.interval_s or not self._pending:
+            return 0
+        self._last = now
+        pending, self._pending = self._pending, set()
+        T = tiled.tile
+        self.stream.set_time("version", sequence=version)
+        for layer, tx, ty in sorted(pending):
+            with lock:
+                value = tiled.region(tx * T, ty * T, tx * T + T - 1, ty * T + T - 1, [layer], ["value"])[
+                    layer
+                ]["value"]
+            lo, hi = RANGES.get(layer, (0.0, 1.0))
+            img = np.zeros(value.shape, dtype=np.uint8)
+            ok = np.isfinite(value)
+            img[ok] = (1 + np.clip((value[ok] - lo) / (hi - lo), 0.0, 1.0) * 254).astype(np.uint8)
+            fmt = rr.components.ImageFormat(width=T, height=T, color_model="L", channel_datatype="U8")
+            self.stream.log(
+                f"map/{layer}/{tx}_{ty}",
+                rr.GridMap(
+                    data=img.tobytes(),
+                    format=fmt,
+                    cell_size=tiled.res,
+                    translation=[tx * T * tiled.res, ty * T * tiled.res, 0.0],
+                ),
+            )
+        return len(pending)
+
+    def close(self) -> None:
+        self.stream.flush()
+        self.stream.disconnect()
