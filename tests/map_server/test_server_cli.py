@@ -33,4 +33,3 @@ def test_bad_box_is_a_usage_error(capsys):
     with pytest.raises(SystemExit) as info:
         args.func(args)
     assert info.value.code == 2 and "x0,y0,x1,y1" in capsys.readouterr().err
-
