@@ -22,7 +22,8 @@ _LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 class PinocchioFeet:
     """`feet_base_and_vel(q, dq)` → ((4, 3) positions [m], (4, 3) velocities [m/s]), base frame.
 
-    The returned arrays are reused by the next call (copy them to keep them).
+    The returned arrays are reused by the next call (copy them to keep them); `foot_omega` (4, 3) holds the
+    feet's angular velocities from the same pass [rad/s] (the slip detector's rolling term).
     """
 
     def __init__(self, model: pin.Model | None = None) -> None:
@@ -37,6 +38,7 @@ class PinocchioFeet:
         self._v = np.zeros(model.nv)
         self._pos = np.zeros((4, 3))
         self._vel = np.zeros((4, 3))
+        self.foot_omega = np.zeros((4, 3))  # angular velocity of each foot (calf) relative to the base, base frame
         self.total_mass_kg = float(pin.computeTotalMass(model))
         q_home = pin.neutral(model)
         q_home[7:] = C.HOME_Q
@@ -49,7 +51,9 @@ class PinocchioFeet:
         pin.forwardKinematics(m, d, self._q, self._v)
         for i, f in enumerate(self.frames):
             self._pos[i] = pin.updateFramePlacement(m, d, f).translation
-            self._vel[i] = pin.getFrameVelocity(m, d, f, _LWA).linear
+            v = pin.getFrameVelocity(m, d, f, _LWA)
+            self._vel[i] = v.linear
+            self.foot_omega[i] = v.angular
         return self._pos, self._vel
 
     def feet_base(self, q: np.ndarray) -> np.ndarray:

@@ -138,7 +138,8 @@ class EstimatorPipeline:
         else:
             feet_b, vel_b = self.kin.feet_base(s.q), self.kin.feet_vel_base(s.q, s.dq)
         rot = quat_to_matrix(s.base.quat)
-        st = self.slip.update(s.t, s.stance_planned, s.contact, feet_b, vel_b, rot, s.base.vel, s.base.omega)
+        f_om = getattr(self.kin, "foot_omega", None)
+        st = self.slip.update(s.t, s.stance_planned, s.contact, feet_b, vel_b, rot, s.base.vel, s.base.omega, f_om)
         stp = None
         if self.slip_paper is not None:
             stp = self.slip_paper.update(s.t, s.stance_planned, s.contact, feet_b, vel_b, rot, s.base.vel, s.base.omega)

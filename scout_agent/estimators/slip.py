@@ -45,9 +45,12 @@ class SlipConfig:
     h_mps: float = 0.05  # h in eq. 1 [m/s]
     eps_v_percentile: float = 95.0  # ε_v = this percentile of recent ΔV
     eps_v_window_s: float = 1.5  # window of recent ΔV [s]
-    eps_v_floor: float = 1.5  # ε_v never below this (dimensionless, like ΔV)
-    eps_v_every: int = 25  # recompute ε_v every this many ticks (0.2 s at 125 Hz)
+    eps_v_floor: float = 1.0  # ε_v never below this (dimensionless, like ΔV)
     settle_s: float = 0.05  # start-of-stance settling skipped [s] (default form)
+    dv_tau_s: float = 0.024  # low-pass of the foot velocity error before ΔV [s] (default form; 0 = off)
+    bias_tau_s: float = 2.0  # time constant of the base-velocity bias estimate [s] (default form; 0 = off)
+    bias_gate_mps: float = 0.15  # feet whose apparent world velocity exceeds this do not feed the bias [m/s]
+    foot_radius_m: float = 0.0265  # ball foot radius, for the rolling term of the bias estimate [m]
 
     def __post_init__(self) -> None:
         if self.form not in ("default", "paper"):
@@ -100,12 +103,11 @@ class SlipDetector:
         self.config = config or SlipConfig()
         c = self.config
         self._paper = c.form == "paper"
-        # ΔV ring buffer, sized from the control period seen at the second tick
-        self._ring = np.zeros((0, 4))
-        self._ring_ok = np.zeros((0, 4), dtype=bool)
+        # ΔV of finished stances (default form: non-slipping ones only), sized at the second tick
+        self._ring = np.zeros(0)
         self._ring_i = 0
-        self._ring_full = False
-        self._tick = 0
+        self._ring_n = 0
+        self._stance_dv: list[list[float]] = [[], [], [], []]
         self.eps_v = c.eps_v_floor
         self._t_prev: float | None = None
         self._pb = [0.0, 0.0, 0.0]  # base position integrated from the known velocity [m]
@@ -116,6 +118,12 @@ class SlipDetector:
         self._p_td = [[0.0, 0.0, 0.0] for _ in range(4)]  # touchdown foot points, integration frame [m]
         self._vflag = [False] * 4
         self._slipped = [False] * 4
+        self._err = [[0.0, 0.0, 0.0] for _ in range(4)]  # low-passed foot velocity error, base frame [m/s]
+        self._err_new = [True] * 4
+        self.bias = [0.0, 0.0, 0.0]  # estimated bias of the known base velocity, world frame [m/s]
+        self._ap_sum = [[0.0, 0.0, 0.0] for _ in range(4)]  # apparent planted-foot velocity this stance
+        self._ap_n = [0] * 4
+        self._dt = 0.0
 
     def reset(self) -> None:
         self.__init__(self.config)  # type: ignore[misc]
@@ -135,25 +143,30 @@ class SlipDetector:
         world_R_base: np.ndarray,  # (3, 3)
         base_vel_world: np.ndarray,  # (3,) base linear velocity, world frame [m/s]
         base_omega: np.ndarray,  # (3,) base angular velocity, base frame [rad/s]
+        foot_omega: np.ndarray | None = None,  # (4, 3) foot angular velocities relative to the base [rad/s]
     ) -> SlipTick:
         c = self.config
         dt = 0.0 if self._t_prev is None else t - self._t_prev
         self._t_prev = t
-        if dt > 0 and len(self._ring) == 0:
-            n = max(10, int(round(c.eps_v_window_s / dt)))
-            self._ring = np.zeros((n, 4))
-            self._ring_ok = np.zeros((n, 4), dtype=bool)
+        if dt > 0 and len(self._ring) == 0:  # ≈ 2 feet in stance at a time
+            self._ring = np.zeros(max(20, 2 * int(round(c.eps_v_window_s / dt))))
         vx, vy, vz = base_vel_world.tolist()
+        paper = self._paper
+        use_bias = not paper and c.bias_tau_s > 0
+        if use_bias:
+            b = self.bias
+            vx, vy, vz = vx - b[0], vy - b[1], vz - b[2]
+        a_v = dt / (c.dv_tau_s + dt) if (not paper and c.dv_tau_s > 0 and dt > 0) else 1.0
+        self._dt = dt if dt > 0 else self._dt
         pb = self._pb
         pb[0] += vx * dt
         pb[1] += vy * dt
         pb[2] += vz * dt
         planned = stance_planned.tolist()
         cont = contact.tolist()
-        paper = self._paper
         eps_v, eps_p = self.eps_v, c.eps_p_m
         touched, vflag, slipped = self._touched, self._vflag, self._slipped
-        rot = fpos = fvel = None
+        rot = fpos = fvel = fomega = None
         vb = (0.0, 0.0, 0.0)
         wx = wy = wz = 0.0
         h = c.h_mps
@@ -170,6 +183,7 @@ class SlipDetector:
                 if not p and touched[i]:
                     end[i] = True
                     slip_out[i] = slipped[i]
+                self._commit(i, slipped[i])
                 touched[i] = vflag[i] = slipped[i] = False
             if not p:
                 continue
@@ -179,6 +193,7 @@ class SlipDetector:
                     rot, fpos = world_R_base.tolist(), foot_pos.tolist()
                 td[i] = touched[i] = True
                 vflag[i] = False if paper else vflag[i]
+                self._err_new[i] = True
                 self._t_td[i] = t
                 f = fpos[i]
                 self._p_td[i] = [pb[k] + rot[k][0] * f[0] + rot[k][1] * f[1] + rot[k][2] * f[2] for k in range(3)]
@@ -190,6 +205,7 @@ class SlipDetector:
                 rot, fpos = world_R_base.tolist(), foot_pos.tolist()
             if fvel is None:
                 fvel = foot_vel.tolist()
+                fomega = foot_omega.tolist() if foot_omega is not None else None
                 vb = tuple(rot[0][k] * vx + rot[1][k] * vy + rot[2][k] * vz for k in range(3))  # R^T v
                 wx, wy, wz = base_omega.tolist()
             f = fpos[i]
@@ -198,10 +214,22 @@ class SlipDetector:
             e1 = -(vb[1] + wz * f[0] - wx * f[2])
             e2 = -(vb[2] + wx * f[1] - wy * f[0])
             fv = fvel[i]
-            r0 = (e0 - fv[0]) / (abs(e0) + h)
-            r1 = (e1 - fv[1]) / (abs(e1) + h)
-            r2 = (e2 - fv[2]) / (abs(e2) + h)
+            q0, q1, q2 = e0 - fv[0], e1 - fv[1], e2 - fv[2]  # −(apparent foot velocity in the world)
+            if a_v < 1.0:  # low-pass within the stance (default form)
+                err = self._err[i]
+                if self._err_new[i]:
+                    err[0], err[1], err[2] = q0, q1, q2
+                    self._err_new[i] = False
+                else:
+                    err[0] += a_v * (q0 - err[0])
+                    err[1] += a_v * (q1 - err[1])
+                    err[2] += a_v * (q2 - err[2])
+                q0, q1, q2 = err
+            r0 = q0 / (abs(e0) + h)
+            r1 = q1 / (abs(e1) + h)
+            r2 = q2 / (abs(e2) + h)
             dvi = dvl[i] = math.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
+            self._stance_dv[i].append(dvi)
             # x_des = R^T (p_td − p_base): the touchdown point in the base frame now
             ptd = self._p_td[i]
             d0, d1, d2 = ptd[0] - pb[0], ptd[1] - pb[1], ptd[2] - pb[2]
@@ -214,30 +242,57 @@ class SlipDetector:
                 if dvi > eps_v:
                     vflag[i] = True
                 hit = vflag[i] and dpi > eps_p
+            if use_bias:
+                # a planted ball foot moves only by rolling, ω_foot × r·n̂ (n̂ ≈ world up, in the base frame the
+                # third row of R); the rest of its apparent velocity is the base velocity's error. Summed here,
+                # it updates the bias at the end of the stance if the stance had no slip (`_commit`).
+                ap0, ap1, ap2 = -(e0 - fv[0]), -(e1 - fv[1]), -(e2 - fv[2])
+                if fomega is not None:
+                    o = fomega[i]
+                    o0, o1, o2 = o[0] + wx, o[1] + wy, o[2] + wz
+                    n0, n1, n2 = rot[2][0] * c.foot_radius_m, rot[2][1] * c.foot_radius_m, rot[2][2] * c.foot_radius_m
+                    ap0 -= o1 * n2 - o2 * n1
+                    ap1 -= o2 * n0 - o0 * n2
+                    ap2 -= o0 * n1 - o1 * n0
+                if ap0 * ap0 + ap1 * ap1 + ap2 * ap2 < c.bias_gate_mps**2:
+                    acc = self._ap_sum[i]
+                    for k in range(3):
+                        acc[k] += rot[k][0] * ap0 + rot[k][1] * ap1 + rot[k][2] * ap2
+                    self._ap_n[i] += 1
             dp[i] = dpi
             if hit and not slipped[i]:
                 ev[i] = slipped[i] = True
             slip_out[i] = slipped[i]
         self._planned_prev = planned
         self._contact_prev = cont
-        if True in settled:
-            self._push_dv(dvl, settled)
         return SlipTick(tuple(td), tuple(ev), tuple(end), tuple(slip_out), tuple(settled), tuple(dvl), tuple(dp), eps_v)
 
-    def _push_dv(self, dv: list[float], ok: list[bool]) -> None:
-        if len(self._ring) == 0:
+    def _commit(self, i: int, slipped: bool) -> None:
+        """A stance of leg i is over. Default form: if it had no slip, its mean apparent foot velocity moves
+        the bias estimate (weight stance duration / bias_tau_s). Its ΔV values join the ε_v history (default
+        form: only without a slip, so dense slipping does not raise the threshold meant to find it); ε_v is
+        recomputed."""
+        n_ap = self._ap_n[i]
+        if n_ap:
+            if not slipped:
+                w = min(1.0, n_ap * self._dt / self.config.bias_tau_s)
+                acc = self._ap_sum[i]
+                for k in range(3):
+                    self.bias[k] += w * (acc[k] / n_ap)
+            self._ap_sum[i] = [0.0, 0.0, 0.0]
+            self._ap_n[i] = 0
+        vals = self._stance_dv[i]
+        if not vals:
             return
-        i = self._ring_i
-        self._ring[i] = dv
-        self._ring_ok[i] = ok
-        self._ring_i = (i + 1) % len(self._ring)
-        if self._ring_i == 0:
-            self._ring_full = True
-        self._tick += 1
-        if self._tick % self.config.eps_v_every == 0:
-            n = len(self._ring) if self._ring_full else self._ring_i
-            vals = self._ring[:n][self._ring_ok[:n]]
-            if vals.size >= 10:
-                k = min(vals.size - 1, int(round(self.config.eps_v_percentile / 100.0 * (vals.size - 1))))
-                p = float(np.partition(vals, k)[k])
-                self.eps_v = max(p, self.config.eps_v_floor)
+        self._stance_dv[i] = []
+        n = len(self._ring)
+        if n == 0 or (slipped and not self._paper):
+            return
+        for v in vals[-n:]:
+            self._ring[self._ring_i] = v
+            self._ring_i = (self._ring_i + 1) % n
+        self._ring_n = min(n, self._ring_n + len(vals))
+        if self._ring_n >= 10:
+            hist = self._ring[: self._ring_n]
+            k = min(self._ring_n - 1, int(round(self.config.eps_v_percentile / 100.0 * (self._ring_n - 1))))
+            self.eps_v = max(float(np.partition(hist, k)[k]), self.config.eps_v_floor)

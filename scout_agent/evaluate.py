@@ -1,0 +1,324 @@
+"""`psrmap evaluate`: one scout run scored against the simulator's ground truth, as one JSON object.
+
+    psrmap evaluate --scene ramps --slope A [--slippery MU] [--res 0.4] --json
+    psrmap evaluate --scene lunar --seed N [--slippery-patches N] [--route R] [--res 0.4] --json
+
+The map under test is what the scout itself builds (`scout_agent.mapping.Mapper`: the estimators fed the
+*honest* base state, i.e. the simulator's truth degraded by the configured velocity noise and bias). Beside
+it, on the same run, the same estimators fed the exact base state (`*_exact`) and the paper-form slip detector
+(`slip_paper_*`).
+
+Ground truth and scoring:
+- slip: a planned stance (per foot) whose contact point moved > 0.02 m from its first contact
+  (`GroundTruth.stance_disp`, the paper's criterion); precision/recall count stances, detected vs true.
+- elevation: the map's value per cell (`protocol.layers.layer_value`: plane fit at the cell centre, or the
+  mean where the fit is ill conditioned) against the exact terrain height at the cell centre; also the mean
+  alone (the paper's estimate) and our truncated plane fit. Slope: the plane fit's slope against the exact
+  slope at the centre, over cells whose fit is well conditioned.
+- CoT, GIIM, GIAM: means over the map's cells (the paper averages its gridmap layers); on ramps per segment
+  (cells whose centre lies on the up-ramp, the platform = `flat`, the down-ramp).
+- friction patches: a slip is "in a patch" when the ground under the foot at touchdown has less than the
+  default friction; the slip layer's rate (events / stances) inside vs outside patch cells.
+- non-foot contacts: ticks with calf/thigh/trunk on the ground in truth vs ticks the proprioceptive
+  detector flagged.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from collections import defaultdict
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+
+from protocol.layers import cell_center, elevation_slope_deg, layer_value
+from scout_agent.estimators import EstimatorPipeline, TickEstimates
+from scout_agent.estimators.elevation import plane_from_moments, slope_deg
+from scout_agent.mapping import Mapper, MapperConfig, default_pipeline_config
+from scout_agent.signals import GroundTruth, ProprioSample
+
+__all__ = ["Evaluator", "cmd_evaluate", "register_evaluate"]
+
+GT_SLIP_M = 0.02  # ground-truth slip: contact point moved more than this within one stance [m]
+SEGMENTS = {"up": "up", "flat": "platform", "down": "down"}
+
+
+def _pr(detected: set, truth: set) -> tuple[float, float]:
+    tp = len(detected & truth)
+    p = tp / len(detected) if detected else (1.0 if not truth else 0.0)
+    r = tp / len(truth) if truth else (1.0 if not detected else math.nan)
+    return p, r
+
+
+def _r(v: float, nd: int = 4) -> float | None:
+    return None if v is None or not math.isfinite(v) else round(float(v), nd)
+
+
+class _CellMeans:
+    """Mean of a per-tick quantity per CoM cell, then over cells (as the map layers are averaged)."""
+
+    def __init__(self, res: float) -> None:
+        self.res = res
+        self.sums: dict[tuple[int, int], list[float]] = defaultdict(lambda: [0.0, 0])
+
+    def add(self, x: float, y: float, v: float) -> None:
+        if v == v:
+            s = self.sums[(math.floor(x / self.res), math.floor(y / self.res))]
+            s[0] += v
+            s[1] += 1
+
+    def cell_means(self) -> dict[tuple[int, int], float]:
+        return {k: s / n for k, (s, n) in self.sums.items() if n}
+
+
+class Evaluator:
+    """Runs alongside `run_scout` (`on_tick`), then `result(world)` scores the run."""
+
+    def __init__(self, res: float = 0.4, delta_hz: float = 5.0) -> None:
+        self.mapper = Mapper(MapperConfig(res=res, delta_hz=delta_hz))
+        feet = self.mapper.feet
+        # the scout's own pipeline, plus the diagnostics that do not change what it maps
+        self.mapper.pipeline = EstimatorPipeline(
+            feet, default_pipeline_config(feet, paper_margins=True, stance_margins=True, paper_slip=True)
+        )
+        self.exact = EstimatorPipeline(feet, default_pipeline_config(feet))
+        self.res = res
+        self.paper_means = {k: _CellMeans(res) for k in ("giim", "giam", "giim_stance", "giam_stance")}
+        self.giim_ticks: list[float] = []
+        self._prev_planned = np.zeros(4, dtype=bool)
+        self._sid = [0, 0, 0, 0]
+        self._touched = [False] * 4
+        self._gt_max = [0.0] * 4
+        self._td = [(math.nan, math.nan, math.nan)] * 4  # x, y, mu at touchdown
+        self.stances: dict[tuple[int, int], tuple[float, float, float, float]] = {}  # (leg, sid) → x, y, mu, disp
+        self.detected: dict[str, set[tuple[int, int]]] = {"honest": set(), "exact": set(), "paper": set()}
+        self.nonfoot_truth = 0
+        self.nonfoot_flagged = 0
+        self.nonfoot_both = 0
+        self.ticks = 0
+
+    # ------------------------------------------------------------------ per tick
+    def on_tick(self, sample: ProprioSample, truth: GroundTruth, sim: Any = None) -> None:
+        self.ticks += 1
+        planned = sample.stance_planned
+        contact = sample.contact
+        for i in range(4):
+            if planned[i] and not self._prev_planned[i]:
+                self._sid[i] += 1
+                self._touched[i] = False
+                self._gt_max[i] = 0.0
+            if not planned[i] and self._prev_planned[i] and self._touched[i]:
+                self._close_stance(i)
+            if planned[i] and contact[i]:
+                if not self._touched[i]:
+                    self._touched[i] = True
+                    p = truth.foot_pos_world[i]
+                    self._td[i] = (float(p[0]), float(p[1]), float(truth.friction_at_feet[i]))
+                d = truth.stance_disp[i]
+                if d == d and d > self._gt_max[i]:
+                    self._gt_max[i] = float(d)
+        self._prev_planned = planned.copy()
+
+        est = self.mapper.update(sample)
+        ex = self.exact.update(replace(sample, base=truth.base))
+        self._mark(est.slip.event, "honest")
+        self._mark(ex.slip.event, "exact")
+        if est.slip_paper is not None:
+            self._mark(est.slip_paper.event, "paper")
+        self._stability(est)
+        t_nf = truth.nonfoot_contacts > 0
+        self.nonfoot_truth += t_nf
+        self.nonfoot_flagged += est.nonfoot
+        self.nonfoot_both += t_nf and est.nonfoot
+
+    def _mark(self, events, which: str) -> None:
+        for i in range(4):
+            if events[i]:
+                self.detected[which].add((i, self._sid[i]))
+
+    def _close_stance(self, i: int) -> None:
+        x, y, mu = self._td[i]
+        self.stances[(i, self._sid[i])] = (x, y, mu, self._gt_max[i])
+
+    def _stability(self, est: TickEstimates) -> None:
+        x, y = est.com_xy
+        if not est.stability_guarded:
+            self.paper_means["giim"].add(x, y, est.giim_paper)
+            self.paper_means["giam"].add(x, y, est.giam_paper)
+            self.giim_ticks.append(est.giim)
+        self.paper_means["giim_stance"].add(x, y, est.giim_stance)
+        self.paper_means["giam_stance"].add(x, y, est.giam_stance)
+
+    # ------------------------------------------------------------------ scoring
+    def result(self, world: Any, friction_default: float) -> dict:
+        for i in range(4):  # stances still open at the end
+            if self._prev_planned[i] and self._touched[i]:
+                self._close_stance(i)
+        self.mapper.close()
+        terrain = world.terrain
+        local = self.mapper.local
+        res = self.res
+        out: dict[str, Any] = {"res": res, "ticks": self.ticks}
+
+        # ---- slip
+        truth = {k for k, v in self.stances.items() if v[3] > GT_SLIP_M}
+        known = set(self.stances)
+        for which, suffix in (("honest", ""), ("exact", "_exact"), ("paper", "_paper")):
+            det = self.detected[which] & known if known else self.detected[which]
+            p, r = _pr(det, truth)
+            key = "slip" if which != "paper" else "slip_paper"
+            sfx = suffix if which != "paper" else ""
+            out[f"{key}_precision{sfx}"] = _r(p)
+            out[f"{key}_recall{sfx}"] = _r(r)
+            out[f"{key}_events{sfx}" if which != "honest" else "slip_events"] = len(self.detected[which])
+        out["stances"] = len(self.stances)
+        out["gt_slips"] = len(truth)
+        in_patch = {k for k, v in self.stances.items() if v[2] < friction_default - 1e-9}
+        out["gt_slips_in_patch_share"] = _r(len(truth & in_patch) / len(truth)) if truth else None
+        det = self.detected["honest"] & known
+        out["slip_events_in_patch_share"] = _r(len(det & in_patch) / len(det)) if det else None
+        out["stances_in_patch"] = len(in_patch)
+
+        # ---- layers from the local map
+        def cells(layer: str) -> dict[str, np.ndarray]:
+            return local.cells(layer)
+
+        elev = cells("elevation")
+        if len(elev["ix"]):
+            cx, cy = cell_center(elev["ix"], elev["iy"], res)
+            h_true = terrain.height(cx, cy)
+            value = layer_value("elevation", elev)
+            mean = elev["sum"] / elev["n"]
+            z_fit, gx, gy = plane_from_moments(elev)
+            out["elevation_cells"] = int(len(cx))
+            out["elevation_rmse_m"] = _r(float(np.sqrt(np.nanmean((value - h_true) ** 2))), 5)
+            out["elevation_rmse_mean_only_m"] = _r(float(np.sqrt(np.mean((mean - h_true) ** 2))), 5)
+            out["elevation_rmse_plane_m"] = _r(float(np.sqrt(np.nanmean((z_fit - h_true) ** 2))), 5)
+            s_true = terrain.slope_deg(cx, cy)
+            s_map = elevation_slope_deg(elev)
+            ok = np.isfinite(s_map)
+            out["slope_cells"] = int(ok.sum())
+            out["slope_rmse_deg"] = _r(float(np.sqrt(np.mean((s_map[ok] - s_true[ok]) ** 2))), 3) if ok.any() else None
+            s_fit = slope_deg(gx, gy)
+            out["slope_rmse_plane_deg"] = _r(float(np.sqrt(np.nanmean((s_fit - s_true) ** 2))), 3)
+
+        layer_vals: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        for name in ("cot", "giim", "giam", "slip"):
+            c = cells(name)
+            if len(c["ix"]):
+                x, y = cell_center(c["ix"], c["iy"], res)
+                layer_vals[name] = (x, y, layer_value(name, c))
+        for name in ("cot", "giim", "giam"):
+            if name in layer_vals:
+                out[f"{name}_mean"] = _r(float(np.nanmean(layer_vals[name][2])))
+        g = cells("giim")
+        if len(g["ix"]):
+            out["giim_worst"] = _r(float(np.min(g["min"])))
+            out["giam_worst"] = _r(float(np.min(cells("giam")["min"])))
+        ticks = np.array(self.giim_ticks)
+        ticks = ticks[np.isfinite(ticks)]
+        if ticks.size:
+            out["giim_tick_p1_p5"] = [_r(float(np.percentile(ticks, 1))), _r(float(np.percentile(ticks, 5)))]
+            out["giim_nonpositive_share"] = _r(float(np.mean(ticks <= 0)), 5)
+        for key, cm in self.paper_means.items():
+            vals = list(cm.cell_means().values())
+            name = {"giim": "giim_paper_mean", "giam": "giam_paper_mean"}.get(key, f"{key}_mean")
+            out[name] = _r(float(np.mean(vals))) if vals else None
+        out["cot_whole_run"] = _r(self.mapper.pipeline.cot.cot)
+
+        # slip layer inside / outside friction patches (cell centres)
+        sl = cells("slip")
+        if len(sl["ix"]):
+            x, y = cell_center(sl["ix"], sl["iy"], res)
+            mu = world.friction.at(x, y)
+            inside = mu < friction_default - 1e-9
+            for tag, m in (("in_patches", inside), ("outside_patches", ~inside)):
+                n = float(sl["n"][m].sum())
+                out[f"slip_rate_{tag}"] = _r(float(sl["events"][m].sum()) / n) if n else None
+            out["slip_cells_in_patches"] = int(inside.sum())
+
+        # ramps: per segment
+        segs = terrain.info.get("segments")
+        if segs:
+            out["segments"] = {}
+            slips_x = [self.stances.get(k, (math.nan,))[0] for k in self.detected["honest"]]
+            for label, seg in SEGMENTS.items():
+                a, b = segs[seg]
+                entry: dict[str, Any] = {}
+                for name in ("cot", "giim", "giam"):
+                    if name in layer_vals:
+                        x, _, v = layer_vals[name]
+                        m = (x >= a) & (x < b)
+                        entry[f"{name}_mean"] = _r(float(np.nanmean(v[m]))) if np.isfinite(v[m]).any() else None
+                for key in ("giim", "giam"):
+                    cm = self.paper_means[key].cell_means()
+                    vals = [v for (ix, _), v in cm.items() if a <= (ix + 0.5) * res < b]
+                    entry[f"{key}_paper_mean"] = _r(float(np.mean(vals))) if vals else None
+                entry["slip_events"] = int(sum(1 for sx in slips_x if a <= sx < b))
+                gts = [self.stances[k][0] for k in truth]
+                entry["gt_slips"] = int(sum(1 for sx in gts if a <= sx < b))
+                out["segments"][label] = entry
+
+        # non-foot contacts
+        out["nonfoot_contact_ticks"] = int(self.nonfoot_truth)
+        out["nonfoot_flagged_ticks"] = int(self.nonfoot_flagged)
+        out["nonfoot_flagged_true_ticks"] = int(self.nonfoot_both)
+        c = cells("contacts")
+        out["nonfoot_cells"] = int((c["nonfoot"] > 0).sum()) if len(c["ix"]) else 0
+        out["deltas"] = self.mapper.deltas
+        return out
+
+
+def cmd_evaluate(args: argparse.Namespace) -> int:
+    from scout_agent.cli import config_from_args
+    from scout_agent.run import build_world, run_scout
+
+    parser = args._parser
+    if not args.res > 0:
+        parser.error(f"--res {args.res}: need a cell size > 0 [m]")
+    cfg = config_from_args(args, parser)
+    world = build_world(cfg)
+    ev = Evaluator(res=args.res)
+    summary = run_scout(cfg, on_tick=ev.on_tick, progress=not args.quiet and not args.json, world=world)
+    out = {
+        "scene": cfg.scene,
+        "terrain": summary["terrain"],
+        "slope_deg": cfg.slope_deg if cfg.scene == "ramps" else None,
+        "seed": cfg.seed,
+        "slippery_mu": cfg.slippery_mu,
+        "slippery_patches": cfg.slippery_patches,
+        "noise": {"vel_white_mps": cfg.sim.noise.vel_white_std, "vel_bias_mps": cfg.sim.noise.vel_bias},
+        "fell": summary["fell"],
+        "reached_goal": summary["reached_goal"],
+        "distance_m": summary["distance_m"],
+        "sim_seconds": summary["sim_seconds"],
+        "wall_seconds": summary["wall_seconds"],
+        "mass_kg": round(ev.mapper.feet.total_mass_kg, 3),
+        "gia_source": "foot contact forces (simulator stands in for foot force sensors)",
+    }
+    out.update(ev.result(world, cfg.friction_default))
+    if args.json:
+        print(json.dumps(out))
+    else:
+        for k, v in out.items():
+            print(f"{k}: {v}")
+    return 1 if summary["fell"] else 0
+
+
+def register_evaluate(subparsers: Any) -> argparse.ArgumentParser:
+    from scout_agent.cli import add_scout_arguments
+
+    p = subparsers.add_parser(
+        "evaluate", help="run one scout and score its map and detectors against ground truth",
+        description=__doc__.split("\n\n")[0],
+    )
+    add_scout_arguments(p)
+    p.add_argument("--res", type=float, default=0.4, help="map cell size [m] (default 0.4)")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_evaluate, _parser=p)
+    return p
+
