@@ -1,0 +1,52 @@
+"""`psrmap scout`: argument errors name valid values; a short run prints the JSON summary and an .rrd."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+import pytest
+
+from scout_agent.cli import register
+
+
+def _parser():
+    p = argparse.ArgumentParser(prog="psrmap")
+    register(p.add_subparsers(dest="command", required=True))
+    return p
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--scene", "moon"], "choose from 'ramps', 'lunar'"),
+        (["--slope", "30"], "0–25"),
+        (["--scene", "lunar", "--slippery", "0.3"], "--slippery-patches"),
+        (["--scene", "ramps", "--slippery-patches", "2"], "--slippery MU"),
+        (["--scene", "lunar", "--goal", "30,1"], "outside the terrain"),
+        (["--patch", "1,2,3"], "x0,y0,x1,y1,MU"),
+        (["--route", "west"], "--scene lunar"),
+    ],
+)
+def test_errors_name_valid_values(argv, message, capsys):
+    p = _parser()
+    with pytest.raises(SystemExit) as exc:
+        args = p.parse_args(["scout", *argv])
+        args.func(args)
+    assert exc.value.code == 2
+    assert message in capsys.readouterr().err
+
+
+def test_short_run_prints_json_and_writes_rrd(tmp_path, capsys):
+    rrd = tmp_path / "scout.rrd"
+    args = _parser().parse_args(["scout", "--scene", "lunar", "--seed", "2", "--route", "direct",
+                                 "--sim-seconds", "2", "--json", "--quiet", "--rrd", str(rrd),
+                                 "--slippery-patches", "2"])
+    assert args.func(args) == 0
+    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    for key in ("fell", "fall_xy", "reached_goal", "distance_m", "mean_speed_mps", "sim_seconds",
+                "real_time_factor"):
+        assert key in summary
+    assert summary["fell"] is False and summary["sim_seconds"] == pytest.approx(2.0, abs=0.02)
+    assert len(summary["friction"]["patches"]) == 2
+    assert rrd.exists() and rrd.stat().st_size > 10_000
