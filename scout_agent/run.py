@@ -14,11 +14,23 @@ import numpy as np
 
 from scout_agent.control.follower import FollowerConfig, PathFollower
 from scout_agent.signals import GroundTruth, ProprioSample
-from scout_agent.sim.friction import (DEFAULT_MU, FrictionMap, Patch, lunar_slippery_patches,
-                                      ramp_slippery_patch)
+from scout_agent.sim.friction import (
+    DEFAULT_MU,
+    FrictionMap,
+    Patch,
+    lunar_slippery_patches,
+    ramp_slippery_patch,
+)
 from scout_agent.sim.simulator import NoiseConfig, ScoutSim, SimConfig
-from scout_agent.sim.terrain import (LUNAR_ROUTES, LunarConfig, RampConfig, Terrain, make_lunar, make_ramps,
-                                     route_slope_stats)
+from scout_agent.sim.terrain import (
+    LUNAR_ROUTES,
+    LunarConfig,
+    RampConfig,
+    Terrain,
+    make_lunar,
+    make_ramps,
+    route_slope_stats,
+)
 
 SCENES = ("ramps", "lunar")
 OnTick = Callable[[ProprioSample, GroundTruth, ScoutSim], object]

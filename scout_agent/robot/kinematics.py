@@ -44,7 +44,6 @@ def jacobians(q: np.ndarray) -> np.ndarray:
     a, t, c = q[:, 0], q[:, 1], q[:, 2]
     s1, c1 = np.sin(t), np.cos(t)
     s12, c12 = np.sin(t + c), np.cos(t + c)
-    px = -_L1 * s1 - _L2 * s12
     pz = -_L1 * c1 - _L2 * c12
     py = _SY * _D
     ca, sa = np.cos(a), np.sin(a)

@@ -7,8 +7,15 @@ import numpy as np
 import pytest
 
 from scout_agent.sim.scene import build_scene
-from scout_agent.sim.terrain import (LUNAR_ROUTES, LunarConfig, RampConfig, make_lunar, make_ramps, ramp_profile,
-                                     route_slope_stats)
+from scout_agent.sim.terrain import (
+    LUNAR_ROUTES,
+    LunarConfig,
+    RampConfig,
+    make_lunar,
+    make_ramps,
+    ramp_profile,
+    route_slope_stats,
+)
 
 
 @pytest.fixture(scope="module")
