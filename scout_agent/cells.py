@@ -70,7 +70,9 @@ class CellAccumulator:
                 continue
             arr = np.asarray(rows, dtype=np.float64)
             rows.clear()
-            out[name] = reduce_cells(arr[:, 0], arr[:, 1], arr[:, 2:], self._order[name], self.res, self.x0, self.y0)
+            out[name] = reduce_cells(
+                arr[:, 0], arr[:, 1], arr[:, 2:], self._order[name], self.res, self.x0, self.y0
+            )
         return out
 
 

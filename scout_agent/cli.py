@@ -12,9 +12,10 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from dataclasses import replace
 
+from scout_agent.evaluate import register_evaluate
+from scout_agent.mapping import add_mapping_arguments, attach_mapping
 from scout_agent.run import SCENES, ScoutRunConfig, build_world, run_scout
 from scout_agent.sim.friction import Patch
 from scout_agent.sim.simulator import NoiseConfig, SimConfig
@@ -103,7 +104,9 @@ def cmd_scout(args: argparse.Namespace) -> int:
         viz.log_friction(rec, world.friction, world.terrain)
         logger = viz.ScoutLogger(rec, cfg.scout_id)
         on_tick = lambda sample, truth, sim: logger.log_tick(sample, truth)  # noqa: E731
-    summary = run_scout(cfg, on_tick=on_tick, progress=not args.quiet, world=world)
+    with attach_mapping(args, cfg, on_tick) as mapping:  # estimators + cell deltas (scout_agent.mapping)
+        summary = run_scout(cfg, on_tick=mapping.on_tick, progress=not args.quiet, world=world)
+    summary["map"] = mapping.summary
     if logger is not None:
         logger.finish()
         logger.rec.flush()
@@ -121,10 +124,12 @@ def register(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser("scout", help="walk a simulated Aliengo (ramps or lunar terrain)",
                               description=__doc__.split("\n\n")[0])
     add_scout_arguments(p)
+    add_mapping_arguments(p)
     p.add_argument("--rrd", metavar="PATH", help="write a Rerun recording")
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_scout, _parser=p)
+    register_evaluate(subparsers)
     return p
 
 

@@ -93,7 +93,9 @@ class Evaluator:
         self._touched = [False] * 4
         self._gt_max = [0.0] * 4
         self._td = [(math.nan, math.nan, math.nan)] * 4  # x, y, mu at touchdown
-        self.stances: dict[tuple[int, int], tuple[float, float, float, float]] = {}  # (leg, sid) → x, y, mu, disp
+        self.stances: dict[
+            tuple[int, int], tuple[float, float, float, float]
+        ] = {}  # (leg, sid) → x, y, mu, disp
         self.detected: dict[str, set[tuple[int, int]]] = {"honest": set(), "exact": set(), "paper": set()}
         self.nonfoot_truth = 0
         self.nonfoot_flagged = 0
@@ -201,7 +203,9 @@ class Evaluator:
             s_map = elevation_slope_deg(elev)
             ok = np.isfinite(s_map)
             out["slope_cells"] = int(ok.sum())
-            out["slope_rmse_deg"] = _r(float(np.sqrt(np.mean((s_map[ok] - s_true[ok]) ** 2))), 3) if ok.any() else None
+            out["slope_rmse_deg"] = (
+                _r(float(np.sqrt(np.mean((s_map[ok] - s_true[ok]) ** 2))), 3) if ok.any() else None
+            )
             s_fit = slope_deg(gx, gy)
             out["slope_rmse_plane_deg"] = _r(float(np.sqrt(np.nanmean((s_fit - s_true) ** 2))), 3)
 
@@ -252,7 +256,9 @@ class Evaluator:
                     if name in layer_vals:
                         x, _, v = layer_vals[name]
                         m = (x >= a) & (x < b)
-                        entry[f"{name}_mean"] = _r(float(np.nanmean(v[m]))) if np.isfinite(v[m]).any() else None
+                        entry[f"{name}_mean"] = (
+                            _r(float(np.nanmean(v[m]))) if np.isfinite(v[m]).any() else None
+                        )
                 for key in ("giim", "giam"):
                     cm = self.paper_means[key].cell_means()
                     vals = [v for (ix, _), v in cm.items() if a <= (ix + 0.5) * res < b]
@@ -312,7 +318,8 @@ def register_evaluate(subparsers: Any) -> argparse.ArgumentParser:
     from scout_agent.cli import add_scout_arguments
 
     p = subparsers.add_parser(
-        "evaluate", help="run one scout and score its map and detectors against ground truth",
+        "evaluate",
+        help="run one scout and score its map and detectors against ground truth",
         description=__doc__.split("\n\n")[0],
     )
     add_scout_arguments(p)
@@ -321,4 +328,3 @@ def register_evaluate(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_evaluate, _parser=p)
     return p
-

@@ -23,7 +23,14 @@ from scout_agent.estimators import EstimatorPipeline, PipelineConfig, TickEstima
 from scout_agent.estimators.feet import PinocchioFeet
 from scout_agent.signals import ProprioSample
 
-__all__ = ["Mapper", "MapperConfig", "add_mapping_arguments", "attach_mapping", "default_pipeline_config"]
+__all__ = [
+    "Mapper",
+    "MapperConfig",
+    "MappingSession",
+    "add_mapping_arguments",
+    "attach_mapping",
+    "default_pipeline_config",
+]
 
 log = logging.getLogger(__name__)
 
@@ -38,7 +45,9 @@ class MapperConfig:
 def default_pipeline_config(feet: PinocchioFeet, **changes: Any) -> PipelineConfig:
     """Pipeline defaults with the simulated model's mass and CoM (mass declared in robot/constants)."""
     return replace(
-        PipelineConfig(mass_kg=feet.total_mass_kg, com_offset_base=tuple(float(v) for v in feet.com_home_base)),
+        PipelineConfig(
+            mass_kg=feet.total_mass_kg, com_offset_base=tuple(float(v) for v in feet.com_home_base)
+        ),
         **changes,
     )
 
@@ -46,8 +55,12 @@ def default_pipeline_config(feet: PinocchioFeet, **changes: Any) -> PipelineConf
 class Mapper:
     """Per tick: estimates → cell statistics → (every 1/delta_hz s) a delta to the local map and publisher."""
 
-    def __init__(self, config: MapperConfig = MapperConfig(), publisher: Any | None = None,
-                 feet: PinocchioFeet | None = None) -> None:
+    def __init__(
+        self,
+        config: MapperConfig = MapperConfig(),
+        publisher: Any | None = None,
+        feet: PinocchioFeet | None = None,
+    ) -> None:
         self.config = config
         self.feet = feet or PinocchioFeet()
         self.pipeline = EstimatorPipeline(self.feet, config.pipeline or default_pipeline_config(self.feet))
@@ -96,8 +109,12 @@ class Mapper:
         if self.publisher is not None and self.publisher.full:
             self.publisher.wait_acked(ack_timeout_s)
         self.flush()
-        out: dict[str, Any] = {"deltas": self.deltas, "slip_events": int(self.slip_events), "res": self.config.res,
-                               "cells": {k: len(self.local.cells(k)["ix"]) for k in ("elevation", "slip", "cot")}}
+        out: dict[str, Any] = {
+            "deltas": self.deltas,
+            "slip_events": int(self.slip_events),
+            "res": self.config.res,
+            "cells": {k: len(self.local.cells(k)["ix"]) for k in ("elevation", "slip", "cot")},
+        }
         if self.publisher is not None:
             out["all_acked"] = bool(self.publisher.wait_acked(ack_timeout_s))
             out["publisher"] = self.publisher.stats()
@@ -107,42 +124,73 @@ class Mapper:
 def add_mapping_arguments(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("mapping")
     g.add_argument("--map", metavar="ID", help="map id to publish to (with --connect)")
-    g.add_argument("--connect", action="append", default=[], metavar="ENDPOINT",
-                   help="Zenoh endpoint of the map service's router, e.g. tcp/127.0.0.1:7447 (repeatable)")
-    g.add_argument("--res", type=float, default=0.4, help="map cell size [m] (default 0.4; must match the server)")
+    g.add_argument(
+        "--connect",
+        action="append",
+        default=[],
+        metavar="ENDPOINT",
+        help="Zenoh endpoint of the map service's router, e.g. tcp/127.0.0.1:7447 (repeatable)",
+    )
+    g.add_argument(
+        "--res", type=float, default=0.4, help="map cell size [m] (default 0.4; must match the server)"
+    )
     g.add_argument("--delta-hz", type=float, default=5.0, help="cell deltas per second (default 5)")
     g.add_argument("--save-map", metavar="PATH.npz", help="save the scout's local map (map_region layout)")
     g.add_argument("--no-map", action="store_true", help="walk without estimators or map")
 
 
 class MappingSession:
-    """What `attach_mapping` returns: `on_tick` for `run_scout`, then `finish()` for the summary."""
+    """What `attach_mapping` returns: a context manager whose `on_tick` feeds `run_scout` (after any other
+    callback it chains), and whose exit flushes the last delta, waits for acks, saves the map and closes
+    the Zenoh link; `summary` then holds the mapping figures (None without a map)."""
 
-    def __init__(self, mapper: Mapper, publisher: Any | None, save_path: str | None) -> None:
+    def __init__(
+        self, mapper: Mapper | None, publisher: Any | None, save_path: str | None, chained: Any | None = None
+    ) -> None:
         self.mapper = mapper
         self.publisher = publisher
         self.save_path = save_path
+        self.chained = chained
+        self.summary: dict | None = None
 
     def on_tick(self, sample: ProprioSample, truth: object = None, sim: object = None) -> None:
-        self.mapper.update(sample)
+        if self.chained is not None:
+            self.chained(sample, truth, sim)
+        if self.mapper is not None:
+            self.mapper.update(sample)
 
-    def finish(self) -> dict:
+    def finish(self) -> dict | None:
+        if self.mapper is None or self.summary is not None:
+            return self.summary
         try:
             out = self.mapper.close()
             if self.save_path:
                 out["saved"] = str(self.mapper.local.save_npz(Path(self.save_path)))
+            self.summary = out
         finally:
             if self.publisher is not None:
                 self.publisher.close()
-        return out
+        return self.summary
+
+    def __enter__(self) -> MappingSession:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.finish()
 
 
-def attach_mapping(args: argparse.Namespace, run_config: Any) -> MappingSession | None:
-    """Build the scout's mapping from parsed `add_mapping_arguments` options; None with `--no-map`."""
+def attach_mapping(args: argparse.Namespace, run_config: Any, on_tick: Any | None = None) -> MappingSession:
+    """Build the scout's mapping from parsed `add_mapping_arguments` options; `on_tick` (optional) is an
+    existing per-tick callback to chain. With `--no-map` the session only forwards to `on_tick`."""
     if getattr(args, "no_map", False):
-        return None
+        return MappingSession(None, None, None, on_tick)
     parser = getattr(args, "_parser", None)
-    err = parser.error if parser is not None else (lambda m: (_ for _ in ()).throw(SystemExit(m)))
+
+    def err(msg: str) -> None:
+        if parser is not None:
+            parser.error(msg)
+        raise SystemExit(f"error: {msg}")
+
     if args.connect and not args.map:
         err("--connect needs --map ID (the map to publish to)")
     if args.map and not args.connect:
@@ -157,4 +205,4 @@ def attach_mapping(args: argparse.Namespace, run_config: Any) -> MappingSession 
 
         publisher = ScoutPublisher(args.map, run_config.scout_id, args.res, args.connect)
     mapper = Mapper(MapperConfig(res=args.res, delta_hz=args.delta_hz), publisher=publisher)
-    return MappingSession(mapper, publisher, args.save_map)
+    return MappingSession(mapper, publisher, args.save_map, on_tick)

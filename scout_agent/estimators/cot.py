@@ -47,7 +47,9 @@ class CotMeter:
         self.energy_j = 0.0  # E since start [J]
         self.dist_m = 0.0  # d since start [m]
 
-    def update(self, t: float, tau: np.ndarray, dq: np.ndarray, base_vel_world: np.ndarray) -> tuple[float, float]:
+    def update(
+        self, t: float, tau: np.ndarray, dq: np.ndarray, base_vel_world: np.ndarray
+    ) -> tuple[float, float]:
         dt = 0.0 if self._t_prev is None else t - self._t_prev
         self._t_prev = t
         p = tau * dq

@@ -19,7 +19,14 @@ import math
 
 import numpy as np
 
-__all__ = ["PLANE_STATS", "foothold_world", "plane_from_moments", "plane_moments", "slope_deg", "terrain_normal"]
+__all__ = [
+    "PLANE_STATS",
+    "foothold_world",
+    "plane_from_moments",
+    "plane_moments",
+    "slope_deg",
+    "terrain_normal",
+]
 
 PLANE_STATS = ("n", "sum", "sumsq", "sx", "sy", "sxx", "syy", "sxy", "sxz", "syz")
 _UP = np.array([0.0, 0.0, 1.0])

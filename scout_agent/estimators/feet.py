@@ -38,7 +38,9 @@ class PinocchioFeet:
         self._v = np.zeros(model.nv)
         self._pos = np.zeros((4, 3))
         self._vel = np.zeros((4, 3))
-        self.foot_omega = np.zeros((4, 3))  # angular velocity of each foot (calf) relative to the base, base frame
+        self.foot_omega = np.zeros(
+            (4, 3)
+        )  # angular velocity of each foot (calf) relative to the base, base frame
         self.total_mass_kg = float(pin.computeTotalMass(model))
         q_home = pin.neutral(model)
         q_home[7:] = C.HOME_Q

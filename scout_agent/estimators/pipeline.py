@@ -112,9 +112,7 @@ class EstimatorPipeline:
         self.kin = kinematics
         self.config = c = config or PipelineConfig()
         self.slip = SlipDetector(c.slip)
-        self.slip_paper = (
-            SlipDetector(dataclasses.replace(c.slip, form="paper")) if c.paper_slip else None
-        )
+        self.slip_paper = SlipDetector(dataclasses.replace(c.slip, form="paper")) if c.paper_slip else None
         self.cot = CotMeter(dataclasses.replace(c.cot, mass_kg=c.mass_kg, gravity_mps2=c.gravity_mps2))
         self._com_b = tuple(float(v) for v in c.com_offset_base)
         self._normal = (0.0, 0.0, 1.0)
@@ -139,10 +137,14 @@ class EstimatorPipeline:
             feet_b, vel_b = self.kin.feet_base(s.q), self.kin.feet_vel_base(s.q, s.dq)
         rot = quat_to_matrix(s.base.quat)
         f_om = getattr(self.kin, "foot_omega", None)
-        st = self.slip.update(s.t, s.stance_planned, s.contact, feet_b, vel_b, rot, s.base.vel, s.base.omega, f_om)
+        st = self.slip.update(
+            s.t, s.stance_planned, s.contact, feet_b, vel_b, rot, s.base.vel, s.base.omega, f_om
+        )
         stp = None
         if self.slip_paper is not None:
-            stp = self.slip_paper.update(s.t, s.stance_planned, s.contact, feet_b, vel_b, rot, s.base.vel, s.base.omega)
+            stp = self.slip_paper.update(
+                s.t, s.stance_planned, s.contact, feet_b, vel_b, rot, s.base.vel, s.base.omega
+            )
 
         fw = (feet_b @ rot.T + s.base.pos).tolist()  # (4, 3) foot sphere centres, world [m]
         R = rot.tolist()
@@ -185,11 +187,17 @@ class EstimatorPipeline:
         # GIA (world) from the foot forces and from the IMU
         (f0, f1, f2, f3) = s.foot_force_world.tolist()
         m = c.mass_kg
-        gia_f = (-(f0[0] + f1[0] + f2[0] + f3[0]) / m, -(f0[1] + f1[1] + f2[1] + f3[1]) / m,
-                 -(f0[2] + f1[2] + f2[2] + f3[2]) / m)
+        gia_f = (
+            -(f0[0] + f1[0] + f2[0] + f3[0]) / m,
+            -(f0[1] + f1[1] + f2[1] + f3[1]) / m,
+            -(f0[2] + f1[2] + f2[2] + f3[2]) / m,
+        )
         ax, ay, az = s.imu_acc.tolist()
-        gia_i = (-(R[0][0] * ax + R[0][1] * ay + R[0][2] * az), -(R[1][0] * ax + R[1][1] * ay + R[1][2] * az),
-                 -(R[2][0] * ax + R[2][1] * ay + R[2][2] * az))
+        gia_i = (
+            -(R[0][0] * ax + R[0][1] * ay + R[0][2] * az),
+            -(R[1][0] * ax + R[1][1] * ay + R[1][2] * az),
+            -(R[2][0] * ax + R[2][1] * ay + R[2][2] * az),
+        )
         gia = gia_f if c.gia_source == "forces" else gia_i
 
         # margins over the four most recent footholds, CCW. The support points are the ground points
@@ -197,12 +205,19 @@ class EstimatorPipeline:
         nx, ny, nz = self._normal
         g_c = (com[0] + r * nx, com[1] + r * ny, com[2] + r * nz)
         giim, giam = margins_fast([lf[i] for i in self._order], g_c, gia)  # type: ignore[misc]
-        guarded = (st.slipped[0] and contact[0]) or (st.slipped[1] and contact[1]) or (
-            st.slipped[2] and contact[2]) or (st.slipped[3] and contact[3])
+        guarded = (
+            (st.slipped[0] and contact[0])
+            or (st.slipped[1] and contact[1])
+            or (st.slipped[2] and contact[2])
+            or (st.slipped[3] and contact[3])
+        )
         extra: dict[str, Any] = {}
         if c.paper_margins:
             extra["giim_paper"], extra["giam_paper"] = margins_fast(
-                [lf[i] for i in self._known], g_c, gia, absolute=True  # type: ignore[misc]
+                [lf[i] for i in self._known],
+                g_c,
+                gia,
+                absolute=True,  # type: ignore[misc]
             )
         if c.stance_margins:
             pts = [fw[i] for i in range(4) if contact[i]]
@@ -236,7 +251,9 @@ class EstimatorPipeline:
             **extra,
         )
 
-    def _stance_changes(self, st: SlipTick, fw: list[list[float]]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _stance_changes(
+        self, st: SlipTick, fw: list[list[float]]
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Touchdowns, slip events and stance ends of this tick → (footholds (m, 3), stance_xy, slip_xy)."""
         r = self.config.foot_radius_m
         nx, ny, nz = self._normal

@@ -196,7 +196,9 @@ class SlipDetector:
                 self._err_new[i] = True
                 self._t_td[i] = t
                 f = fpos[i]
-                self._p_td[i] = [pb[k] + rot[k][0] * f[0] + rot[k][1] * f[1] + rot[k][2] * f[2] for k in range(3)]
+                self._p_td[i] = [
+                    pb[k] + rot[k][0] * f[0] + rot[k][1] * f[1] + rot[k][2] * f[2] for k in range(3)
+                ]
             if not (ci and touched[i]) or (not paper and t - self._t_td[i] < c.settle_s - 1e-9):
                 slip_out[i] = slip_out[i] or slipped[i]
                 continue
@@ -235,7 +237,10 @@ class SlipDetector:
             d0, d1, d2 = ptd[0] - pb[0], ptd[1] - pb[1], ptd[2] - pb[2]
             xd = [rot[0][k] * d0 + rot[1][k] * d1 + rot[2][k] * d2 for k in range(3)]
             if paper:  # eq. 2: | ‖x_des‖ − ‖x‖ |
-                dpi = abs(math.sqrt(xd[0] ** 2 + xd[1] ** 2 + xd[2] ** 2) - math.sqrt(f[0] ** 2 + f[1] ** 2 + f[2] ** 2))
+                dpi = abs(
+                    math.sqrt(xd[0] ** 2 + xd[1] ** 2 + xd[2] ** 2)
+                    - math.sqrt(f[0] ** 2 + f[1] ** 2 + f[2] ** 2)
+                )
                 hit = dvi > eps_v and dpi > eps_p
             else:  # ‖x_des − x‖, ΔV flag held within the stance
                 dpi = math.sqrt((xd[0] - f[0]) ** 2 + (xd[1] - f[1]) ** 2 + (xd[2] - f[2]) ** 2)
@@ -250,7 +255,11 @@ class SlipDetector:
                 if fomega is not None:
                     o = fomega[i]
                     o0, o1, o2 = o[0] + wx, o[1] + wy, o[2] + wz
-                    n0, n1, n2 = rot[2][0] * c.foot_radius_m, rot[2][1] * c.foot_radius_m, rot[2][2] * c.foot_radius_m
+                    n0, n1, n2 = (
+                        rot[2][0] * c.foot_radius_m,
+                        rot[2][1] * c.foot_radius_m,
+                        rot[2][2] * c.foot_radius_m,
+                    )
                     ap0 -= o1 * n2 - o2 * n1
                     ap1 -= o2 * n0 - o0 * n2
                     ap2 -= o0 * n1 - o1 * n0
@@ -265,7 +274,9 @@ class SlipDetector:
             slip_out[i] = slipped[i]
         self._planned_prev = planned
         self._contact_prev = cont
-        return SlipTick(tuple(td), tuple(ev), tuple(end), tuple(slip_out), tuple(settled), tuple(dvl), tuple(dp), eps_v)
+        return SlipTick(
+            tuple(td), tuple(ev), tuple(end), tuple(slip_out), tuple(settled), tuple(dvl), tuple(dp), eps_v
+        )
 
     def _commit(self, i: int, slipped: bool) -> None:
         """A stance of leg i is over. Default form: if it had no slip, its mean apparent foot velocity moves

@@ -27,7 +27,15 @@ import math
 
 import numpy as np
 
-__all__ = ["gia_from_forces", "gia_from_imu", "margins", "margins_fast", "margins_per_face", "order_ccw", "order_ccw_xy"]
+__all__ = [
+    "gia_from_forces",
+    "gia_from_imu",
+    "margins",
+    "margins_fast",
+    "margins_per_face",
+    "order_ccw",
+    "order_ccw_xy",
+]
 
 _EPS_N = 1e-9
 
@@ -103,7 +111,9 @@ def order_ccw_xy(points: list[list[float]]) -> list[int]:
 
 
 def margins_fast(
-    points: list[list[float]], p_g: list[float] | tuple[float, ...], gia: list[float] | tuple[float, ...],
+    points: list[list[float]],
+    p_g: list[float] | tuple[float, ...],
+    gia: list[float] | tuple[float, ...],
     absolute: bool = False,
 ) -> tuple[float, float]:
     """`margins` for points already in face order, on Python scalars (the per-tick path).

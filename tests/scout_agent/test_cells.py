@@ -127,5 +127,8 @@ def test_local_map_equals_what_a_server_merges_from_the_same_deltas(seed):
     for name in ("giim", "cot", "slip", "elevation"):
         for s in LAYERS[name].stats:
             np.testing.assert_allclose(
-                np.asarray(theirs[name][s]).reshape(mine[name][s].shape), mine[name][s], rtol=1e-12, atol=1e-12
+                np.asarray(theirs[name][s]).reshape(mine[name][s].shape),
+                mine[name][s],
+                rtol=1e-12,
+                atol=1e-12,
             )

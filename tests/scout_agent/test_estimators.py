@@ -9,7 +9,6 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from scout_agent.estimators.stability import margins_fast, order_ccw_xy
 from scout_agent.estimators import (
     CotConfig,
     CotMeter,
@@ -30,6 +29,7 @@ from scout_agent.estimators import (
     slope_deg,
     terrain_normal,
 )
+from scout_agent.estimators.stability import margins_fast, order_ccw_xy
 
 DT = 0.002
 I3 = np.eye(3)
@@ -179,7 +179,9 @@ def test_contact_flicker_does_not_reset_the_default_reference():
     # the contact flag drops for 4 ms in the middle of a slide
     flicker = lambda tr: not (0.15 <= tr < 0.154)  # noqa: E731
     ev_default, _ = run_stance(warm(SlipDetector()), slide(0.1, 0.2, [0.3, 0, 0]), contact_fn=flicker)
-    ev_paper, _ = run_stance(warm(SlipDetector(SlipConfig(form="paper"))), slide(0.1, 0.2, [0.3, 0, 0]), contact_fn=flicker)
+    ev_paper, _ = run_stance(
+        warm(SlipDetector(SlipConfig(form="paper"))), slide(0.1, 0.2, [0.3, 0, 0]), contact_fn=flicker
+    )
     assert ev_default.sum() == 1
     # after the flicker the paper form measures from the new touchdown: 0.046 s × 0.3 m/s = 1.4 cm < 2 cm
     assert ev_paper.sum() == 0
@@ -318,7 +320,9 @@ def test_cot_of_a_sinusoidal_power_profile():
 
 def test_cot_is_undefined_below_the_minimum_distance():
     assert math.isnan(cot_from_sums(1.0, 0.01))
-    np.testing.assert_array_equal(np.isnan(cot_from_sums(np.array([1.0, 1.0]), np.array([0.0, 1.0]))), [True, False])
+    np.testing.assert_array_equal(
+        np.isnan(cot_from_sums(np.array([1.0, 1.0]), np.array([0.0, 1.0]))), [True, False]
+    )
 
 
 # ---------------------------------------------------------------- GIIM / GIAM
@@ -476,4 +480,6 @@ def test_fast_margins_agree_with_the_reference(pts, com, gia):
     fast = margins_fast([list(pts[i]) for i in order], com, gia)
     np.testing.assert_allclose(fast, ref, atol=1e-9)
     ref_p = margins(p, np.array(com), np.array(gia), "paper")
-    np.testing.assert_allclose(margins_fast([list(q) for q in pts], com, gia, absolute=True), ref_p, atol=1e-9)
+    np.testing.assert_allclose(
+        margins_fast([list(q) for q in pts], com, gia, absolute=True), ref_p, atol=1e-9
+    )

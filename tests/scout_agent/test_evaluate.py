@@ -1,0 +1,75 @@
+"""`psrmap evaluate`: the JSON it prints, and its scoring helpers."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import pytest
+
+from scout_agent.evaluate import _pr
+
+REQUIRED = (
+    "elevation_rmse_m",
+    "slope_rmse_deg",
+    "slip_precision",
+    "slip_recall",
+    "slip_precision_exact",
+    "slip_recall_exact",
+    "slip_events",
+    "cot_mean",
+    "giim_mean",
+    "giam_mean",
+    "giim_paper_mean",
+    "giam_paper_mean",
+    "nonfoot_contact_ticks",
+    "slip_events_in_patch_share",
+    "gt_slips",
+)
+
+
+def test_precision_recall_over_stances():
+    assert _pr({(0, 1), (1, 2)}, {(0, 1), (2, 3)}) == (0.5, 0.5)
+    assert _pr(set(), set()) == (1.0, 1.0)  # nothing to find, nothing claimed
+    assert _pr(set(), {(0, 1)}) == (0.0, 0.0)  # found nothing that was there (as REFERENCE reports it)
+    p, r = _pr({(0, 1)}, set())
+    assert p == 0.0 and math.isnan(r)
+
+
+def test_evaluate_prints_one_json_object_with_the_figures(capsys):
+    from psrmap.cli import main
+
+    code = main(
+        [
+            "evaluate",
+            "--scene",
+            "ramps",
+            "--slope",
+            "10",
+            "--slippery",
+            "0.25",
+            "--sim-seconds",
+            "12",
+            "--json",
+            "--quiet",
+        ]
+    )
+    assert code == 0
+    out = capsys.readouterr().out.strip().splitlines()
+    assert len(out) == 1
+    res = json.loads(out[0])
+    for key in REQUIRED:
+        assert key in res, key
+    assert set(res["segments"]) == {"up", "flat", "down"}
+    for seg in res["segments"].values():
+        assert {"cot_mean", "giim_mean", "giam_mean", "slip_events"} <= set(seg)
+    assert res["elevation_rmse_m"] < 0.03  # the approach and the first metres of the up-ramp
+    assert res["giim_mean"] > 0 and res["giim_nonpositive_share"] == 0.0
+    assert res["slip_events"] == 0  # the patch is on the down-ramp, not reached in 12 s
+
+
+def test_evaluate_rejects_a_bad_resolution():
+    from psrmap.cli import main
+
+    with pytest.raises(SystemExit):
+        main(["evaluate", "--res", "0", "--sim-seconds", "1", "--json"])
