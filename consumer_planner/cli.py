@@ -169,12 +169,9 @@ def _table(routes: list[Route]) -> str:
 
 def _finish(args: argparse.Namespace, grid: LayerGrid, costs, routes: list[Route], single: bool) -> int:
     if args.rrd:
-        import rerun as rr
+        from consumer_planner.viz import log_plan, open_recording
 
-        from consumer_planner.viz import log_plan
-
-        rec = rr.RecordingStream("psrmap-planner")
-        rec.save(args.rrd)
+        rec = open_recording(args.rrd)
         log_plan(rec, grid, costs, routes)
         rec.flush()
     head = {
@@ -212,12 +209,16 @@ def _run_plan(args: argparse.Namespace) -> int:
 def _run_compare(args: argparse.Namespace) -> int:
     cfg = _config(args)
     if len(args.name) > len(args.route):
-        args._parser.error(f"{len(args.name)} --name for {len(args.route)} --route: give at most one name per route")
+        args._parser.error(
+            f"{len(args.name)} --name for {len(args.route)} --route: give at most one name per route"
+        )
     names = [*args.name, *(f"route{i}" for i in range(len(args.name), len(args.route)))]
     try:
         grid = _load(args, [p for r in args.route for p in r])
         costs = build_costs(grid, cfg)
-        routes = [evaluate_route(grid, costs, pts, name=name) for name, pts in zip(names, args.route, strict=True)]
+        routes = [
+            evaluate_route(grid, costs, pts, name=name) for name, pts in zip(names, args.route, strict=True)
+        ]
     except PlannerError as exc:
         raise SystemExit(f"psrmap compare: {exc}") from None
     return _finish(args, grid, costs, routes, single=False)

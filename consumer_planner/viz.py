@@ -16,8 +16,16 @@ import rerun as rr
 from consumer_planner.compare import Route
 from consumer_planner.costs import CostMap
 from consumer_planner.grid import LayerGrid
+from protocol.recording import APP_ID, recording_id
 
 __all__ = ["cost_image", "log_plan"]
+
+
+def open_recording(path: str) -> rr.RecordingStream:
+    """A recording saved to `path`, in the mission's recording (`PSRMAP_RECORDING_ID`) if one is set."""
+    rec = rr.RecordingStream(APP_ID, recording_id=recording_id())
+    rec.save(path)
+    return rec
 
 
 def cost_image(costs: CostMap) -> np.ndarray:

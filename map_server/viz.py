@@ -13,6 +13,8 @@ import numpy as np
 import rerun as rr
 
 from map_server.tiles import TiledMap
+from protocol.recording import APP_ID
+from protocol.recording import recording_id as mission_recording_id
 
 __all__ = ["MapViz"]
 
@@ -31,7 +33,9 @@ class MapViz:
     def __init__(
         self, rrd_path: str, map_id: str, recording_id: str | None = None, interval_s: float = 1.0
     ) -> None:
-        self.stream = rr.RecordingStream("psrmap", recording_id=recording_id or f"psrmap-{map_id}")
+        self.stream = rr.RecordingStream(
+            APP_ID, recording_id=recording_id or mission_recording_id(f"psrmap-{map_id}")
+        )
         self.stream.save(rrd_path)
         self.interval_s = interval_s
         self._last = 0.0

@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 import rerun as rr
 
+from protocol.recording import APP_ID, recording_id
 from scout_agent.signals import LEG_NAMES, GroundTruth, ProprioSample
 from scout_agent.sim.friction import FrictionMap
 from scout_agent.sim.terrain import Terrain
@@ -16,9 +17,9 @@ from scout_agent.sim.terrain import Terrain
 TIMELINE = "sim_time"
 
 
-def open_recording(path: str, app_id: str = "psrmap") -> rr.RecordingStream:
-    """A recording that streams to an .rrd file."""
-    rec = rr.RecordingStream(app_id)
+def open_recording(path: str, app_id: str = APP_ID) -> rr.RecordingStream:
+    """A recording that streams to an .rrd file, in the mission's recording (`PSRMAP_RECORDING_ID`) if set."""
+    rec = rr.RecordingStream(app_id, recording_id=recording_id())
     rec.save(path)
     return rec
 
