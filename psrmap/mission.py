@@ -58,7 +58,7 @@ class MissionConfig:
 
     map: str = "moon"
     res: float = 0.4  # cell size [m]
-    sim_seconds: float = 75.0  # cap on each scout's walk [s]
+    sim_seconds: float = 150.0  # cap on each scout's walk [s]
     speed: float = 0.2  # [m/s]
     rate_hz: float = 5.0  # deltas per second per scout
     out: str = "runs"
@@ -67,8 +67,8 @@ class MissionConfig:
     slope: float = 15.0  # ramps scene only [deg]
     slippery_patches: int = 4
     scouts: tuple[ScoutPlan, ...] = ()
-    plan_from: tuple[float, float] = (-6.0, -6.0)
-    plan_to: tuple[float, float] = (3.0, 3.0)
+    plan_from: tuple[float, float] = (2.0, 2.0)
+    plan_to: tuple[float, float] = (18.0, 18.0)
     unknown: str = "infer"
     weights: dict[str, float] = field(default_factory=dict)
     rrd: bool = True  # write Rerun recordings
@@ -239,15 +239,18 @@ def scout_argv(cfg: MissionConfig, s: ScoutPlan, endpoint: str, run_dir: Path) -
         "--scene", cfg.scene,
         "--speed", str(cfg.speed),
         "--sim-seconds", str(cfg.sim_seconds),
-        "--rate", str(cfg.rate_hz),
+        "--delta-hz", str(cfg.rate_hz),
         "--save-map", str(run_dir / f"{s.id}_local.npz"),
         "--json",
     ]  # fmt: skip
     if cfg.scene == "lunar":
         argv += ["--seed", str(cfg.seed), "--slippery-patches", str(cfg.slippery_patches)]
-        argv += ["--start", ",".join(f"{v:g}" for v in s.start), "--goal", ",".join(f"{v:g}" for v in s.goal)]
-        for p in s.via:
-            argv += ["--via", ",".join(f"{v:g}" for v in p)]
+        # `--opt=value` so that negative coordinates are not taken for options
+        argv += [
+            "--start=" + ",".join(f"{v:g}" for v in s.start),
+            "--goal=" + ",".join(f"{v:g}" for v in s.goal),
+        ]
+        argv += ["--via=" + ",".join(f"{v:g}" for v in p) for p in s.via]
     else:
         argv += ["--slope", str(cfg.slope)]
     if cfg.rrd:
@@ -474,10 +477,8 @@ def _plan_and_compare(
     plan_argv = [
         "plan",
         *common,
-        "--from",
-        "{:g},{:g}".format(*cfg.plan_from),
-        "--to",
-        "{:g},{:g}".format(*cfg.plan_to),
+        "--from={:g},{:g}".format(*cfg.plan_from),
+        "--to={:g},{:g}".format(*cfg.plan_to),
     ]
     plan_argv += ["--unknown", cfg.unknown]
     if weights:
