@@ -442,7 +442,7 @@ def _await_totals(session: Any, cfg: MissionConfig, scouts: dict[str, Any], wait
         st = _status(session, cfg.map)
         if st is not None:
             done = all(
-                sid in st.scouts and st.scouts[sid].last_seq + 1 >= int(info.get("deltas_sent", 0))
+                sid in st.scouts and st.scouts[sid].last_seq + 1 >= deltas_sent(info)
                 for sid, info in scouts.items()
                 if "error" not in info
             )
@@ -450,6 +450,11 @@ def _await_totals(session: Any, cfg: MissionConfig, scouts: dict[str, Any], wait
                 return st
         time.sleep(0.3)
     return st
+
+
+def deltas_sent(scout_summary: dict[str, Any]) -> int:
+    """How many distinct deltas a scout published (its `--json` summary's `map.publisher.sent`)."""
+    return int(scout_summary.get("map", {}).get("publisher", {}).get("sent", 0))
 
 
 def _status_json(st: Any) -> dict[str, Any]:
@@ -537,7 +542,7 @@ def _print_report(summary: dict[str, Any]) -> None:
             continue
         print(
             f"  {sid}: {s.get('distance_m', float('nan')):.1f} m in {s.get('sim_seconds', float('nan')):.0f} s, "
-            f"fell={s.get('fell')}, reached_goal={s.get('reached_goal')}, deltas={s.get('deltas_sent')}"
+            f"fell={s.get('fell')}, reached_goal={s.get('reached_goal')}, deltas={deltas_sent(s)}"
         )
     plan = summary.get("plan") or {}
     if "error" in plan:

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from psrmap.mission import MissionError, load_config, merge_recordings, run_mission, with_scouts
+from psrmap.mission import MissionError, deltas_sent, load_config, merge_recordings, run_mission, with_scouts
 
 pytestmark = pytest.mark.slow
 
@@ -24,7 +24,8 @@ pytestmark = pytest.mark.slow
 def mission(tmp_path_factory: pytest.TempPathFactory) -> tuple[dict, Path]:
     run_dir = tmp_path_factory.mktemp("mission")
     cfg = with_scouts(load_config(), 2)
-    cfg = dataclasses.replace(cfg, sim_seconds=12.0, timeout_s=400.0)
+    # plan between two points both scouts' first metres explored (scout1 leaves (1.5, 1.5) heading north-east)
+    cfg = dataclasses.replace(cfg, sim_seconds=14.0, timeout_s=400.0, plan_from=(1.6, 1.6), plan_to=(2.8, 2.8))
     summary = run_mission(cfg, run_dir, progress=False)
     return summary, run_dir
 
@@ -44,13 +45,13 @@ def _local_totals(path: Path) -> dict[str, float]:
 def test_scouts_walked_and_published(mission: tuple[dict, Path]) -> None:
     summary, run_dir = mission
     assert set(summary["scouts"]) == {"scout1", "scout2"}
-    for sid, s in summary["scouts"].items():
+    for s in summary["scouts"].values():
         assert "error" not in s, s
         assert s["fell"] is False
         assert s["distance_m"] > 1.0
-        assert s["deltas_sent"] > 10
+        assert deltas_sent(s) > 10 and s["map"]["all_acked"] is True
     st = summary["status"]
-    assert st["merged"] == sum(s["deltas_sent"] for s in summary["scouts"].values())
+    assert st["merged"] == sum(deltas_sent(s) for s in summary["scouts"].values())
     assert st["duplicates"] >= 0 and not st["rejected"]
     assert st["cells"] > 20
     assert (run_dir / "map.db").exists() and (run_dir / "summary.json").exists()
@@ -60,8 +61,8 @@ def test_scouts_walked_and_published(mission: tuple[dict, Path]) -> None:
 
 def test_server_totals_equal_sum_of_scouts(mission: tuple[dict, Path]) -> None:
     _, run_dir = mission
-    from map_server.store import MapStore  # reopen the persisted map exactly as a new server would
     from map_server.merge import Merger
+    from map_server.store import MapStore  # reopen the persisted map exactly as a new server would
     from map_server.tiles import TiledMap
 
     cfg = load_config()
