@@ -1,0 +1,185 @@
+"""The seed paper's experiments, reproduced and extended: `psrmap experiment {ramps,slopes,lunar,utility,all}`.
+
+    psrmap experiment ramps   [--seeds 0] [--runs 4] [--angles 5,10,15,20] --out DIR
+    psrmap experiment slopes  [--seeds 0] [--runs 4] --out DIR
+    psrmap experiment lunar   [--seeds 0,1,2] [--runs 1] [--slippery-patches 4] --out DIR
+    psrmap experiment utility [--seeds 0,1,2] [--runs 1] [--scouts west,east] [--unknown infer] --out DIR
+    psrmap experiment all     --out DIR          # each experiment in DIR/<name>/, runs shared
+
+Each writes `results.json` (every figure quoted in docs/results.md) and PNG figures into its folder, with
+a tqdm bar over the runs. Independent runs go to `--workers` spawn processes (default 2); every run is
+cached in `<out>/runs/`, so a second experiment needing the same walk reads it instead (`--fresh` ignores
+the cache).
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import time
+from pathlib import Path
+from typing import Any
+
+from psrmap.experiments import lunar, ramps, slopes, utility
+from psrmap.experiments.common import RunPool, write_json
+
+__all__ = ["EXPERIMENTS", "register", "run_experiment"]
+
+EXPERIMENTS = {"ramps": ramps, "slopes": slopes, "lunar": lunar, "utility": utility}
+OPTIONS_FROM = {"ramps": (ramps,), "slopes": (ramps, slopes), "lunar": (lunar,), "utility": (lunar, utility)}
+
+
+def _seeds(text: str) -> list[int]:
+    try:
+        vals = [int(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"--seeds {text!r}: give integers separated by commas, e.g. 0,1,2"
+        ) from None
+    if not vals or any(v < 0 for v in vals):
+        raise argparse.ArgumentTypeError(f"--seeds {text!r}: need at least one seed ≥ 0")
+    return vals
+
+
+def _positive_int(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        v = 0
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"{text!r}: need an integer ≥ 1")
+    return v
+
+
+def _add_common(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--out", required=True, metavar="DIR", help="output folder (results.json, PNGs, run cache)"
+    )
+    p.add_argument(
+        "--seeds",
+        type=_seeds,
+        metavar="S,...",
+        help="seeds (ramps/slopes: noise seeds ×100 + run; lunar/utility: terrain seeds); "
+        "default per experiment: ramps/slopes 0, lunar/utility 0,1,2",
+    )
+    p.add_argument(
+        "--runs",
+        type=_positive_int,
+        metavar="N",
+        help="runs per seed and condition (default: ramps/slopes 4, lunar/utility 1)",
+    )
+    p.add_argument(
+        "--workers", type=_positive_int, default=2, help="parallel simulation processes (default 2)"
+    )
+    p.add_argument(
+        "--sim-seconds",
+        type=float,
+        metavar="S",
+        help="cap on each run's simulated time (reduced sets; default: the whole path)",
+    )
+    p.add_argument("--fresh", action="store_true", help="walk every run again instead of reading the cache")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+
+
+def register(subparsers: Any) -> argparse.ArgumentParser:
+    p = subparsers.add_parser(
+        "experiment",
+        help="reproduce the seed paper's experiments (and the map-utility one)",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    sub = p.add_subparsers(dest="experiment", metavar="EXPERIMENT", required=True)
+    for name in (*EXPERIMENTS, "all"):
+        mod = EXPERIMENTS.get(name)
+        doc = (mod.__doc__ if mod else "every experiment in turn, runs shared, each in DIR/<name>/").strip()
+        q = sub.add_parser(
+            name,
+            help=doc.splitlines()[0],
+            description=doc,
+            formatter_class=argparse.RawDescriptionHelpFormatter,
+        )
+        _add_common(q)
+        for m in EXPERIMENTS.values() if name == "all" else OPTIONS_FROM[name]:
+            m.add_arguments(q)
+        q.set_defaults(func=_cmd, _parser=q)
+    return p
+
+
+def _resolved(args: argparse.Namespace, mod: Any) -> argparse.Namespace:
+    ns = argparse.Namespace(**vars(args))
+    ns.seeds = args.seeds if args.seeds is not None else _seeds(mod.DEFAULT_SEEDS)
+    ns.runs = args.runs if args.runs is not None else mod.DEFAULT_RUNS
+    return ns
+
+
+def run_experiment(name: str, args: argparse.Namespace, pool: RunPool, out_dir: Path) -> dict[str, Any]:
+    """Run one experiment into `out_dir` (results.json + PNGs); returns its results."""
+    mod = EXPERIMENTS[name]
+    ns = _resolved(args, mod)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    walked0, ws0 = pool.walked, pool.worker_seconds
+    res = mod.run(ns, pool, out_dir)
+    res["timing"] = {
+        "wall_seconds": round(time.perf_counter() - t0, 1),
+        "runs_walked": pool.walked - walked0,
+        "worker_seconds": round(pool.worker_seconds - ws0, 1),
+        "workers": pool.workers,
+    }
+    res["command"] = _command(args)
+    write_json(out_dir / "results.json", res)
+    return res
+
+
+def _command(args: argparse.Namespace) -> str:
+    import sys
+
+    return (
+        "psrmap " + " ".join(sys.argv[1:])
+        if sys.argv and "experiment" in sys.argv
+        else f"experiment {args.experiment}"
+    )
+
+
+def _cmd(args: argparse.Namespace) -> int:
+    if args.sim_seconds is not None and not args.sim_seconds > 0:
+        args._parser.error(f"--sim-seconds {args.sim_seconds}: need > 0")
+    out = Path(args.out)
+    pool = RunPool(out / "runs", workers=args.workers, progress=not args.quiet, fresh=args.fresh)
+    t0 = time.perf_counter()
+    if args.experiment != "all":
+        res = run_experiment(args.experiment, args, pool, out)
+        print(f"{args.experiment}: {res['timing']['wall_seconds']} s, results in {out / 'results.json'}")
+        return 0
+    # every run known up front in one pool, so both workers stay busy across experiments
+    everything = [s for name, mod in EXPERIMENTS.items() for s in mod.specs(_resolved(args, mod))]
+    pool.run(everything, desc="all runs")
+    summary: dict[str, Any] = {"experiments": {}}
+    for name in EXPERIMENTS:
+        res = run_experiment(name, args, pool, out / name)
+        summary["experiments"][name] = {
+            "results": f"{name}/results.json",
+            "timing": res["timing"],
+            "figures": res.get("figures", []),
+        }
+    summary["timing"] = {
+        "wall_seconds": round(time.perf_counter() - t0, 1),
+        "runs_walked": pool.walked,
+        "worker_seconds": round(pool.worker_seconds, 1),
+        "workers": pool.workers,
+    }
+    summary["machine"] = {
+        "python": platform.python_version(),
+        "cpus": _cpus(),
+        "platform": platform.platform(),
+    }
+    summary["command"] = _command(args)
+    write_json(out / "results.json", summary)
+    print(f"all: {summary['timing']['wall_seconds']} s wall, {pool.walked} runs walked; results in {out}")
+    return 0
+
+
+def _cpus() -> int | None:
+    import os
+
+    return os.cpu_count()

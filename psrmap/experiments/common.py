@@ -1,0 +1,381 @@
+"""What every experiment shares: a run's spec, the worker that walks and scores it, a cached process pool.
+
+A `RunSpec` names one scout walk completely (scene, terrain seed, noise seed, start, path, friction, time
+cap). `run_spec` is the worker: it builds the world, walks it with `scout_agent.evaluate.Evaluator` hooked
+into `run_scout`, and returns a picklable dict — the evaluator's scores, ground-truth slip counts, the local
+map's cells at 0.4 m, the paper-variant margins per cell, the base track, and the elevation error of the
+*same footholds* re-binned at finer cells (the estimators run once; every foothold, stance and sample the
+mapper aggregated is logged and re-aggregated at 0.2 and 0.1 m with the same cell code).
+
+`RunPool.run(specs)` runs specs in `spawn` worker processes (2 by default: the machine has 2 cores) under a
+tqdm bar and caches each result under `<out>/runs/<key>.pkl`, so `experiment all` walks a run that two
+experiments need (e.g. a ramp without patch for `ramps` and `slopes`) only once.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import multiprocessing as mp
+import pickle
+import time
+from collections.abc import Iterable, Sequence
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = [
+    "EXTRA_RES",
+    "MAP_RES",
+    "RunPool",
+    "RunSpec",
+    "fmean",
+    "elevation_errors",
+    "fstd",
+    "jitter_start",
+    "rebin",
+    "recording_accumulator",
+    "run_spec",
+    "write_json",
+]
+
+MAP_RES = 0.4  # cell size of the scout's map [m] (the paper's)
+EXTRA_RES = (0.2, 0.1)  # finer cells the same footholds are re-binned at [m]
+CACHE_VERSION = 1  # bump when what a run returns changes
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """One scout walk. `label` is for humans and is not part of the cache key."""
+
+    scene: str  # "ramps" | "lunar"
+    slope_deg: float = 0.0  # ramps: α [deg]
+    terrain_seed: int = 0  # lunar terrain (and its slippery patches)
+    noise_seed: int = 0  # base-velocity noise of the honest state
+    start: tuple[float, ...] | None = None  # x, y [m] (None: the scene's / route's start)
+    route: str | None = None  # lunar: named route of LUNAR_ROUTES
+    waypoints: tuple[tuple[float, float], ...] | None = None  # explicit path start … goal [m]
+    slippery_mu: float | None = None  # ramps: patch over the middle of the down-ramp
+    slippery_patches: int = 0  # lunar: seeded patches
+    sim_seconds: float | None = None  # cap on simulated time [s]
+    res: float = MAP_RES
+    label: str = field(default="", compare=False)
+
+    def key(self) -> str:
+        d = asdict(self)
+        d.pop("label")
+        d["v"] = CACHE_VERSION
+        return hashlib.sha1(json.dumps(d, sort_keys=True).encode()).hexdigest()[:16]
+
+
+def jitter_start(xy: Sequence[float], seed: int, dx: float = 0.05, dy: float = 0.1) -> tuple[float, float]:
+    """The start `xy` moved by a seeded offset in [-dx, dx] × [-dy, dy] [m].
+
+    MuJoCo is deterministic: runs that differ only by the noise seed of the honest base state would repeat
+    the same physics. A few centimetres of start offset make repeated runs physically different, as
+    repeated traversals in the paper's simulator were.
+    """
+    rng = np.random.default_rng(10_000 + seed)
+    return (round(float(xy[0] + rng.uniform(-dx, dx)), 4), round(float(xy[1] + rng.uniform(-dy, dy)), 4))
+
+
+# ------------------------------------------------------------------------------------------ the worker
+
+
+def _run_config(spec: RunSpec):
+    from scout_agent.run import ScoutRunConfig
+
+    kw: dict[str, Any] = {}
+    if spec.waypoints is not None:
+        pts = spec.waypoints
+        kw.update(start=tuple(pts[0]), via=tuple(tuple(p) for p in pts[1:-1]), goal=tuple(pts[-1]))
+    if spec.start is not None:
+        kw["start"] = tuple(spec.start)
+    return ScoutRunConfig(
+        scene=spec.scene,
+        slope_deg=spec.slope_deg,
+        seed=spec.terrain_seed,
+        route=spec.route,
+        slippery_mu=spec.slippery_mu,
+        slippery_patches=spec.slippery_patches,
+        sim_seconds=spec.sim_seconds,
+        scout_id=spec.label or "scout",
+        **kw,
+    )
+
+
+def recording_accumulator(res: float):
+    from scout_agent.cells import CellAccumulator
+
+    class RecordingAccumulator(CellAccumulator):
+        """The mapper's accumulator, also keeping every row it was given (to re-bin at other cell sizes)."""
+
+        def __init__(self, res: float) -> None:
+            super().__init__(res)
+            self.log: dict[str, list[tuple[float, ...]]] = {}
+            self.footholds: list[tuple[float, float, float]] = []
+
+        def append(self, layer: str, row: tuple[float, ...]) -> None:
+            super().append(layer, row)
+            self.log.setdefault(layer, []).append(row)
+
+        def add_elevation(self, x: float, y: float, z: float) -> None:
+            super().add_elevation(x, y, z)
+            self.footholds.append((x, y, z))
+
+    return RecordingAccumulator(res)
+
+
+def rebin(acc: Any, res: float):
+    """A `LocalMap` at cell size `res` [m] from everything a `RecordingAccumulator` was given."""
+    from scout_agent.cells import CellAccumulator, LocalMap
+
+    fresh = CellAccumulator(res)
+    for layer, rows in acc.log.items():
+        for row in rows:
+            fresh.append(layer, row)
+    for x, y, z in acc.footholds:
+        fresh.add_elevation(x, y, z)
+    local = LocalMap(res)
+    layers = fresh.flush()
+    if layers:
+        local.merge(layers)
+    return local
+
+
+def elevation_errors(local: Any, terrain: Any, segments: dict | None = None) -> dict[str, Any]:
+    """RMSE [m] of the elevation layer against the exact terrain at cell centres: the layer's value (plane
+    fit, or mean where ill conditioned) and the mean alone (the paper's estimate); also on ramp cells only."""
+    from protocol.layers import cell_center, layer_value
+
+    c = local.cells("elevation")
+    if not len(c["ix"]):
+        return {"cells": 0}
+    cx, cy = cell_center(c["ix"], c["iy"], local.res)
+    truth = terrain.height(cx, cy)
+    value = layer_value("elevation", c)
+    mean = c["sum"] / c["n"]
+    out: dict[str, Any] = {"cells": int(len(cx)), "footholds": int(c["n"].sum())}
+
+    def rmse(v: np.ndarray, m: np.ndarray) -> float | None:
+        e = (v - truth)[m]
+        e = e[np.isfinite(e)]
+        return round(float(np.sqrt(np.mean(e**2))), 5) if e.size else None
+
+    every = np.ones(len(cx), bool)
+    out["rmse_m"] = rmse(value, every)
+    out["rmse_mean_only_m"] = rmse(mean, every)
+    if segments:
+        on = np.zeros(len(cx), bool)
+        for seg in ("up", "down"):
+            a, b = segments[seg]
+            on |= (cx >= a) & (cx < b)
+        out["ramp_cells"] = int(on.sum())
+        out["rmse_ramps_m"] = rmse(value, on)
+        out["rmse_ramps_mean_only_m"] = rmse(mean, on)
+    return out
+
+
+def _slip_counts(ev: Any) -> dict[str, dict[str, int]]:
+    from scout_agent.evaluate import GT_SLIP_M
+
+    truth = {k for k, v in ev.stances.items() if v[3] > GT_SLIP_M}
+    known = set(ev.stances)
+    out = {}
+    for which in ("honest", "exact", "paper"):
+        det = ev.detected[which] & known
+        out[which] = {"tp": len(det & truth), "detected": len(det), "truth": len(truth)}
+    return out
+
+
+def _slip_points(ev: Any) -> dict[str, np.ndarray]:
+    """Touchdown (x, y) of ground-truth slips and of honest detections (for maps and profiles)."""
+    from scout_agent.evaluate import GT_SLIP_M
+
+    gt = [(v[0], v[1]) for v in ev.stances.values() if v[3] > GT_SLIP_M]
+    det = [ev.stances[k][:2] for k in ev.detected["honest"] if k in ev.stances]
+    return {"truth": np.array(gt, float).reshape(-1, 2), "detected": np.array(det, float).reshape(-1, 2)}
+
+
+def _paper_cells(ev: Any) -> dict[str, dict[str, np.ndarray]]:
+    out = {}
+    for key in ("giim", "giam"):
+        sums = ev.paper_means[key].sums
+        keys = sorted(sums)
+        out[key] = {
+            "ix": np.array([k[0] for k in keys], np.int32),
+            "iy": np.array([k[1] for k in keys], np.int32),
+            "sum": np.array([sums[k][0] for k in keys], float),
+            "n": np.array([sums[k][1] for k in keys], float),
+        }
+    return out
+
+
+def run_spec(spec: RunSpec) -> dict[str, Any]:
+    """Walk one spec with the evaluator attached; return everything the experiments read (picklable)."""
+    from protocol.layers import LAYERS
+    from scout_agent.evaluate import Evaluator
+    from scout_agent.run import build_world, run_scout
+
+    wall0 = time.perf_counter()
+    cfg = _run_config(spec)
+    world = build_world(cfg)  # terrain and patches from the terrain seed
+    cfg = replace(cfg, seed=spec.noise_seed)  # the walk's noise from the noise seed
+    ev = Evaluator(res=spec.res)
+    acc = recording_accumulator(spec.res)
+    ev.mapper.acc = acc
+    track: list[tuple[float, float, float, float]] = []
+
+    def on_tick(sample, truth, sim) -> None:
+        ev.on_tick(sample, truth, sim)
+        if ev.ticks % 25 == 1:
+            p = truth.base.pos
+            track.append((sample.t, float(p[0]), float(p[1]), float(p[2])))
+
+    summary = run_scout(cfg, on_tick=on_tick, progress=False, world=world)
+    scores = ev.result(world, cfg.friction_default)
+    segments = world.terrain.info.get("segments")
+    elevation = {f"{spec.res:g}": elevation_errors(ev.mapper.local, world.terrain, segments)}
+    for r in EXTRA_RES:
+        elevation[f"{r:g}"] = elevation_errors(rebin(acc, r), world.terrain, segments)
+    summary.pop("friction", None)
+    return {
+        "key": spec.key(),
+        "spec": asdict(spec),
+        "summary": summary,
+        "scores": scores,
+        "slip_counts": _slip_counts(ev),
+        "slip_points": _slip_points(ev),
+        "elevation": elevation,
+        "cells": {name: ev.mapper.local.cells(name) for name in LAYERS},
+        "paper_cells": _paper_cells(ev),
+        "track": np.array(track, float).reshape(-1, 4),
+        "friction": {
+            "default": world.friction.default,
+            "patches": [[float(v) for v in (p.x0, p.y0, p.x1, p.y1, p.mu)] for p in world.friction.patches],
+        },
+        "segments": {k: [float(a), float(b)] for k, (a, b) in segments.items()} if segments else None,
+        "waypoints": world.waypoints.tolist(),
+        "mass_kg": float(ev.mapper.feet.total_mass_kg),
+        "worker_seconds": round(time.perf_counter() - wall0, 2),
+    }
+
+
+# ------------------------------------------------------------------------------------------ the pool
+
+
+class RunPool:
+    """Runs specs in `workers` spawn processes with a progress bar; results cached in `cache_dir`."""
+
+    def __init__(self, cache_dir: Path, workers: int = 2, progress: bool = True, fresh: bool = False) -> None:
+        self.cache_dir = Path(cache_dir)
+        self.cache_dir.mkdir(parents=True, exist_ok=True)
+        self.workers = max(1, int(workers))
+        self.progress = progress
+        self.fresh = fresh
+        self._done_fresh: set[str] = set()  # with `fresh`, runs of this session count as cached
+        self.walked = 0  # runs simulated by this pool (not from the cache)
+        self.worker_seconds = 0.0
+
+    def _path(self, key: str) -> Path:
+        return self.cache_dir / f"{key}.pkl"
+
+    def _cached(self, spec: RunSpec) -> dict | None:
+        key = spec.key()
+        path = self._path(key)
+        if not path.is_file() or (self.fresh and key not in self._done_fresh):
+            return None
+        with path.open("rb") as f:
+            return pickle.load(f)
+
+    def run(self, specs: Iterable[RunSpec], desc: str = "runs") -> list[dict]:
+        """Results in the order of `specs` (duplicates walked once)."""
+        specs = list(specs)
+        results: dict[str, dict] = {}
+        todo: dict[str, RunSpec] = {}
+        for s in specs:
+            k = s.key()
+            if k in results or k in todo:
+                continue
+            hit = self._cached(s)
+            if hit is not None:
+                results[k] = hit
+            else:
+                todo[k] = s
+        bar = None
+        if self.progress:
+            from tqdm import tqdm
+
+            bar = tqdm(total=len(results) + len(todo), initial=len(results), desc=desc, unit="run")
+        try:
+            for res in self._walk(list(todo.values())):
+                key = res["key"]
+                tmp = self._path(key).with_suffix(".tmp")
+                with tmp.open("wb") as f:
+                    pickle.dump(res, f)
+                tmp.replace(self._path(key))
+                self._done_fresh.add(key)
+                self.walked += 1
+                self.worker_seconds += res["worker_seconds"]
+                results[key] = res
+                if bar is not None:
+                    s = res["summary"]
+                    bar.set_postfix_str(f"{res['spec']['label']} {'FELL' if s['fell'] else 'ok'}")
+                    bar.update(1)
+        finally:
+            if bar is not None:
+                bar.close()
+        return [results[s.key()] for s in specs]
+
+    def _walk(self, todo: list[RunSpec]):
+        if not todo:
+            return
+        if self.workers == 1 or len(todo) == 1:
+            for s in todo:
+                yield run_spec(s)
+            return
+        ctx = mp.get_context("spawn")
+        with ctx.Pool(min(self.workers, len(todo)), maxtasksperchild=8) as pool:
+            yield from pool.imap_unordered(run_spec, todo)
+
+
+# ------------------------------------------------------------------------------------------ numbers out
+
+
+def fmean(values: Iterable[Any]) -> float | None:
+    """Mean of the finite values, None when there is none (no warning on empty input)."""
+    v = [float(x) for x in values if x is not None and math.isfinite(float(x))]
+    return float(np.mean(v)) if v else None
+
+
+def fstd(values: Iterable[Any]) -> float | None:
+    v = [float(x) for x in values if x is not None and math.isfinite(float(x))]
+    return float(np.std(v)) if len(v) > 1 else (0.0 if v else None)
+
+
+def _jsonable(x: Any) -> Any:
+    if isinstance(x, dict):
+        return {str(k): _jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_jsonable(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return _jsonable(x.tolist())
+    if isinstance(x, (np.bool_, bool)):
+        return bool(x)
+    if isinstance(x, (np.integer,)):
+        return int(x)
+    if isinstance(x, (float, np.floating)):
+        f = float(x)
+        return round(f, 6) if math.isfinite(f) else None
+    return x
+
+
+def write_json(path: Path, obj: Any) -> Path:
+    """JSON with numpy types converted, NaN/inf as null."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(_jsonable(obj), indent=1) + "\n")
+    return path

@@ -1,0 +1,453 @@
+"""`psrmap experiment utility` (new): does a map made by some scouts predict what another robot experiences?
+
+Per terrain seed: scouts walk part of the lunar field (`--scouts`, default the west and east routes — the
+same runs as `lunar`'s first run, shared through the cache); their maps are merged (the server's rule) and
+read as the planner's `LayerGrid`; the planner picks the cheapest route from `--from` to `--to` across it
+(`--unknown infer` by default: unmapped cells near mapped ones are filled by the paper's eq. 17, farther
+ones are impassable). A fresh robot (a new noise seed, its own start offset) then walks the planned route
+and the straight one, mapping as it goes.
+
+Reported per route: what the scouts' map predicted (planner breakdown: mean CoT, expected slip events, mean
+and minimum GIIM / GIAM, unknown share) against what the fresh robot experienced (whole-walk CoT, energy,
+ground-truth and detected slips, GIIM / GIAM over its own map, fall), the per-cell agreement of the two maps
+along the route, and whether the planned route beat the straight one in what the robot experienced.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from psrmap.experiments import lunar
+from psrmap.experiments.common import MAP_RES, RunPool, RunSpec, fmean, jitter_start
+
+NAME = "utility"
+DEFAULT_SEEDS = "0,1,2"
+DEFAULT_RUNS = 1
+FRESH_NOISE_OFFSET = 50  # fresh robot's noise seed = seed·100 + 50 + run (scouts use seed·100 + run)
+
+
+def _point(text: str) -> tuple[float, float]:
+    try:
+        x, y = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a point; give x,y in metres") from None
+    return x, y
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("utility")
+    g.add_argument("--scouts", default="west,east", help="lunar routes the scouts map (default west,east)")
+    g.add_argument(
+        "--from",
+        dest="utility_from",
+        type=_point,
+        default=(1.5, 1.5),
+        metavar="X,Y",
+        help="start of the planned and straight routes (default 1.5,1.5)",
+    )
+    g.add_argument(
+        "--to",
+        dest="utility_to",
+        type=_point,
+        default=(18.5, 18.5),
+        metavar="X,Y",
+        help="goal of the planned and straight routes (default 18.5,18.5)",
+    )
+    g.add_argument("--unknown", default="infer", help="planner's unknown-cell policy (default infer)")
+    g.add_argument(
+        "--weights", default="", metavar="NAME=W,...", help="planner cost weights (default: planner's)"
+    )
+
+
+def _scouts(args: argparse.Namespace) -> tuple[str, ...]:
+    from scout_agent.sim.terrain import LUNAR_ROUTES
+
+    names = tuple(s.strip() for s in args.scouts.split(",") if s.strip())
+    bad = [n for n in names if n not in LUNAR_ROUTES]
+    if bad or not names:
+        raise SystemExit(f"psrmap experiment: --scouts {args.scouts!r}; routes: {', '.join(LUNAR_ROUTES)}")
+    return names
+
+
+def scout_specs(args: argparse.Namespace, seed: int) -> list[RunSpec]:
+    return lunar.route_specs(args, seed, _scouts(args), runs=1)
+
+
+def specs(args: argparse.Namespace) -> list[RunSpec]:
+    """The scouting runs (the fresh robot's runs depend on the plan and come later)."""
+    return [s for seed in args.seeds for s in scout_specs(args, seed)]
+
+
+def simplify(points: np.ndarray, tol: float) -> np.ndarray:
+    """Ramer–Douglas–Peucker: the polyline's vertices that keep it within `tol` [m]."""
+    pts = np.asarray(points, float)
+    if len(pts) < 3:
+        return pts
+    a, b = pts[0], pts[-1]
+    ab = b - a
+    n = float(np.hypot(*ab))
+    d = (
+        np.abs(ab[0] * (pts[:, 1] - a[1]) - ab[1] * (pts[:, 0] - a[0])) / n
+        if n > 1e-12
+        else np.hypot(*(pts - a).T)
+    )
+    i = int(np.argmax(d))
+    if d[i] <= tol:
+        return np.array([a, b])
+    return np.vstack([simplify(pts[: i + 1], tol)[:-1], simplify(pts[i:], tol)])
+
+
+def _cost_config(args: argparse.Namespace, unknown: str | None = None):
+    from dataclasses import replace
+
+    from consumer_planner.costs import CostConfig, parse_weights
+
+    return replace(CostConfig(), weights=parse_weights(args.weights), unknown=unknown or args.unknown)
+
+
+def plan(args: argparse.Namespace, seed: int, scouts: list[dict], out_dir: Path) -> dict[str, Any]:
+    from consumer_planner.compare import evaluate_route, plan_route
+    from consumer_planner.costs import build_costs
+    from consumer_planner.errors import PlannerError
+
+    grid = lunar.merged_grid(scouts, out_dir / f"scouts_seed{seed}.npz", f"scouts{seed}")
+    costs = build_costs(grid, _cost_config(args))
+    start, goal = tuple(args.utility_from), tuple(args.utility_to)
+    out: dict[str, Any] = {"grid": grid, "costs": costs}
+    try:
+        route = plan_route(grid, costs, start, goal, name="planned")
+    except PlannerError as exc:
+        route, out["error"] = None, str(exc)
+    straight = [start, goal]
+    try:
+        out["straight_predicted"] = evaluate_route(grid, costs, straight, name="straight").breakdown.as_dict()
+        pen = build_costs(grid, _cost_config(args, "penalty"))
+        out["straight_predicted_penalty"] = evaluate_route(
+            grid, pen, straight, name="straight"
+        ).breakdown.as_dict()
+    except PlannerError as exc:
+        out["straight_error"] = str(exc)
+    if route is None:
+        out.setdefault(
+            "error", f"no passable route from {start} to {goal} on the scouts' map (unknown={args.unknown})"
+        )
+        return out
+    wps = simplify(route.path, 0.15)
+    wps[0], wps[-1] = start, goal
+    out["route"] = route
+    out["waypoints"] = [tuple(round(float(v), 3) for v in p) for p in wps]
+    out["planned_predicted"] = route.breakdown.as_dict()
+    return out
+
+
+def fresh_specs(args: argparse.Namespace, seed: int, routes: dict[str, list]) -> list[RunSpec]:
+    out = []
+    for name, wps in routes.items():
+        for r in range(args.runs):
+            noise = seed * 100 + FRESH_NOISE_OFFSET + r
+            out.append(
+                RunSpec(
+                    scene="lunar",
+                    terrain_seed=seed,
+                    noise_seed=noise,
+                    waypoints=tuple(tuple(p) for p in wps),
+                    start=jitter_start(wps[0], noise, 0.1, 0.1),
+                    slippery_patches=args.slippery_patches,
+                    sim_seconds=args.sim_seconds,
+                    label=f"utility{seed}-{name}-n{noise}",
+                )
+            )
+    return out
+
+
+def experienced(args: argparse.Namespace, run: dict, waypoints: list) -> dict[str, Any]:
+    """What the fresh robot lived through on one route, plus the planner's cost of that route on its map."""
+    from consumer_planner.compare import evaluate_route
+    from consumer_planner.costs import build_costs
+    from consumer_planner.errors import PlannerError
+    from consumer_planner.grid import LayerGrid
+
+    s, sc = run["summary"], run["scores"]
+    cot = sc.get("cot_whole_run")
+    out: dict[str, Any] = {
+        "fell": s["fell"],
+        "reached_goal": s["reached_goal"],
+        "distance_m": s["distance_m"],
+        "sim_seconds": s["sim_seconds"],
+        "cot_whole_run": cot,
+        "cot_mean_cells": sc.get("cot_mean"),
+        "energy_m": cot * s["distance_m"] if cot is not None else None,  # Σ E / (m g) [m]
+        "gt_slips": sc.get("gt_slips"),
+        "detected_slips": sc.get("slip_events"),
+        "giim_mean": sc.get("giim_mean"),
+        "giam_mean": sc.get("giam_mean"),
+        "giim_worst": sc.get("giim_worst"),
+        "giam_worst": sc.get("giam_worst"),
+        "giim_paper_mean": sc.get("giim_paper_mean"),
+        "giam_paper_mean": sc.get("giam_paper_mean"),
+        "nonfoot_contact_ticks": s.get("nonfoot_contact_ticks"),
+    }
+    own = lunar.merged_local_map([run])
+    b = own.bounds()
+    if b is not None:
+        ix0, iy0, ix1, iy1 = b
+        region = own.region(ix0 - 2, iy0 - 2, ix1 + 2, iy1 + 2)
+        grid = LayerGrid("own", MAP_RES, ix0 - 2, iy0 - 2, iy1 - iy0 + 5, ix1 - ix0 + 5, region)
+        try:
+            costs = build_costs(grid, _cost_config(args, "penalty"))
+            bd = evaluate_route(grid, costs, waypoints, name="walked").breakdown.as_dict()
+            out["cost_on_own_map"] = bd["cost"]
+            out["own_map_unknown_fraction"] = bd["unknown_fraction"]
+        except PlannerError as exc:
+            out["cost_on_own_map_error"] = str(exc)
+    return out
+
+
+def agreement(scout_local: Any, run: dict, cells_xy: np.ndarray) -> dict[str, Any]:
+    """Per-cell agreement, along a route's cells, of the scouts' map and the fresh robot's own map."""
+    own = lunar.merged_local_map([run])
+    out: dict[str, Any] = {}
+    ix = np.floor(cells_xy[:, 0] / MAP_RES).astype(int)
+    iy = np.floor(cells_xy[:, 1] / MAP_RES).astype(int)
+    for layer in ("cot", "giim", "giam", "elevation"):
+        a = lunar.dense(scout_local.cells(layer), layer)
+        b = lunar.dense(own.cells(layer), layer)
+        n = a.shape[0]
+        ok = (ix >= 0) & (ix < n) & (iy >= 0) & (iy < n)
+        va, vb = a[iy[ok], ix[ok]], b[iy[ok], ix[ok]]
+        both = np.isfinite(va) & np.isfinite(vb)
+        entry: dict[str, Any] = {"cells_both": int(both.sum()), "route_cells": int(ok.sum())}
+        if both.sum() >= 3:
+            entry["mean_abs_diff"] = float(np.mean(np.abs(va[both] - vb[both])))
+            entry["bias_scouts_minus_fresh"] = float(np.mean(va[both] - vb[both]))
+            if np.std(va[both]) > 0 and np.std(vb[both]) > 0:
+                entry["pearson_r"] = float(np.corrcoef(va[both], vb[both])[0, 1])
+        out[layer] = entry
+    return out
+
+
+def _beat(p: dict, s: dict) -> dict[str, Any]:
+    """Did the planned route (p) beat the straight one (s) in what the fresh robot experienced?"""
+
+    def lower(k: str) -> bool | None:
+        a, b = p.get(k), s.get(k)
+        return None if a is None or b is None else bool(a < b)
+
+    def higher(k: str) -> bool | None:
+        a, b = p.get(k), s.get(k)
+        return None if a is None or b is None else bool(a > b)
+
+    out = {
+        "energy": lower("energy_m"),
+        "cot": lower("cot_whole_run"),
+        "gt_slips": lower("gt_slips"),
+        "giim_mean": higher("giim_mean"),
+        "giim_worst": higher("giim_worst"),
+        "cost_on_own_map": lower("cost_on_own_map"),
+        "time": lower("sim_seconds"),
+    }
+    if s.get("fell") and not p.get("fell"):
+        out["fall"] = True
+    elif p.get("fell") and not s.get("fell"):
+        out["fall"] = False
+    return out
+
+
+def _pred(b: dict | None) -> dict[str, Any] | None:
+    if not b:
+        return None
+    return {
+        k: b.get(k)
+        for k in (
+            "length_m",
+            "cost",
+            "mean_cot",
+            "expected_slip_events",
+            "mean_giim",
+            "min_giim",
+            "mean_giam",
+            "min_giam",
+            "max_slope_deg",
+            "unknown_fraction",
+            "inferred_fraction",
+        )
+    }
+
+
+def run(args: argparse.Namespace, pool: RunPool, out_dir: Path) -> dict[str, Any]:
+    from psrmap.experiments import plots
+    from scout_agent.sim.terrain import LunarConfig, make_lunar
+
+    scouting = pool.run(specs(args), desc=f"{NAME} scouts")
+    per_seed: dict[str, Any] = {}
+    plans: dict[int, dict] = {}
+    fresh: list[RunSpec] = []
+    tags: list[tuple[int, str]] = []  # (seed, route name) of each fresh spec
+    for seed in args.seeds:
+        mine = [r for r in scouting if r["spec"]["terrain_seed"] == seed]
+        p = plan(args, seed, mine, out_dir)
+        plans[seed] = p
+        if "waypoints" in p:
+            for name, wps in (
+                ("planned", p["waypoints"]),
+                ("straight", [args.utility_from, args.utility_to]),
+            ):
+                new = fresh_specs(args, seed, {name: wps})
+                fresh += new
+                tags += [(seed, name)] * len(new)
+    walked = pool.run(fresh, desc=f"{NAME} fresh robot")  # same order as `fresh`
+    figures: list[Path] = []
+    for seed in args.seeds:
+        p = plans[seed]
+        entry: dict[str, Any] = {
+            "scouts": [r["spec"]["label"] for r in scouting if r["spec"]["terrain_seed"] == seed],
+            "predicted": {
+                "planned": _pred(p.get("planned_predicted")),
+                "straight": _pred(p.get("straight_predicted")),
+                "straight_penalty_policy": _pred(p.get("straight_predicted_penalty")),
+            },
+        }
+        if "error" in p:
+            entry["error"] = p["error"]
+            per_seed[str(seed)] = entry
+            continue
+        entry["planned_waypoints"] = p["waypoints"]
+        entry["planned_is_straight"] = len(p["waypoints"]) == 2
+        scouts_local = lunar.merged_local_map([r for r in scouting if r["spec"]["terrain_seed"] == seed])
+        runs_by_route: dict[str, list[dict]] = {"planned": [], "straight": []}
+        for (s_, name), r in zip(tags, walked, strict=True):
+            if s_ == seed:
+                runs_by_route[name].append(r)
+        exp: dict[str, Any] = {}
+        agree: dict[str, Any] = {}
+        for name, rs in runs_by_route.items():
+            wps = p["waypoints"] if name == "planned" else [args.utility_from, args.utility_to]
+            rows = [experienced(args, r, wps) for r in rs]
+            exp[name] = _pool_rows(rows) if rows else None
+            dense_path = np.array(_densify(wps, MAP_RES / 2))
+            agree[name] = agreement(scouts_local, rs[0], dense_path) if rs else None
+        entry["experienced"] = exp
+        entry["map_agreement_along_route"] = agree
+        entry["planned_beat_straight"] = (
+            _beat(exp["planned"], exp["straight"]) if exp.get("planned") and exp.get("straight") else None
+        )
+        per_seed[str(seed)] = entry
+        terrain = make_lunar(LunarConfig(seed=seed))
+        fig = plots.utility_map(
+            out_dir / f"utility_seed{seed}.png",
+            seed,
+            terrain,
+            scouts_local,
+            [r for r in scouting if r["spec"]["terrain_seed"] == seed],
+            p["waypoints"],
+            [args.utility_from, args.utility_to],
+            runs_by_route,
+        )
+        if fig is not None:
+            figures.append(fig)
+    summary = _summary(per_seed)
+    figures.append(plots.utility_bars(out_dir / "utility_summary.png", per_seed))
+    return {
+        "experiment": NAME,
+        "protocol": {
+            "seeds": list(args.seeds),
+            "fresh_runs_per_route": args.runs,
+            "scouts": list(_scouts(args)),
+            "from": list(args.utility_from),
+            "to": list(args.utility_to),
+            "unknown": args.unknown,
+            "weights": args.weights or "planner defaults",
+            "slippery_patches": args.slippery_patches,
+            "fresh_noise_seed": f"seed·100 + {FRESH_NOISE_OFFSET} + run (scouts: seed·100)",
+            "energy": "Σ E/(m·g) over the walk [m] = whole-walk CoT × distance",
+            "sim_seconds_cap": args.sim_seconds,
+        },
+        "summary": summary,
+        "per_seed": per_seed,
+        "runs": [
+            {
+                "label": r["spec"]["label"],
+                "key": r["key"],
+                "fell": r["summary"]["fell"],
+                "reached_goal": r["summary"]["reached_goal"],
+                "worker_seconds": r["worker_seconds"],
+            }
+            for r in scouting + walked
+        ],
+        "figures": [f.name for f in figures if f is not None],
+    }
+
+
+def _pool_rows(rows: list[dict]) -> dict[str, Any]:
+    """Several fresh runs of one route: booleans counted, numbers averaged, text kept from the first."""
+    out: dict[str, Any] = {"runs": len(rows)}
+    for k in {k for r in rows for k in r}:
+        vals = [r.get(k) for r in rows]
+        if any(isinstance(v, str) for v in vals):
+            out[k] = next(v for v in vals if isinstance(v, str))
+        elif any(isinstance(v, bool) for v in vals):
+            out[k] = sum(bool(v) for v in vals)
+        else:
+            out[k] = fmean(vals)
+    return out
+
+
+def _densify(wps: list, step: float) -> list[tuple[float, float]]:
+    pts: list[tuple[float, float]] = []
+    for a, b in zip(wps[:-1], wps[1:], strict=True):
+        a, b = np.asarray(a, float), np.asarray(b, float)
+        n = max(1, int(math.ceil(np.hypot(*(b - a)) / step)))
+        pts += [tuple(a + (b - a) * t) for t in np.arange(n) / n]
+    pts.append(tuple(np.asarray(wps[-1], float)))
+    return pts
+
+
+def _summary(per_seed: dict[str, Any]) -> dict[str, Any]:
+    done = [e for e in per_seed.values() if e.get("planned_beat_straight")]
+    crit = ("energy", "cot", "gt_slips", "giim_mean", "giim_worst", "cost_on_own_map", "time")
+    out: dict[str, Any] = {
+        "seeds_planned": len(done),
+        "seeds": len(per_seed),
+        "planned_beat_straight_count": {
+            c: sum(bool(e["planned_beat_straight"].get(c)) for e in done) for c in crit
+        },
+    }
+    for name in ("planned", "straight"):
+        rows = [e["experienced"][name] for e in done if e["experienced"].get(name)]
+        preds = [e["predicted"][name] for e in done if e["predicted"].get(name)]
+        out[name] = {
+            "experienced_mean": {
+                k: fmean(r.get(k) for r in rows)
+                for k in (
+                    "cot_whole_run",
+                    "energy_m",
+                    "gt_slips",
+                    "detected_slips",
+                    "giim_mean",
+                    "giim_worst",
+                    "giam_mean",
+                    "distance_m",
+                    "sim_seconds",
+                    "cost_on_own_map",
+                )
+            },
+            "falls": sum(int(r.get("fell") or 0) for r in rows),
+            "predicted_mean": {
+                k: fmean(p.get(k) for p in preds)
+                for k in (
+                    "mean_cot",
+                    "expected_slip_events",
+                    "mean_giim",
+                    "mean_giam",
+                    "length_m",
+                    "unknown_fraction",
+                    "inferred_fraction",
+                )
+            },
+        }
+    return out

@@ -1,0 +1,147 @@
+"""The experiments' reduced set: one run, one angle, short walks, through the real CLI and spawn pool.
+
+`psrmap experiment all --angles 10 --runs 1 --seeds 0 --sim-seconds 55 --to 3.5,3.5` walks one 10° ramp with
+and without its slippery patch, the three lunar routes for 55 s each (so the scouts map the field's corner),
+and the fresh robot's two short routes to a goal inside the mapped corner. Every experiment must leave its
+results.json and figures; a second call must read its runs from the cache.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from psrmap.experiments import EXPERIMENTS
+from psrmap.experiments.common import RunSpec, rebin, recording_accumulator
+from psrmap.experiments.utility import simplify
+
+pytestmark = pytest.mark.slow
+
+REDUCED = ["--angles", "10", "--runs", "1", "--seeds", "0", "--sim-seconds", "55", "--quiet"]
+
+
+def _cli(*args: str, timeout: float = 240.0) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "psrmap", "experiment", *args],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        check=False,
+    )
+
+
+@pytest.fixture(scope="module")
+def reduced(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, float]:
+    out = tmp_path_factory.mktemp("experiments")
+    t0 = time.perf_counter()
+    proc = _cli("all", *REDUCED, "--to", "3.5,3.5", "--out", str(out))
+    wall = time.perf_counter() - t0
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return out, wall
+
+
+def _load(out: Path, name: str) -> dict:
+    return json.loads((out / name / "results.json").read_text())
+
+
+def test_every_experiment_writes_results_and_figures(reduced: tuple[Path, float]) -> None:
+    out, wall = reduced
+    top = json.loads((out / "results.json").read_text())
+    assert set(top["experiments"]) == set(EXPERIMENTS)
+    # ramps ×2 (slopes shares them), lunar ×3 (utility's scouts are two of them), fresh robot ×2
+    assert top["timing"]["runs_walked"] == 2 + 3 + 2
+    for name in EXPERIMENTS:
+        res = _load(out, name)
+        assert res["figures"], name
+        for fig in res["figures"]:
+            assert (out / name / fig).stat().st_size > 5_000, (name, fig)
+    print(f"reduced set: {wall:.1f} s wall")
+
+
+def test_ramps_scores_three_resolutions_and_both_state_inputs(reduced: tuple[Path, float]) -> None:
+    res = _load(reduced[0], "ramps")
+    a10 = res["by_angle"]["10"]
+    for cond in ("plain", "slippery"):
+        elev = a10[cond]["elevation"]
+        for r in ("0.4", "0.2", "0.1"):
+            assert 0 < elev[r]["rmse_m"] < 0.1, (cond, r, elev[r])
+        assert set(a10[cond]["slip"]) >= {"honest", "exact", "paper"}
+        assert len(a10[cond]["profile"]["x"]) > 20  # the walk crossed the testbed
+    patch = a10["slippery"]["slip"]["honest"]
+    assert patch["truth"] > 0 and patch["tp"] > 0  # the patch makes slips, and they are found
+    assert res["overall"]["false_slips_plain"] <= 2
+
+
+def test_slopes_use_both_signs_and_fit(reduced: tuple[Path, float]) -> None:
+    res = _load(reduced[0], "slopes")
+    assert {p["inclination_deg"] for p in res["points"]} == {-10.0, 0.0, 10.0}  # negative = uphill
+    for m in ("cot_mean", "giim_mean", "giam_mean", "giim_paper_mean", "giam_paper_mean"):
+        assert res["fits"][m]["degree"] == 2  # 3 inclinations: the 4th degree falls back to 2
+    assert "giim_paper" in res["trends"] and "giim_four_footholds" in res["trends"]
+
+
+def test_lunar_table_and_merged_map_compare(reduced: tuple[Path, float]) -> None:
+    res = _load(reduced[0], "lunar")
+    for route in ("direct", "west", "east"):
+        row = res["table"][route]
+        assert row["runs"] == 1 and row["overall_cot"]["mean"] > 0
+        merged = res["merged_map_table"][route]
+        assert merged["overall_cot"] is not None and merged["avg_giim"] is not None
+    assert res["paper_table"]["total_slips"]["direct"] == 21
+
+
+def test_utility_plans_on_the_scouts_map_and_walks_both_routes(reduced: tuple[Path, float]) -> None:
+    res = _load(reduced[0], "utility")
+    seed = res["per_seed"]["0"]
+    assert "error" not in seed, seed.get("error")
+    assert seed["planned_waypoints"][0] == [1.5, 1.5] and seed["planned_waypoints"][-1] == [3.5, 3.5]
+    for name in ("planned", "straight"):
+        assert seed["experienced"][name]["reached_goal"] == 1
+        assert seed["predicted"][name]["mean_cot"] is not None
+    assert set(seed["planned_beat_straight"]) >= {"energy", "gt_slips", "giim_mean"}
+
+
+def test_second_call_reads_the_cache(reduced: tuple[Path, float]) -> None:
+    out = reduced[0]
+    proc = _cli("slopes", *REDUCED, "--out", str(out))
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    res = json.loads((out / "results.json").read_text())
+    assert res["experiment"] == "slopes" and res["timing"]["runs_walked"] == 0
+
+
+def test_rebin_at_the_map_resolution_reproduces_the_map() -> None:
+    from scout_agent.cells import LocalMap
+
+    rng = np.random.default_rng(0)
+    acc = recording_accumulator(0.4)
+    for x, y, z in rng.uniform(0, 3, (200, 3)):
+        acc.add_elevation(float(x), float(y), float(z))
+        acc.append("cot", (float(x), float(y), 0.01, 0.002, 1.0))
+        acc.append("slip", (float(x), float(y), 1.0, float(z > 2.5)))
+    local = LocalMap(0.4)
+    local.merge(acc.flush())
+    again = rebin(acc, 0.4)
+    for layer in ("elevation", "cot", "slip"):
+        a, b = local.cells(layer), again.cells(layer)
+        for stat in a:
+            np.testing.assert_allclose(a[stat], b[stat], rtol=1e-12, atol=1e-12, err_msg=f"{layer}/{stat}")
+    fine = rebin(acc, 0.1)
+    assert math.isclose(fine.cells("elevation")["n"].sum(), 200)
+
+
+def test_spec_key_ignores_the_label_only() -> None:
+    a = RunSpec(scene="ramps", slope_deg=10, label="a")
+    assert a.key() == RunSpec(scene="ramps", slope_deg=10, label="b").key()
+    assert a.key() != RunSpec(scene="ramps", slope_deg=10, noise_seed=1).key()
+
+
+def test_simplify_keeps_corners_within_tolerance() -> None:
+    pts = np.array([[0, 0], [1, 0.01], [2, 0], [2, 1], [2, 2]], float)
+    assert simplify(pts, 0.05).tolist() == [[0, 0], [2, 0], [2, 2]]
