@@ -13,8 +13,12 @@ Ground truth and scoring:
   (`GroundTruth.stance_disp`, the paper's criterion); precision/recall count stances, detected vs true.
 - elevation: the map's value per cell (`protocol.layers.layer_value`: plane fit at the cell centre, or the
   mean where the fit is ill conditioned) against the exact terrain height at the cell centre; also the mean
-  alone (the paper's estimate) and our truncated plane fit. Slope: the plane fit's slope against the exact
-  slope at the centre, over cells whose fit is well conditioned.
+  alone (the paper's estimate) and the scout's truncated plane fit (`estimators.elevation.plane_from_moments`,
+  which fits the slope along the directions the footholds span). Slope (`slope_rmse_deg`): that fit's slope
+  from the same cell statistics against the exact cell slope (plane through the true heights over the cell),
+  every cell; `slope_rmse_point_deg` against the exact slope at the centre point; `*_protocol_fit`: the
+  protocol's fit, defined only where footholds spread ≥ 2 cm along both axes (rare: a cell usually holds one
+  foot track).
 - CoT, GIIM, GIAM: means over the map's cells (the paper averages its gridmap layers); on ramps per segment
   (cells whose centre lies on the up-ramp, the platform = `flat`, the down-ramp).
 - friction patches: a slip is "in a patch" when the ground under the foot at touchdown has less than the
@@ -51,6 +55,20 @@ def _pr(detected: set, truth: set) -> tuple[float, float]:
     p = tp / len(detected) if detected else (1.0 if not truth else 0.0)
     r = tp / len(truth) if truth else (1.0 if not detected else math.nan)
     return p, r
+
+
+def _cell_slope_deg(
+    terrain: Any, cx: np.ndarray, cy: np.ndarray, res: float, step: float = 0.05
+) -> np.ndarray:
+    """Ground-truth slope of each cell [deg]: the least-squares plane through the exact terrain heights on a
+    `step` grid over the cell (the cell's slope, not the slope at one point of a rough surface)."""
+    off = np.arange(-res / 2 + step / 2, res / 2, step)
+    dx, dy = (a.ravel() for a in np.meshgrid(off, off))
+    a = np.stack([np.ones_like(dx), dx, dy], axis=1)
+    pinv = np.linalg.pinv(a)  # (3, k)
+    z = terrain.height(cx[:, None] + dx[None, :], cy[:, None] + dy[None, :])  # (cells, k)
+    coef = z @ pinv.T
+    return np.degrees(np.arctan(np.hypot(coef[:, 1], coef[:, 2])))
 
 
 def _r(v: float, nd: int = 4) -> float | None:
@@ -199,15 +217,21 @@ class Evaluator:
             out["elevation_rmse_m"] = _r(float(np.sqrt(np.nanmean((value - h_true) ** 2))), 5)
             out["elevation_rmse_mean_only_m"] = _r(float(np.sqrt(np.mean((mean - h_true) ** 2))), 5)
             out["elevation_rmse_plane_m"] = _r(float(np.sqrt(np.nanmean((z_fit - h_true) ** 2))), 5)
-            s_true = terrain.slope_deg(cx, cy)
-            s_map = elevation_slope_deg(elev)
-            ok = np.isfinite(s_map)
-            out["slope_cells"] = int(ok.sum())
-            out["slope_rmse_deg"] = (
-                _r(float(np.sqrt(np.mean((s_map[ok] - s_true[ok]) ** 2))), 3) if ok.any() else None
-            )
+            s_true = _cell_slope_deg(terrain, cx, cy, res)
             s_fit = slope_deg(gx, gy)
-            out["slope_rmse_plane_deg"] = _r(float(np.sqrt(np.nanmean((s_fit - s_true) ** 2))), 3)
+            out["slope_rmse_deg"] = _r(float(np.sqrt(np.nanmean((s_fit - s_true) ** 2))), 3)
+            s_point = terrain.slope_deg(cx, cy)
+            out["slope_rmse_point_deg"] = _r(float(np.sqrt(np.nanmean((s_fit - s_point) ** 2))), 3)
+            s_map = elevation_slope_deg(elev)  # protocol's fit: needs spread along both axes
+            ok = np.isfinite(s_map)
+            out["slope_cells_protocol_fit"] = int(ok.sum())
+            if ok.any():
+                out["slope_rmse_deg_protocol_fit"] = _r(
+                    float(np.sqrt(np.mean((s_map[ok] - s_true[ok]) ** 2))), 3
+                )
+                out["slope_rmse_deg_same_cells"] = _r(
+                    float(np.sqrt(np.mean((s_fit[ok] - s_true[ok]) ** 2))), 3
+                )
 
         layer_vals: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
         for name in ("cot", "giim", "giam", "slip"):
@@ -298,6 +322,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         "slippery_patches": cfg.slippery_patches,
         "noise": {"vel_white_mps": cfg.sim.noise.vel_white_std, "vel_bias_mps": cfg.sim.noise.vel_bias},
         "fell": summary["fell"],
+        "fall_xy": summary["fall_xy"],
         "reached_goal": summary["reached_goal"],
         "distance_m": summary["distance_m"],
         "sim_seconds": summary["sim_seconds"],

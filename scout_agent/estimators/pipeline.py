@@ -53,8 +53,13 @@ class PipelineConfig:
     paper_margins: bool = False  # also compute the paper-variant GIIM/GIAM
     stance_margins: bool = False  # also compute the two-stance-feet margins (diagnostic)
     paper_slip: bool = False  # also run the paper-form slip detector beside the default one
-    nonfoot_threshold_n: float = 15.0  # unexplained external force that flags a non-foot contact [N]
+    nonfoot_threshold_n: float = (
+        20.0  # unexplained external force that flags a non-foot contact [N] (≈ 0.6 m·g)
+    )
     nonfoot_tau_s: float = 0.05  # low-pass time constant of that force [s]
+    nonfoot_warmup_s: float = (
+        0.25  # no flag before this much time since the first tick (landing transient) [s]
+    )
 
     def __post_init__(self) -> None:
         if self.gia_source not in ("forces", "imu"):
@@ -125,12 +130,15 @@ class EstimatorPipeline:
         self._fh_n = [0] * 4
         self._f_ext = [0.0, 0.0, 0.0]
         self._t_prev: float | None = None
+        self._t0: float | None = None
         self._combined = getattr(kinematics, "feet_base_and_vel", None)
 
     def update(self, s: ProprioSample) -> TickEstimates:
         c = self.config
         dt = 0.0 if self._t_prev is None else s.t - self._t_prev
         self._t_prev = s.t
+        if self._t0 is None:
+            self._t0 = s.t
         if self._combined is not None:
             feet_b, vel_b = self._combined(s.q, s.dq)
         else:
@@ -246,7 +254,7 @@ class EstimatorPipeline:
             stance_xy=stance_xy,
             slip_xy=slip_xy,
             footholds=footholds,
-            nonfoot=f_ext > c.nonfoot_threshold_n,
+            nonfoot=f_ext > c.nonfoot_threshold_n and s.t - self._t0 >= c.nonfoot_warmup_s,
             nonfoot_force_n=f_ext,
             **extra,
         )

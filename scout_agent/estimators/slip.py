@@ -20,12 +20,24 @@ Two detector forms share this module (`SlipConfig.form`):
   3. Touchdown is the first contact flag inside the gait's planned stance and is never re-taken inside it:
      contact flicker otherwise resets the reference and hides the displacement.
   4. The first `settle_s` of each stance is skipped (impact transients).
+  5. The base velocity the robot knows carries a bias (the simulator's honest input: 0.02 m/s); integrated
+     over a 0.4 s stance it alone makes ΔP ≈ 8 mm. The detector estimates it like a kinematic-inertial state
+     estimator would: the apparent world velocity of a planted foot, minus its rolling ω_foot × r·n̂ (a ball
+     foot's centre rolls 4–7 mm per stance), is the base velocity's error; its per-stance mean, from stances
+     that ended without a slip, moves the estimate with time constant `bias_tau_s`, and the estimate is
+     subtracted from the base velocity before ΔV and ΔP. Not circular: one stance weighs ≈ 0.2 in a 2 s
+     average across all feet, and slipping stances are left out.
+  6. The velocity error is low-passed (`dv_tau_s` = 24 ms) within a stance before ΔV: the 0.03 m/s white
+     noise divided by h = 0.05 m/s on the axes where ẋ_des ≈ 0 otherwise puts ΔV ≈ 1 on every tick.
+  7. ε_v history: the ΔV values of stances that ended without a slip (the paper: "recent ΔV"). Where slips
+     are dense (25–75 % of stances on a slippery patch) the plain percentile rises into the slips themselves.
+     Floor `eps_v_floor` = 1.0 (REFERENCE suggests 1.5 for a 500 Hz loop without input noise; here slow
+     downhill slips peak at ΔV ≈ 1–2, because eq. 1 divides the along-track error by |ẋ_des| + h ≈ 0.25).
 
-Both forms: ε_v is the `eps_v_percentile` percentile of the ΔV values of contact feet over the last
-`eps_v_window_s`, never below `eps_v_floor` (the floor is ours: with no slips the percentile alone sits in the
-noise), recomputed every `eps_v_every` ticks to keep the per-tick cost low; ε_p is fixed; at most one event per
-foot per planned stance. The base position used for x_des is integrated from the base velocity the robot
-knows, so only relative motion within a stance matters (no dependence on absolute position drift).
+Both forms: ε_v = max(`eps_v_floor`, `eps_v_percentile` percentile of ≈ `eps_v_window_s` of recent ΔV), updated
+when a stance ends; ε_p is fixed (0.02 m, the ground-truth criterion); at most one event per foot per planned
+stance. The base position used for x_des is integrated from the (bias-corrected) base velocity, so only motion
+within a stance matters, not absolute position drift.
 """
 
 from __future__ import annotations
