@@ -8,7 +8,7 @@ one `ufunc.at` per tile and merge operation, never a Python loop per cell.
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -19,34 +19,134 @@ __all__ = ["LayerGrid", "TiledMap"]
 
 TileKey = tuple[int, int]
 
+_DIR_LIMIT = 1 << 22  # entries of the dense tile directory (int32) before falling back to a dict lookup
+_GROW_MIN = 16  # tiles added at least when a store grows
 
-@dataclass
+
+def _unkey(k: int) -> TileKey:
+    """(tx << 32) | (ty & 0xFFFFFFFF) -> (tx, ty)."""
+    lo = k & 0xFFFFFFFF
+    return k >> 32, lo - (1 << 32) if lo >= 1 << 31 else lo
+
+
+def _contiguous_ranges(rows: np.ndarray) -> list[tuple[int, int]]:
+    """[start, stop) runs of consecutive row numbers."""
+    out: list[tuple[int, int]] = []
+    for r in rows.tolist():
+        if out and out[-1][1] == r:
+            out[-1] = (out[-1][0], r + 1)
+        else:
+            out.append((r, r + 1))
+    return out
+
+
+class _TileView(Mapping[TileKey, np.ndarray]):
+    """Read-only `(tx, ty) -> (S, T*T)` view of a layer's tiles (views into the layer's store)."""
+
+    def __init__(self, grid: LayerGrid) -> None:
+        self._g = grid
+
+    def __getitem__(self, key: TileKey) -> np.ndarray:
+        return self._g.store[self._g.slots[key]]
+
+    def __iter__(self):  # type: ignore[no-untyped-def]
+        return iter(self._g.keys)
+
+    def __len__(self) -> int:
+        return len(self._g.keys)
+
+    def __contains__(self, key: object) -> bool:
+        return key in self._g.slots
+
+
 class LayerGrid:
-    """One layer's tiles and the row index of each merge operation in a tile's (S, T*T) block."""
+    """One layer's tiles, kept in one store `(capacity, S, T*T)` so a batch merges with one `ufunc.at`
+    per merge operation over linear indices. `slots[(tx, ty)]` is a tile's row in the store; `tiles`
+    is a `(tx, ty) -> (S, T*T)` mapping of views. Capacity grows geometrically with `np.empty`: pages
+    of slots never used are never touched, so resident memory follows the tiles in use.
+    """
 
-    layer: Layer
-    tiles: dict[TileKey, np.ndarray]
-    add_rows: np.ndarray  # stats rows merged by sum
-    min_rows: np.ndarray
-    max_rows: np.ndarray
-    empty: np.ndarray  # (S, 1) identity of each stat's merge
-    n_row: int  # row of the sample count `n`
-
-    @classmethod
-    def for_layer(cls, layer: Layer) -> LayerGrid:
+    def __init__(self, layer: Layer, cells: int = 64 * 64) -> None:
+        self.layer = layer
         ops = [merge_op(s) for s in layer.stats]
         rows = {
             op: np.array([i for i, o in enumerate(ops) if o == op], dtype=np.intp)
             for op in ("add", "min", "max")
         }
-        empty = np.array([[empty_value(s)] for s in layer.stats])
-        return cls(layer, {}, rows["add"], rows["min"], rows["max"], empty, layer.stats.index("n"))
+        self.add_rows, self.min_rows, self.max_rows = rows["add"], rows["min"], rows["max"]
+        self.ops = [
+            (ufunc, _contiguous_ranges(rows[op]))
+            for op, ufunc in (("add", np.add), ("min", np.minimum), ("max", np.maximum))
+            if rows[op].size
+        ]
+        self.empty = np.array([[empty_value(s)] for s in layer.stats])  # (S, 1) merge identities
+        self.n_row = layer.stats.index("n")
+        self.cells = cells
+        self.slots: dict[TileKey, int] = {}
+        self.keys: list[TileKey] = []
+        self.store = np.empty((0, len(layer.stats), cells))
+        self.of_global = np.full(0, -1, dtype=np.int64)  # map-wide tile number -> slot (-1: none)
+        self.dirty = np.zeros(0, dtype=bool)  # per slot: changed since the last snapshot
+        self.touched = np.zeros(0, dtype=bool)  # per slot: changed since `take_touched`
+
+    @classmethod
+    def for_layer(cls, layer: Layer, cells: int = 64 * 64) -> LayerGrid:
+        return cls(layer, cells)
+
+    @property
+    def tiles(self) -> _TileView:
+        return _TileView(self)
+
+    def add_tiles(self, keys: Sequence[TileKey], gids: Sequence[int]) -> None:
+        """New tiles (identity values) for `keys`, whose map-wide numbers are `gids`."""
+        n0, k = len(self.keys), len(keys)
+        if n0 + k > self.store.shape[0]:
+            cap = max(n0 + k, 2 * self.store.shape[0], _GROW_MIN)
+            store = np.empty((cap, *self.store.shape[1:]))
+            store[:n0] = self.store[:n0]
+            self.store = store
+            for name in ("dirty", "touched"):
+                flags = np.zeros(cap, dtype=bool)
+                flags[:n0] = getattr(self, name)[:n0]
+                setattr(self, name, flags)
+            _trim()
+        self.store[n0 : n0 + k] = self.empty[None, :, :]
+        for j, key in enumerate(keys):
+            self.slots[key] = n0 + j
+        self.keys.extend(keys)
+        top = max(gids) + 1 if k else 0
+        if top > self.of_global.size:
+            og = np.full(max(top, 2 * self.of_global.size), -1, dtype=np.int64)
+            og[: self.of_global.size] = self.of_global
+            self.of_global = og
+        self.of_global[np.asarray(gids, dtype=np.int64)] = np.arange(n0, n0 + k)
+
+    def used(self) -> np.ndarray:
+        return self.store[: len(self.keys)]
+
+
+def _trim() -> None:
+    """Give freed heap memory back to the OS after a store grew (glibc only; no-op elsewhere)."""
+    global _malloc_trim
+    if _malloc_trim is None:
+        try:
+            import ctypes
+
+            _malloc_trim = ctypes.CDLL("libc.so.6").malloc_trim
+        except (OSError, AttributeError):
+            _malloc_trim = False
+    if _malloc_trim:
+        _malloc_trim(0)
+
+
+_malloc_trim: Any = None
 
 
 class TiledMap:
     """Multi-layer tiled map of merged statistics.
 
-    res: cell size [m]; tile: tile side [cells], a power of two.
+    res: cell size [m]; tile: tile side [cells], a power of two. Tiles have map-wide numbers (a dense
+    directory over the tiles' bounding box finds them without sorting); each layer stores its own tiles.
     """
 
     def __init__(self, res: float, tile: int = 64, layers: Iterable[str] | None = None) -> None:
@@ -55,11 +155,115 @@ class TiledMap:
         self.res = float(res)
         self.tile = tile
         self.shift = tile.bit_length() - 1
-        self.grids = {name: LayerGrid.for_layer(get_layer(name)) for name in (layers or LAYERS)}
-        self.occupied: dict[TileKey, np.ndarray] = {}  # (T*T,) bool: cell holds data in some layer
-        self.cells = 0  # cells holding any data
-        self.dirty: set[tuple[str, int, int]] = set()  # (layer, tx, ty) changed since `clear_dirty`
-        self.touched: set[tuple[str, int, int]] = set()  # changed since `take_touched` (visualisation)
+        cells = tile * tile
+        self.grids = {name: LayerGrid(get_layer(name), cells) for name in (layers or LAYERS)}
+        self.gslots: dict[TileKey, int] = {}  # map-wide tile number of every tile of any layer
+        self.gkeys: list[TileKey] = []  # number -> (tx, ty)
+        self.occ = np.zeros((0, cells), dtype=bool)  # per map-wide tile: cell holds data in some layer
+        self._dir = np.full((0, 0), -1, dtype=np.int32)  # dense directory: [ty - ty0, tx - tx0] -> number
+        self._dir0 = (0, 0)  # (tx0, ty0) of the directory
+        self._cells: int | None = 0
+
+    # ------------------------------------------------------------------ bookkeeping
+
+    @property
+    def cells(self) -> int:
+        """Cells holding data in any layer."""
+        if self._cells is None:
+            self._cells = int(np.count_nonzero(self.occ[: len(self.gslots)]))
+        return self._cells
+
+    @property
+    def occupied(self) -> dict[TileKey, np.ndarray]:
+        """(tx, ty) -> (T*T,) bool: which cells of the tile hold data in some layer."""
+        return {k: self.occ[g] for k, g in self.gslots.items()}
+
+    def _flagged(self, attr: str, clear: bool) -> set[tuple[str, int, int]]:
+        out: set[tuple[str, int, int]] = set()
+        for name, grid in self.grids.items():
+            flags = getattr(grid, attr)
+            for s in np.flatnonzero(flags[: len(grid.keys)]).tolist():
+                kx, ky = grid.keys[s]
+                out.add((name, kx, ky))
+            if clear:
+                flags[:] = False
+        return out
+
+    @property
+    def dirty(self) -> set[tuple[str, int, int]]:
+        """(layer, tx, ty) changed since `clear_dirty` (a copy; assign to replace)."""
+        return self._flagged("dirty", False)
+
+    @dirty.setter
+    def dirty(self, value: set[tuple[str, int, int]]) -> None:
+        for grid in self.grids.values():
+            grid.dirty[:] = False
+        for name, kx, ky in value:
+            grid = self.grids[name]
+            grid.dirty[grid.slots[(kx, ky)]] = True
+
+    @property
+    def touched(self) -> set[tuple[str, int, int]]:
+        return self._flagged("touched", False)
+
+    def _new_global(self, keys: Sequence[TileKey]) -> list[int]:
+        g0 = len(self.gslots)
+        gids = list(range(g0, g0 + len(keys)))
+        for key, g in zip(keys, gids, strict=True):
+            self.gslots[key] = g
+        self.gkeys.extend(keys)
+        if g0 + len(keys) > self.occ.shape[0]:
+            occ = np.zeros((max(g0 + len(keys), 2 * self.occ.shape[0], _GROW_MIN), self.occ.shape[1]), bool)
+            occ[:g0] = self.occ[:g0]
+            self.occ = occ
+        # widen the dense directory to the tiles' bounding box while it stays small
+        kx = [k[0] for k in keys]
+        ky = [k[1] for k in keys]
+        (tx0, ty0), (h, w) = self._dir0, self._dir.shape
+        if h:
+            nx0, ny0 = min(tx0, *kx), min(ty0, *ky)
+            nx1, ny1 = max(tx0 + w - 1, *kx), max(ty0 + h - 1, *ky)
+        else:
+            nx0, ny0, nx1, ny1 = min(kx), min(ky), max(kx), max(ky)
+        if (nx0, ny0, nx1, ny1) != (tx0, ty0, tx0 + w - 1, ty0 + h - 1) or not h:
+            # grow with a margin so a walking fleet does not rebuild it at every new tile
+            mx, my = max(4, (nx1 - nx0 + 1) // 2), max(4, (ny1 - ny0 + 1) // 2)
+            nx0, nx1, ny0, ny1 = nx0 - mx, nx1 + mx, ny0 - my, ny1 + my
+            if (nx1 - nx0 + 1) * (ny1 - ny0 + 1) <= _DIR_LIMIT:
+                d = np.full((ny1 - ny0 + 1, nx1 - nx0 + 1), -1, dtype=np.int32)
+                if self.gslots:
+                    allk = np.array(list(self.gslots), dtype=np.int64).reshape(-1, 2)
+                    d[allk[:, 1] - ny0, allk[:, 0] - nx0] = np.fromiter(self.gslots.values(), np.int32)
+                self._dir, self._dir0 = d, (nx0, ny0)
+                return gids
+            self._dir, self._dir0 = np.full((0, 0), -1, dtype=np.int32), (0, 0)
+            return gids
+        self._dir[np.array(ky) - ty0, np.array(kx) - tx0] = gids
+        return gids
+
+    def _global_ids(self, tx: np.ndarray, ty: np.ndarray) -> np.ndarray:
+        """Map-wide tile numbers of cells' tiles (int64), creating numbers for new tiles."""
+        for _ in range(2):
+            (tx0, ty0), (h, w) = self._dir0, self._dir.shape
+            if h:
+                cx, cy = tx - tx0, ty - ty0
+                inside = (cx >= 0) & (cx < w) & (cy >= 0) & (cy < h)
+                if inside.all():
+                    g = self._dir[cy, cx].astype(np.int64)
+                    miss = g < 0
+                    if not miss.any():
+                        return g
+                    keys = np.unique((tx[miss] << 32) | (ty[miss] & 0xFFFFFFFF))
+                    self._new_global([_unkey(int(k)) for k in keys])
+                    continue
+            break
+        tkey = (tx.astype(np.int64) << 32) | (ty.astype(np.int64) & 0xFFFFFFFF)
+        uniq, inv = np.unique(tkey, return_inverse=True)
+        keys = [_unkey(k) for k in uniq.tolist()]
+        fresh = [k for k in keys if k not in self.gslots]
+        if fresh:
+            self._new_global(fresh)
+        return np.array([self.gslots[k] for k in keys], dtype=np.int64)[inv.reshape(-1)]
 
     # ------------------------------------------------------------------ merging
 
@@ -67,11 +271,7 @@ class TiledMap:
         """Merge one delta's (or a batch's concatenated) layers; cells may repeat. Returns updates applied."""
         done = 0
         for name, cells in layers.items():
-            grid = self.grids.get(name)
-            if grid is None:
-                raise ProtocolError(
-                    "unknown_layer", f"map has no layer {name!r}; layers: {', '.join(self.grids)}"
-                )
+            grid = self._grid(name)
             ix = np.asarray(cells["ix"], dtype=np.int64)
             if ix.size == 0:
                 continue
@@ -79,6 +279,14 @@ class TiledMap:
             vals = np.stack([np.asarray(cells[s], dtype=np.float64) for s in grid.layer.stats])  # (S, N)
             done += self._merge_layer(name, grid, ix, iy, vals)
         return done
+
+    def _grid(self, name: str) -> LayerGrid:
+        grid = self.grids.get(name)
+        if grid is None:
+            raise ProtocolError(
+                "unknown_layer", f"map has no layer {name!r}; layers: {', '.join(self.grids)}"
+            )
+        return grid
 
     def merge_many(self, deltas: Sequence[Mapping[str, Mapping[str, np.ndarray]]]) -> int:
         """Merge several deltas at once: their cells are concatenated per layer, then merged together."""
@@ -90,11 +298,7 @@ class TiledMap:
                 by_layer.setdefault(name, []).append(cells)
         done = 0
         for name, parts in by_layer.items():
-            grid = self.grids.get(name)
-            if grid is None:
-                raise ProtocolError(
-                    "unknown_layer", f"map has no layer {name!r}; layers: {', '.join(self.grids)}"
-                )
+            grid = self._grid(name)
             ix = np.concatenate([np.asarray(p["ix"], dtype=np.int64) for p in parts])
             if ix.size == 0:
                 continue
@@ -110,11 +314,7 @@ class TiledMap:
 
     def merge_columns(self, name: str, ix: np.ndarray, iy: np.ndarray, vals: np.ndarray) -> int:
         """Merge one layer's cells given as columns: ix, iy (N,), vals (S, N) in the layer's stat order."""
-        grid = self.grids.get(name)
-        if grid is None:
-            raise ProtocolError(
-                "unknown_layer", f"map has no layer {name!r}; layers: {', '.join(self.grids)}"
-            )
+        grid = self._grid(name)
         if not ix.size:
             return 0
         return self._merge_layer(name, grid, ix.astype(np.int64), iy.astype(np.int64), vals)
@@ -123,47 +323,32 @@ class TiledMap:
         self, name: str, grid: LayerGrid, ix: np.ndarray, iy: np.ndarray, vals: np.ndarray
     ) -> int:
         sh, mask, cells = self.shift, self.tile - 1, self.tile * self.tile
-        tx, ty = ix >> sh, iy >> sh  # arithmetic shift = floor division, also for negative indices
+        g = self._global_ids(ix >> sh, iy >> sh)  # arithmetic shift = floor, also for negative indices
         local = ((iy & mask) << sh) | (ix & mask)
-        tkey = (tx << 32) | (ty & 0xFFFFFFFF)
-        if tkey.size and (tkey[0] == tkey).all():
-            segments = [(int(tx[0]), int(ty[0]), slice(None))]
-        else:
-            order = np.argsort(tkey, kind="stable")
-            tkey, tx, ty, local, vals = tkey[order], tx[order], ty[order], local[order], vals[:, order]
-            starts = np.flatnonzero(np.r_[True, tkey[1:] != tkey[:-1]])
-            ends = np.r_[starts[1:], tkey.size]
-            segments = [(int(tx[s]), int(ty[s]), slice(s, e)) for s, e in zip(starts, ends, strict=True)]
-        for kx, ky, sl in segments:
-            data = grid.tiles.get((kx, ky))
-            if data is None:
-                data = np.repeat(grid.empty, cells, axis=1)  # (S, T*T)
-                grid.tiles[(kx, ky)] = data
-            loc = local[sl]
-            v = vals[:, sl]
-            flat = data.reshape(-1)
-            for rows, ufunc in (
-                (grid.add_rows, np.add),
-                (grid.min_rows, np.minimum),
-                (grid.max_rows, np.maximum),
-            ):
-                if rows.size == 1:
-                    r = int(rows[0])
-                    ufunc.at(data[r], loc, v[r])
-                elif rows.size:
-                    idx = (rows[:, None] * cells + loc[None, :]).reshape(-1)
-                    ufunc.at(flat, idx, v[rows].reshape(-1))
-            occ = self.occupied.get((kx, ky))
-            if occ is None:
-                occ = np.zeros(cells, dtype=bool)
-                self.occupied[(kx, ky)] = occ
-            fresh = loc[~occ[loc] & (data[grid.n_row, loc] > 0)]
-            if fresh.size:
-                fresh = np.unique(fresh)
-                occ[fresh] = True
-                self.cells += int(fresh.size)
-            self.dirty.add((name, kx, ky))
-            self.touched.add((name, kx, ky))
+        slot = grid.of_global[g] if g.size and int(g.max()) < grid.of_global.size else None
+        if slot is None or (slot < 0).any():
+            new = np.unique(g if slot is None else g[slot < 0])
+            keys = [self.gkeys[v] for v in new.tolist()]
+            keys_gids = [(k, v) for k, v in zip(keys, new.tolist(), strict=True) if k not in grid.slots]
+            if keys_gids:
+                grid.add_tiles([k for k, _ in keys_gids], [v for _, v in keys_gids])
+            slot = grid.of_global[g]
+        S = len(grid.layer.stats)
+        lin = slot * (S * cells) + local  # index of stat row 0 of each cell in the flat store
+        flat = grid.store.reshape(-1)
+        vals = np.ascontiguousarray(vals, dtype=np.float64)
+        for ufunc, ranges in grid.ops:
+            for a, b in ranges:
+                if b - a == 1:
+                    ufunc.at(flat, lin + a * cells if a else lin, vals[a])
+                else:
+                    idx = (lin[None, :] + (np.arange(a, b, dtype=np.int64) * cells)[:, None]).reshape(-1)
+                    ufunc.at(flat, idx, vals[a:b].reshape(-1))
+        has = flat[lin + grid.n_row * cells] > 0
+        self.occ.reshape(-1)[(g * cells + local)[has]] = True
+        self._cells = None
+        grid.dirty[slot] = True
+        grid.touched[slot] = True
         return int(vals.size)
 
     # ------------------------------------------------------------------ reading
@@ -252,10 +437,8 @@ class TiledMap:
         return {s: float(a[0, 0]) for s, a in block.items()}
 
     def nbytes(self) -> int:
-        """Bytes held by tile arrays (statistics + occupancy)."""
-        return sum(t.nbytes for g in self.grids.values() for t in g.tiles.values()) + sum(
-            o.nbytes for o in self.occupied.values()
-        )
+        """Bytes of the tiles in use (statistics + occupancy); spare store capacity is never touched."""
+        return sum(g.used().nbytes for g in self.grids.values()) + self.occ[: len(self.gslots)].nbytes
 
     def equals(self, other: TiledMap) -> bool:
         """Same tiles and bit-identical statistics in every layer."""
@@ -278,18 +461,20 @@ class TiledMap:
     def load_tile(self, layer: str, tx: int, ty: int, blob: bytes) -> None:
         grid = self.grids[layer]
         cells = self.tile * self.tile
-        data = np.frombuffer(blob, dtype="<f8").astype(np.float64).reshape(len(grid.layer.stats), cells)
-        grid.tiles[(tx, ty)] = data
-        n = data[grid.n_row]
-        occ = self.occupied.setdefault((tx, ty), np.zeros(cells, dtype=bool))
-        before = int(np.count_nonzero(occ))
-        occ |= n > 0
-        self.cells += int(np.count_nonzero(occ)) - before
+        data = np.frombuffer(blob, dtype="<f8").reshape(len(grid.layer.stats), cells)
+        key = (tx, ty)
+        gid = self.gslots.get(key)
+        if gid is None:
+            gid = self._new_global([key])[0]
+        if key not in grid.slots:
+            grid.add_tiles([key], [gid])
+        s = grid.slots[key]
+        grid.store[s] = data
+        self.occ[gid] |= data[grid.n_row] > 0
+        self._cells = None
 
     def take_touched(self) -> set[tuple[str, int, int]]:
-        touched, self.touched = self.touched, set()
-        return touched
+        return self._flagged("touched", True)
 
     def clear_dirty(self) -> set[tuple[str, int, int]]:
-        dirty, self.dirty = self.dirty, set()
-        return dirty
+        return self._flagged("dirty", True)
