@@ -16,7 +16,7 @@ import quadprog
 
 @dataclass(frozen=True)
 class StanceQPConfig:
-    mu: float = 0.5  # friction the controller assumes (below the regolith's 0.7)
+    mu: float = 0.6  # friction the controller assumes (below the regolith's 0.7)
     f_min: float = 2.0  # [N]
     f_max: float = 150.0  # [N]
     force_weight: float = 1.0

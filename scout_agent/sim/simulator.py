@@ -18,6 +18,7 @@ the noise is for).
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import mujoco
@@ -64,8 +65,12 @@ class ScoutSim:
     """One Aliengo on one terrain. `step()` advances one control tick and returns its records."""
 
     def __init__(self, terrain: Terrain, friction: FrictionMap | None = None, config: SimConfig = SimConfig(),
-                 start: tuple[float, float, float] | None = None) -> None:
+                 start: tuple[float, float, float] | None = None,
+                 base_estimator: Callable[[ProprioSample], BaseState] | None = None) -> None:
+        """`base_estimator`, if given, replaces the noisy-truth base state of every `ProprioSample` with its
+        own estimate; it receives the sample (whose `base` is the noisy truth) and must not see `GroundTruth`."""
         self.terrain = terrain
+        self.base_estimator = base_estimator
         self.friction = friction or FrictionMap()
         self.config = config
         self.model = build_scene(terrain, config.physics)
@@ -219,6 +224,8 @@ class ScoutSim:
             imu_gyro=d.sensordata[self._gyro_adr:self._gyro_adr + 3].copy(), base=base,
             foot_pos_des_base=out.foot_pos_des_base, foot_vel_des_base=out.foot_vel_des_base,
             stance_planned=out.stance_planned, phase=out.phase)
+        if self.base_estimator is not None:
+            sample = dataclasses.replace(sample, base=self.base_estimator(sample))
         truth = GroundTruth(
             t=self.t, base=truth_base, foot_pos_world=feet_w,
             contact_point_world=np.where(contact[:, None], points, np.nan), stance_disp=disp,
@@ -232,5 +239,3 @@ class ScoutSim:
         self.last_output = out
         return sample, truth
 
-    def with_config(self, **changes) -> SimConfig:
-        return dataclasses.replace(self.config, **changes)

@@ -8,7 +8,7 @@ diagonal), so they are exact, not interpolations of a smoother surface.
 Lunar terrain, after OmniLRS ("lunaryard", BSD-3): coarse uniform noise bicubic-upsampled plus fine noise;
 craters by a hard-core Poisson process per size class, ellipticity 0.85–1, random rotation, cosine bowl with
 a raised rim; rocks by a Thomas cluster process as smooth bumps. What a trot can cross is capped where
-routes run (see `LunarConfig`): craters touching a surveyed corridor get depth/diameter ≤ 0.12, rocks there
+routes run (see `LunarConfig`): craters touching a surveyed corridor get depth/diameter ≤ 0.15, rocks there
 ≤ 0.1 m with smooth shoulders; elsewhere deep craters (up to 1 m deep, 2.5 m wide) remain as hazards.
 """
 
@@ -184,12 +184,13 @@ class LunarConfig:
     res: float = 0.05
     relief_m: float = 3.0  # peak-to-peak of the coarse relief (±1.5 m), before the slope cap
     relief_cells: int = 4  # coarse noise grid (bicubic-upsampled)
-    relief_max_slope_deg: float = 10.0  # the broad relief is scaled down until its steepest slope is this
+    relief_max_slope_deg: float = 12.0  # the broad relief is scaled down until its steepest slope is this
     fine_noise_m: float = 0.004  # smoothed fine noise std
     # crater classes: (min radius, max radius, density per m²), OmniLRS-like
-    crater_classes: tuple[tuple[float, float, float], ...] = ((0.75, 1.25, 0.02), (0.4, 0.75, 0.05), (0.15, 0.4, 0.15))
-    crossable_depth_ratio: tuple[float, float] = (0.06, 0.12)  # depth/diameter near routes (walls ≤ 21°)
+    crater_classes: tuple[tuple[float, float, float], ...] = ((0.75, 1.25, 0.03), (0.4, 0.75, 0.05), (0.15, 0.4, 0.15))
+    crossable_depth_ratio: tuple[float, float] = (0.08, 0.15)  # depth/diameter near routes (walls ≤ 25°)
     hazard_depth_ratio: tuple[float, float] = (0.25, 0.4)  # depth/diameter of large craters off routes
+    fresh_depth_ratio: tuple[float, float] = (0.12, 0.2)  # smaller craters off routes (fresh: ≈ 0.2)
     rim_ratio: float = 0.15  # rim height / depth
     rock_clusters_per_m2: float = 0.03
     rocks_per_cluster: float = 6.0
@@ -199,7 +200,7 @@ class LunarConfig:
     routes: tuple[tuple[tuple[float, float], ...], ...] = tuple(LUNAR_ROUTES.values())
     corridor_m: float = 1.2  # half-width of the surveyed corridors along routes
     spawn_radius_m: float = 0.9  # flattened patch around route ends
-    corridor_max_slope_deg: float = 24.0  # slopes within corridors are smoothed down to this cap
+    corridor_max_slope_deg: float = 26.0  # slopes within corridors are smoothed down to this cap
 
 
 def make_lunar(cfg: LunarConfig = LunarConfig()) -> Terrain:
@@ -239,7 +240,8 @@ def make_lunar(cfg: LunarConfig = LunarConfig()) -> Terrain:
             if ends < r * 1.3 + cfg.spawn_radius_m + 0.5:
                 continue
             hazard = (not near) and r >= cfg.crater_classes[0][0]
-            ratio = rng.uniform(*(cfg.hazard_depth_ratio if hazard else cfg.crossable_depth_ratio))
+            ratio = rng.uniform(*(cfg.hazard_depth_ratio if hazard else
+                                  cfg.crossable_depth_ratio if near else cfg.fresh_depth_ratio))
             depth = ratio * 2 * r
             ell = rng.uniform(0.85, 1.0)
             rot = rng.uniform(0, np.pi)
@@ -302,11 +304,17 @@ def _cap_corridor_slopes(z: np.ndarray, corridor: np.ndarray, res: float, cap_de
 
     z = z.copy()
     cap = np.tan(np.radians(cap_deg))
-    for _ in range(60):
-        g = np.hypot(*np.gradient(z, res))
-        bad = (g > cap) & corridor
-        if not bad.any():
+    corridor_cells = corridor[:-1, :-1] & corridor[1:, 1:]
+    for _ in range(80):
+        # steepest of the two MuJoCo triangles of each cell (as Terrain.slope_grid_deg)
+        g1 = np.hypot(z[:-1, 1:] - z[:-1, :-1], z[1:, 1:] - z[:-1, 1:])
+        g2 = np.hypot(z[1:, 1:] - z[1:, :-1], z[1:, :-1] - z[:-1, :-1])
+        bad_cells = (np.maximum(g1, g2) / res > cap) & corridor_cells
+        if not bad_cells.any():
             break
+        bad = np.zeros(z.shape, bool)
+        bad[:-1, :-1] |= bad_cells
+        bad[1:, 1:] |= bad_cells
         region = binary_dilation(bad, iterations=4)
         z[region] = gaussian_filter(z, 1.5)[region]
     return z

@@ -83,3 +83,16 @@ def test_falls_are_detected():
         if sim.fell:
             break
     assert sim.fell and sim.fall_xy is not None
+
+
+def test_a_base_estimator_can_fill_the_base_state():
+    from scout_agent.signals import BaseState
+
+    def zero_velocity(sample):
+        b = sample.base
+        return BaseState(b.pos, b.quat, np.zeros(3), b.omega)
+
+    sim = ScoutSim(make_ramps(RampConfig(slope_deg=0.0)), base_estimator=zero_velocity)
+    s, g = sim.step(0.0, 0.0)
+    np.testing.assert_array_equal(s.base.vel, 0.0)
+    assert np.any(g.base.vel != 0.0)
