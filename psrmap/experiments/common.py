@@ -147,9 +147,13 @@ def rebin(acc: Any, res: float):
 
 
 def elevation_errors(local: Any, terrain: Any, segments: dict | None = None) -> dict[str, Any]:
-    """RMSE [m] of the elevation layer against the exact terrain at cell centres: the layer's value (plane
-    fit, or mean where ill conditioned) and the mean alone (the paper's estimate); also on ramp cells only."""
+    """RMSE [m] of the elevation layer against the exact terrain at cell centres, three ways from the same
+    cell statistics: the mean alone (the paper's estimate, eq. 14), the map's value (`layer_value`: the
+    protocol's plane fit where footholds spread ≥ 2 cm along both axes, else the mean) and the scout's
+    truncated plane fit (`plane_from_moments`: slope only along the directions the footholds span); also on
+    the ramp cells only."""
     from protocol.layers import cell_center, layer_value
+    from scout_agent.estimators.elevation import plane_from_moments
 
     c = local.cells("elevation")
     if not len(c["ix"]):
@@ -158,6 +162,7 @@ def elevation_errors(local: Any, terrain: Any, segments: dict | None = None) -> 
     truth = terrain.height(cx, cy)
     value = layer_value("elevation", c)
     mean = c["sum"] / c["n"]
+    plane = plane_from_moments(c)[0]
     out: dict[str, Any] = {"cells": int(len(cx)), "footholds": int(c["n"].sum())}
 
     def rmse(v: np.ndarray, m: np.ndarray) -> float | None:
@@ -168,6 +173,7 @@ def elevation_errors(local: Any, terrain: Any, segments: dict | None = None) -> 
     every = np.ones(len(cx), bool)
     out["rmse_m"] = rmse(value, every)
     out["rmse_mean_only_m"] = rmse(mean, every)
+    out["rmse_plane_m"] = rmse(plane, every)
     if segments:
         on = np.zeros(len(cx), bool)
         for seg in ("up", "down"):
@@ -176,6 +182,7 @@ def elevation_errors(local: Any, terrain: Any, segments: dict | None = None) -> 
         out["ramp_cells"] = int(on.sum())
         out["rmse_ramps_m"] = rmse(value, on)
         out["rmse_ramps_mean_only_m"] = rmse(mean, on)
+        out["rmse_ramps_plane_m"] = rmse(plane, on)
     return out
 
 

@@ -23,7 +23,7 @@ import numpy as np
 from psrmap.experiments.common import MAP_RES, RunPool, RunSpec, fmean, fstd, jitter_start
 
 NAME = "lunar"
-DEFAULT_SEEDS = "0,1,2"
+DEFAULT_SEEDS = "0,1,2,3,4"
 DEFAULT_RUNS = 1
 ROUTES = ("direct", "west", "east")
 PAPER_TABLE = {  # trajectory 1 / 2 / 3 of the paper's table (direct, then the two via landmarks)

@@ -111,7 +111,10 @@ def ramp_elevation_rmse(path: Path, by_angle: dict[str, Any]) -> Path:
     fig, ax = plt.subplots(figsize=(6.5, 4))
     angles = sorted(by_angle, key=float)
     for res, marker in (("0.4", "o"), ("0.2", "s"), ("0.1", "^")):
-        for key, ls, lab in (("rmse_m", "-", "plane fit"), ("rmse_mean_only_m", ":", "mean (paper)")):
+        for key, ls, lab in (
+            ("rmse_plane_m", "-", "scout's plane fit"),
+            ("rmse_mean_only_m", ":", "mean (paper)"),
+        ):
             ys = [by_angle[a].get("plain", {}).get("elevation", {}).get(res, {}).get(key) for a in angles]
             ax.plot([float(a) for a in angles], _nan(ys), ls, marker=marker, label=f"{res} m, {lab}")
     ax.axhline(0.0876, color="k", lw=0.8, ls="--", label="paper 0.0876 m (0.4 m)")

@@ -209,7 +209,14 @@ def summarise(runs: list[dict]) -> dict[str, Any]:
         per = [r["elevation"][key] for r in runs]
         elev[key] = {
             m: fmean(p.get(m) for p in per)
-            for m in ("rmse_m", "rmse_mean_only_m", "rmse_ramps_m", "rmse_ramps_mean_only_m")
+            for m in (
+                "rmse_m",
+                "rmse_mean_only_m",
+                "rmse_plane_m",
+                "rmse_ramps_m",
+                "rmse_ramps_mean_only_m",
+                "rmse_ramps_plane_m",
+            )
         }
         elev[key]["rmse_m_std"] = fstd(p.get("rmse_m") for p in per)
         elev[key]["cells"] = fmean(p.get("cells") for p in per)
@@ -312,6 +319,10 @@ def analyse(args: argparse.Namespace, runs: list[dict], out_dir: Path) -> dict[s
         },
         "elevation_rmse_mean_only_m": {
             f"{res:g}": fmean(r["elevation"][f"{res:g}"]["rmse_mean_only_m"] for r in runs)
+            for res in (MAP_RES, *EXTRA_RES)
+        },
+        "elevation_rmse_plane_m": {
+            f"{res:g}": fmean(r["elevation"][f"{res:g}"].get("rmse_plane_m") for r in runs)
             for res in (MAP_RES, *EXTRA_RES)
         },
         "slip_slippery": {

@@ -56,7 +56,8 @@ def test_every_experiment_writes_results_and_figures(reduced: tuple[Path, float]
     top = json.loads((out / "results.json").read_text())
     assert set(top["experiments"]) == set(EXPERIMENTS)
     # ramps ×2 (slopes shares them), lunar ×3 (utility's scouts are two of them), fresh robot ×2
-    assert top["timing"]["runs_walked"] == 2 + 3 + 2
+    # (one fewer when the planned route is the straight one: the same walk)
+    assert 2 + 3 + 1 <= top["timing"]["runs_walked"] <= 2 + 3 + 2
     for name in EXPERIMENTS:
         res = _load(out, name)
         assert res["figures"], name
