@@ -22,6 +22,22 @@ import numpy as np
 
 from psrmap.experiments.common import MAP_RES, RunPool, RunSpec, fmean, fstd, jitter_start
 
+__all__ = [
+    "PAPER_TABLE",
+    "ROUTES",
+    "add_arguments",
+    "analyse",
+    "compare_on_merged",
+    "dense",
+    "merged_grid",
+    "merged_local_map",
+    "route_specs",
+    "run",
+    "save_region_npz",
+    "specs",
+    "trajectory_row",
+]
+
 NAME = "lunar"
 DEFAULT_SEEDS = "0,1,2,3,4"
 DEFAULT_RUNS = 1

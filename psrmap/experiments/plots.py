@@ -291,9 +291,9 @@ def utility_map(
         _patches(ax, patches)
         p = np.asarray(planned)
         s = np.asarray(straight)
-        ax.plot(p[:, 0], p[:, 1], "w--", lw=1.2, label="planned (scouts' map)")
+        ax.plot(p[:, 0], p[:, 1], "--", color="deepskyblue", lw=1.2, label="planned (scouts' map)")
         ax.plot(s[:, 0], s[:, 1], "--", color="orange", lw=1.2, label="straight")
-        for name, color in (("planned", "white"), ("straight", "orange")):
+        for name, color in (("planned", "deepskyblue"), ("straight", "orange")):
             for r in walked.get(name, []):
                 tr = r["track"]
                 ax.plot(

@@ -22,6 +22,19 @@ import numpy as np
 
 from psrmap.experiments.common import EXTRA_RES, MAP_RES, RunPool, RunSpec, fmean, fstd, jitter_start
 
+__all__ = [
+    "ANGLES",
+    "SLIPPERY",
+    "add_arguments",
+    "analyse",
+    "patch_mu",
+    "profile",
+    "run",
+    "run_specs",
+    "specs",
+    "summarise",
+]
+
 NAME = "ramps"
 DEFAULT_SEEDS = "0"
 DEFAULT_RUNS = 4

@@ -22,6 +22,8 @@ import numpy as np
 from psrmap.experiments import ramps
 from psrmap.experiments.common import RunPool, RunSpec, fmean, fstd
 
+__all__ = ["add_arguments", "analyse", "fit", "points", "run", "specs", "trends"]
+
 NAME = "slopes"
 DEFAULT_SEEDS = "0"
 DEFAULT_RUNS = 4

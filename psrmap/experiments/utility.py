@@ -25,6 +25,18 @@ import numpy as np
 from psrmap.experiments import lunar
 from psrmap.experiments.common import MAP_RES, RunPool, RunSpec, fmean, jitter_start
 
+__all__ = [
+    "add_arguments",
+    "agreement",
+    "experienced",
+    "fresh_specs",
+    "plan",
+    "run",
+    "scout_specs",
+    "simplify",
+    "specs",
+]
+
 NAME = "utility"
 DEFAULT_SEEDS = "0,1,2,3,4"
 DEFAULT_RUNS = 1

@@ -146,3 +146,41 @@ def test_spec_key_ignores_the_label_only() -> None:
 def test_simplify_keeps_corners_within_tolerance() -> None:
     pts = np.array([[0, 0], [1, 0.01], [2, 0], [2, 1], [2, 2]], float)
     assert simplify(pts, 0.05).tolist() == [[0, 0], [2, 0], [2, 2]]
+
+
+def test_slope_trends_recognise_the_papers_shapes() -> None:
+    from psrmap.experiments.slopes import fit, trends
+
+    xs = np.arange(-20.0, 21.0, 5.0)
+    pts = [
+        {
+            "inclination_deg": x,
+            "cot_mean": 1.2 + 0.002 * (x - 7.0) ** 2,  # U, minimum on a 7° descent
+            "giim_mean": 0.6 - 0.0008 * (x + 10.0) ** 2,  # highest at −10° (uphill)
+            "giam_mean": 0.8 + 0.01 * x - 0.0009 * x**2,  # higher on descents, falling beyond ±15°
+            "giim_paper_mean": 0.6,
+            "giam_paper_mean": 0.9 - 0.01 * x,  # higher on ascents: the trend must fail
+        }
+        for x in xs
+    ]
+    fits = {m: fit(pts, m) for m in pts[0] if m != "inclination_deg"}
+    t = trends(fits, {})
+    assert t["cot"]["min_on_5_10_descent"] and t["cot"]["rises_toward_both_ends"]
+    assert (
+        t["giim_four_footholds"]["max_on_moderate_uphill"]
+        and t["giim_four_footholds"]["falls_toward_both_ends"]
+    )
+    assert (
+        t["giam_four_footholds"]["higher_on_descents_within_15"]
+        and t["giam_four_footholds"]["falls_beyond_15"]
+    )
+    assert not t["giam_paper"]["higher_on_descents_within_15"]
+
+
+def test_exported_names_exist() -> None:
+    import importlib
+
+    for name in ("", ".common", ".ramps", ".slopes", ".lunar", ".utility", ".plots", ".report"):
+        mod = importlib.import_module(f"psrmap.experiments{name}")
+        for member in getattr(mod, "__all__", ()):
+            assert hasattr(mod, member), (name, member)
