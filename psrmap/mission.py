@@ -529,6 +529,40 @@ def _json_default(o: Any) -> Any:
     return str(o)
 
 
+_COLUMNS = (
+    ("route", "name", "{}"),
+    ("length m", "length_m", "{:.1f}"),
+    ("cost", "cost", "{:.1f}"),
+    ("exp. slips", "expected_slip_events", "{:.1f}"),
+    ("CoT", "mean_cot", "{:.2f}"),
+    ("GIIM min/mean rad", ("min_giim", "mean_giim"), "{:.2f}/{:.2f}"),
+    ("GIAM min/mean m/s²", ("min_giam", "mean_giam"), "{:.2f}/{:.2f}"),
+    ("max slope °", "max_slope_deg", "{:.1f}"),
+    ("unknown %", "unknown_fraction", "{:.0%}"),
+)
+
+
+def route_table(routes: Sequence[dict[str, Any]]) -> str:
+    """The route comparison as a fixed-width table (the paper's table of trajectories, from the shared map)."""
+
+    def cell(r: dict[str, Any], key: Any, fmt: str) -> str:
+        b = {"name": r.get("name"), **r.get("breakdown", {})}
+        vals = [b.get(k) for k in key] if isinstance(key, tuple) else [b.get(key)]
+        if any(v is None for v in vals):
+            return "—"
+        return fmt.format(*vals)
+
+    rows = [[h for h, _, _ in _COLUMNS]]
+    rows += [[cell(r, k, f) for _, k, f in _COLUMNS] for r in routes]
+    widths = [max(len(row[i]) for row in rows) for i in range(len(_COLUMNS))]
+    lines = [
+        "  ".join(v.rjust(w) if i else v.ljust(w) for i, (v, w) in enumerate(zip(row, widths, strict=True)))
+        for row in rows
+    ]
+    lines.insert(1, "-" * len(lines[0]))
+    return "\n".join(lines)
+
+
 def _print_report(summary: dict[str, Any]) -> None:
     print()
     print(f"Mission finished in {summary['wall_seconds']} s — run folder {summary['run_dir']}")
@@ -552,9 +586,9 @@ def _print_report(summary: dict[str, Any]) -> None:
             f"  plan: {plan.get('length_m', float('nan')):.1f} m, cost {plan.get('cost', float('nan')):.2f}"
         )
     comparison = summary.get("comparison") or {}
-    if "table" in comparison:
+    if comparison.get("routes"):
         print()
-        print(comparison["table"])
+        print(route_table(comparison["routes"]))
     elif "error" in comparison:
         print(f"  comparison: {comparison['error']}")
     if summary.get("recording"):
