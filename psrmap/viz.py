@@ -22,7 +22,8 @@ def default_blueprint(scout_ids: list[str]) -> rrb.Blueprint:
         rrb.TimeSeriesView(name=f"{sid} signals", origin=f"world/scouts/{sid}/signals") for sid in scout_ids
     ]
     estimates = [
-        rrb.TimeSeriesView(name=f"{sid} estimates", origin=f"world/scouts/{sid}/estimates") for sid in scout_ids
+        rrb.TimeSeriesView(name=f"{sid} estimates", origin=f"world/scouts/{sid}/estimates")
+        for sid in scout_ids
     ]
     return rrb.Blueprint(
         rrb.Horizontal(
@@ -61,7 +62,9 @@ def log_mission_context(cfg: Any, path: Path, recording_id: str) -> None:
     log_friction(rec, world.friction, world.terrain)
     for s in cfg.scouts:
         pts = [[x, y, float(world.terrain.height(x, y)) + 0.05] for x, y in s.route()]
-        rec.log(f"world/routes/{s.id}", rr.LineStrips3D([pts], colors=[255, 255, 255], radii=0.02), static=True)
+        rec.log(
+            f"world/routes/{s.id}", rr.LineStrips3D([pts], colors=[255, 255, 255], radii=0.02), static=True
+        )
     rec.send_blueprint(default_blueprint([s.id for s in cfg.scouts]))
     rec.flush()
     rec.disconnect()
