@@ -5,12 +5,15 @@ walking scout sends at 5 Hz, and bulk deltas of 1000 cells x 5 layers (e.g. a re
 Two raw references on the same arrays: `raw_add_at` = one np.add.at per (layer, stat) over all
 deltas concatenated into a dense array (the ceiling), and `raw_add_at_per_array` = one np.add.at
 per delta array (what a per-delta merge without any decoding would cost).
+decode_merge = steady state (the cells' tiles exist: a second pass of the same deltas under another
+epoch); fresh_map = the first pass, which also creates every tile (first touch of ~100 MB here).
 Usage: python3 benchmarks/merge.py [--deltas 4000] [--bulk 200] [--batch 512]
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import time
 
@@ -78,16 +81,25 @@ def raw_add_at_per_array(deltas: list[CellDelta]) -> tuple[float, int]:
     return dt, sum(v.size for _, v in prepared)
 
 
-def ingest(deltas: list[CellDelta], batch: int) -> tuple[float, int]:
-    samples = [(delta_key(d.map, d.scout), encode(d)) for d in deltas]
+def ingest(deltas: list[CellDelta], batch: int) -> tuple[float, float, int]:
+    """(seconds into a fresh map, seconds into the same map again, updates per pass).
+
+    The first pass creates the tiles (first touch of their memory); the second merges the same cells
+    again as new deltas (another epoch) into existing tiles: the steady state of a long mission.
+    """
     merger = Merger(TiledMap(RES), "bench")
-    t0 = time.perf_counter()
-    for i in range(0, len(samples), batch):
-        r = merger.ingest(samples[i : i + batch])
-        assert not r.rejected
-    dt = time.perf_counter() - t0
-    assert merger.book.merged == len(deltas)
-    return dt, sum(d.n_updates() for d in deltas)
+    times = []
+    for epoch in (1, 2):
+        samples = [
+            (delta_key(d.map, d.scout), encode(dataclasses.replace(d, epoch=epoch))) for d in deltas
+        ]
+        t0 = time.perf_counter()
+        for i in range(0, len(samples), batch):
+            r = merger.ingest(samples[i : i + batch])
+            assert not r.rejected
+        times.append(time.perf_counter() - t0)
+    assert merger.book.merged == 2 * len(deltas)
+    return times[0], times[1], sum(d.n_updates() for d in deltas)
 
 
 def main() -> None:
@@ -103,13 +115,15 @@ def main() -> None:
         ingest(deltas[: max(1, n // 10)], args.batch)  # warm-up
         t_raw, u_raw = raw_add_at(deltas)
         t_arr, u_arr = raw_add_at_per_array(deltas)
-        t_ing, u_ing = ingest(deltas, args.batch)
+        t_cold, t_ing, u_ing = ingest(deltas, args.batch)
         raw_rate, rate, arr_rate = u_raw / t_raw, u_ing / t_ing, u_arr / t_arr
         out[label] = {
             "deltas": n,
             "updates": u_ing,
             "decode_merge_updates_per_s": round(rate),
             "deltas_per_s": round(n / t_ing),
+            "fresh_map_updates_per_s": round(u_ing / t_cold),
+            "fresh_map_fraction_of_raw": round(u_ing / t_cold / raw_rate, 3),
             "raw_add_at_updates_per_s": round(raw_rate),
             "fraction_of_raw": round(rate / raw_rate, 3),
             "raw_add_at_per_array_updates_per_s": round(arr_rate),

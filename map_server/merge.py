@@ -114,39 +114,67 @@ class Merger:
         samples = list(samples)
         res = IngestResult()
         book = self.book
+        seqs = book.seqs
+        map_id = self.map_id
         batch = decode_delta_batch(samples, res=self.map.res, max_bytes=self.max_bytes, views=False)
-        take = np.zeros(len(samples), dtype=bool)
+        unknown = {name for name in batch.columns if name not in self.map.grids}
+        no_layer = self._without_layer(batch, unknown) if unknown else {}
+        take = [False] * len(samples)
+        acked: dict[tuple[str, int], CellDelta] = {}
+        accepted = res.accepted
         for i, delta in enumerate(batch.results):
-            key = samples[i][0]
-            if isinstance(delta, CellDelta):
-                try:
-                    self._check_map(delta)
-                except ProtocolError as exc:
-                    delta = exc
-            if isinstance(delta, ProtocolError):
+            if type(delta) is CellDelta and (delta.map != map_id or i in no_layer):
+                delta = (
+                    ProtocolError(
+                        "key_mismatch", f"delta for map {delta.map!r}; this server holds {map_id!r}"
+                    )
+                    if delta.map != map_id
+                    else no_layer[i]
+                )
+            if type(delta) is not CellDelta:
+                assert isinstance(delta, ProtocolError)
                 book.rejected[delta.reason] += 1
                 res.rejected.append((delta.reason, str(delta)))
-                log.warning("rejected delta on %s: %s", key, delta)
+                log.warning("rejected delta on %s: %s", samples[i][0], delta)
                 continue
             sk = (delta.scout, delta.epoch)
-            st = book.seqs.get(sk)
+            st = seqs.get(sk)
             if st is None:
-                st = book.seqs[sk] = SeqState()
-            if st.seen(delta.seq):
+                st = seqs[sk] = SeqState()
+            seq = delta.seq
+            if seq <= st.hw or seq in st.above:
                 book.duplicates += 1
                 res.duplicates += 1
             else:
-                st.mark(delta.seq)
+                if seq == st.hw + 1 and not st.above:
+                    st.hw = seq
+                else:
+                    st.mark(seq)
                 take[i] = True
-                res.accepted.append(Accepted(delta, bytes(samples[i][1])))
+                accepted.append(Accepted(delta, samples[i][1]))
                 res.touched.add(sk)
-            if st.hw >= 0:
-                res.acks[sk] = Ack(self.map_id, delta.scout, delta.epoch, st.hw)
-        if res.accepted:
-            self._merge_columns(batch, take)
-            book.merged += len(res.accepted)
-            book.version += len(res.accepted)
+            acked[sk] = delta
+        for sk, delta in acked.items():
+            hw = seqs[sk].hw
+            if hw >= 0:
+                res.acks[sk] = Ack(map_id, delta.scout, delta.epoch, hw)
+        if accepted:
+            self._merge_columns(batch, np.array(take, dtype=bool))
+            book.merged += len(accepted)
+            book.version += len(accepted)
         return res
+
+    def _without_layer(self, batch: DeltaBatch, unknown: set[str]) -> dict[int, ProtocolError]:
+        """Deltas carrying a layer this map lacks -> their `unknown_layer` error (first such layer)."""
+        out: dict[int, ProtocolError] = {}
+        for name in sorted(unknown):
+            err = ProtocolError(
+                "unknown_layer", f"map has no layer {name!r}; layers: {', '.join(self.map.grids)}"
+            )
+            for i in np.unique(batch.columns[name].seg).tolist():
+                out.setdefault(int(i), err)
+            del batch.columns[name]
+        return out
 
     def _check_map(self, delta: CellDelta) -> None:
         if delta.map != self.map_id:
@@ -162,6 +190,8 @@ class Merger:
     def _merge_columns(self, batch: DeltaBatch, take: np.ndarray) -> None:
         everything = bool(take.all())
         for name, c in batch.columns.items():
+            if name not in self.map.grids:  # (replay) a layer this map lacks: never accepted
+                continue
             if everything:
                 self.map.merge_columns(name, c.ix, c.iy, c.vals)
             else:

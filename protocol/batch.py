@@ -131,13 +131,14 @@ def _flag_cells(
     bad |= (ix < -INDEX_LIMIT) | (ix > INDEX_LIMIT) | (iy < -INDEX_LIMIT) | (iy > INDEX_LIMIT)
     flagged = set(np.unique(seg[bad]).tolist()) if bad.any() else set()
     if ix.size > 1:
-        # duplicate cell within one delta: sort by (delta, cell) on one int64 key when indices are in range
-        if not bad.any():
-            cell = (ix.astype(np.int64) << 31) + iy.astype(np.int64)  # |ix|, |iy| <= 2**30: unique per cell
-            key = np.sort(seg * _CELL_SPAN + (cell - _CELL_MIN))
+        # duplicate cell within one delta: sort one int64 key (delta, ix, iy) when it fits
+        x0, y0 = int(ix.min()), int(iy.min())
+        w, h = int(ix.max()) - x0 + 1, int(iy.max()) - y0 + 1
+        if not bad.any() and (int(seg.max()) + 1) * w * h < 2**62:
+            key = np.sort((seg * w + (ix.astype(np.int64) - x0)) * h + (iy.astype(np.int64) - y0))
             dup = key[1:] == key[:-1]
             if dup.any():
-                flagged |= set(np.unique(key[1:][dup] // _CELL_SPAN).tolist())
+                flagged |= set(np.unique(key[1:][dup] // (w * h)).tolist())
         else:
             order = np.lexsort((iy, ix, seg))
             s_, x_, y_ = seg[order], ix[order], iy[order]
@@ -145,11 +146,6 @@ def _flag_cells(
             if dup.any():
                 flagged |= set(np.unique(s_[1:][dup]).tolist())
     return np.array(sorted(flagged), dtype=np.int64)
-
-
-# cell keys (ix << 31) + iy for |ix|, |iy| <= 2**30 lie in [_CELL_MIN, _CELL_MIN + _CELL_SPAN)
-_CELL_MIN = -(2**30 << 31) - 2**30
-_CELL_SPAN = 2 * (2**30 << 31) + 2 * 2**30 + 1
 
 
 def _structural_bad(acc: _Acc) -> set[int]:
