@@ -5,6 +5,13 @@ rules between them: slip guards elevation (a stance with a slip event gives no f
 stability sample while a stance foot has slipped in its current stance); the first `settle_s` of each stance
 (start-of-stance settling) gives neither a slip decision nor a foothold.
 
+Elevation: one foothold per non-slipping stance, the mean of its settled contact-tick foot positions, minus
+the foot radius along the terrain normal fitted to the four most recent footholds; committed when the stance
+ends (only then is it known to have no slip). Stability: GIA from the foot contact forces (the simulator stands
+in for foot force sensors; `gia_source="imu"` uses the accelerometer), support = the four most recent footholds
+(each foot's current or last stance point) ordered counter-clockwise about their centroid seen from above;
+the paper variant and the two-stance-feet diagnostic are computed beside it on request.
+
 Assignment to cells (paper §III-B): contact-based metrics (elevation, slip) at the foothold, body-centred
 ones (CoT, GIIM, GIAM, non-foot contacts) at the CoM projection. `record(est, acc)` writes one tick into a
 `CellAccumulator` with the layer statistics of DESIGN.md.
@@ -19,7 +26,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any, NamedTuple, Protocol
 
 import numpy as np
 
@@ -31,8 +38,6 @@ from .slip import SlipConfig, SlipDetector, SlipTick
 from .stability import margins_fast, order_ccw_xy
 
 __all__ = ["EstimatorPipeline", "Kinematics", "PipelineConfig", "TickEstimates", "quat_to_matrix", "record"]
-
-_NAN2 = (math.nan, math.nan)
 
 
 class Kinematics(Protocol):
@@ -66,9 +71,10 @@ class PipelineConfig:
             raise ValueError(f"gia_source {self.gia_source!r} unknown; sources: forces, imu")
 
 
-@dataclass(frozen=True, slots=True)
-class TickEstimates:
-    """Everything the estimators concluded at one tick (world = map frame)."""
+class TickEstimates(NamedTuple):
+    """Everything the estimators concluded at one tick (world = map frame).
+
+    (A NamedTuple rather than a frozen dataclass: it is built every tick, and costs a third as much.)"""
 
     t: float
     com_xy: tuple[float, float]  # CoM projection [m]

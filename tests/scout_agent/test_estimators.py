@@ -483,3 +483,10 @@ def test_fast_margins_agree_with_the_reference(pts, com, gia):
     np.testing.assert_allclose(
         margins_fast([list(q) for q in pts], com, gia, absolute=True), ref_p, atol=1e-9
     )
+
+
+def test_exported_names_exist():
+    import scout_agent.estimators as est
+
+    for name in est.__all__:
+        assert hasattr(est, name), name
