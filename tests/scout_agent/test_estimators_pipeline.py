@@ -1,0 +1,140 @@
+"""EstimatorPipeline on constructed ticks: footholds at the exact ground height, slip guarding elevation and
+GIIM/GIAM, margins over the four most recent footholds, and `record` into the cell statistics."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from scout_agent.cells import CellAccumulator
+from scout_agent.estimators import EstimatorPipeline, PipelineConfig, margins, record
+from scout_agent.signals import BaseState, ProprioSample
+
+DT = 0.01
+G = 1.62
+MASS = 20.0
+R_FOOT = 0.0265
+GROUND_Z = 0.1
+BASE = np.array([0.5, -0.3, 0.45])
+NOMINAL = np.array([[0.24, 0.134], [0.24, -0.134], [-0.24, 0.134], [-0.24, -0.134]])
+
+
+class FakeFeet:
+    """Kinematics double: the test sets the feet directly (relative to the base, base frame)."""
+
+    def __init__(self) -> None:
+        self.pos = np.zeros((4, 3))
+        self.vel = np.zeros((4, 3))
+
+    def feet_base_and_vel(self, q, dq):
+        return self.pos, self.vel
+
+
+def trot(n_ticks: int, slide_leg: int | None = None, slide_stance: int = 2, slide_v: float = 0.3):
+    """A standing trot: diagonal pairs alternate every 0.3 s; stance feet planted on flat ground at GROUND_Z.
+
+    Optionally leg `slide_leg` slides along +x at `slide_v` from 0.1 s to 0.25 s into its `slide_stance`-th
+    stance. Yields (sample, feet_world (4, 3), stance index per leg).
+    """
+    world = np.column_stack([BASE[:2] + NOMINAL, np.full(4, GROUND_Z + R_FOOT)])
+    stance_no = [0, 0, 0, 0]
+    prev = np.zeros(4, dtype=bool)
+    t_start = np.zeros(4)
+    for k in range(n_ticks):
+        t = k * DT
+        pair = int(t / 0.3) % 2
+        planned = np.array([pair == 0, pair == 1, pair == 1, pair == 0])
+        for i in range(4):
+            if planned[i] and not prev[i]:
+                stance_no[i] += 1
+                t_start[i] = t
+                world[i] = [*(BASE[:2] + NOMINAL[i]), GROUND_Z + R_FOOT]
+        vel_w = np.zeros((4, 3))
+        if slide_leg is not None and planned[slide_leg] and stance_no[slide_leg] == slide_stance:
+            tr = t - t_start[slide_leg]
+            if 0.1 <= tr < 0.25:
+                vel_w[slide_leg, 0] = slide_v
+                world[slide_leg, 0] += slide_v * DT
+        swing = ~planned
+        pos_b = world - BASE
+        pos_b[swing, 2] += 0.05  # swing feet lifted
+        forces = np.zeros((4, 3))
+        forces[planned, 2] = MASS * G / planned.sum()
+        sample = ProprioSample(
+            t=t,
+            q=np.zeros(12),
+            dq=np.zeros(12),
+            tau=np.zeros(12),
+            contact=planned.copy(),
+            foot_force_world=forces,
+            imu_acc=np.array([0.0, 0.0, G]),
+            imu_gyro=np.zeros(3),
+            base=BaseState(BASE.copy(), np.array([1.0, 0, 0, 0]), np.zeros(3), np.zeros(3)),
+            foot_pos_des_base=pos_b.copy(),
+            foot_vel_des_base=np.zeros((4, 3)),
+            stance_planned=planned,
+            phase=np.zeros(4),
+        )
+        prev = planned
+        yield sample, pos_b, vel_w
+
+
+def run(pipe, feet, gen):
+    out = []
+    for sample, pos_b, vel_w in gen:
+        feet.pos = pos_b
+        feet.vel = vel_w  # base still and unrotated: world velocity = velocity relative to the base
+        out.append(pipe.update(sample))
+    return out
+
+
+def make():
+    feet = FakeFeet()
+    cfg = PipelineConfig(
+        mass_kg=MASS, gravity_mps2=G, foot_radius_m=R_FOOT, paper_margins=True, stance_margins=True
+    )
+    return EstimatorPipeline(feet, cfg), feet
+
+
+def test_footholds_are_the_ground_under_the_feet_and_margins_use_four_footholds():
+    pipe, feet = make()
+    ticks = run(pipe, feet, trot(200))
+    fh = np.concatenate([e.footholds for e in ticks if len(e.footholds)])
+    assert len(fh) >= 8  # ≈ 2 stances end every 0.3 s
+    np.testing.assert_allclose(fh[:, 2], GROUND_Z, atol=1e-12)
+    assert not any(any(e.slip.event) for e in ticks)
+    last = ticks[-1]
+    support = np.column_stack([BASE[:2] + NOMINAL, np.full(4, GROUND_Z)])
+    expect = margins(support, BASE, np.array([0.0, 0.0, -G]))
+    assert last.giim == pytest.approx(expect[0]) and last.giam == pytest.approx(expect[1])
+    assert last.giim > 0
+    assert last.giim_stance <= 1e-12  # two stance feet: a line, never a positive margin
+    # the paper variant, leg order and |min|, gives the front/rear face (CoM 0.35 m above the ground)
+    assert last.giim_paper == pytest.approx(math.atan2(0.24, 0.35), abs=1e-9)
+
+
+def test_a_slipping_stance_gives_a_slip_event_no_foothold_and_no_stability_sample():
+    pipe, feet = make()
+    ticks = run(pipe, feet, trot(200, slide_leg=0, slide_stance=2))
+    events = [(k, e) for k, e in enumerate(ticks) if e.slip.event[0]]
+    assert len(events) == 1
+    k_ev, ev = events[0]
+    np.testing.assert_allclose(ev.slip_xy, [BASE[:2] + NOMINAL[0]], atol=1e-12)  # at the touchdown foothold
+    # FL's second stance runs 0.6–0.9 s: guarded from the event to its end, and it leaves no foothold
+    guarded = [k for k, e in enumerate(ticks) if e.stability_guarded]
+    assert guarded[0] == k_ev and all(ticks[k].slip.slipped[0] for k in guarded)
+    end = next(k for k in range(k_ev, len(ticks)) if ticks[k].slip.stance_end[0])
+    assert len(ticks[end].footholds) == 1  # only RR's, not FL's
+    acc = CellAccumulator(0.4)
+    for e in ticks:
+        record(e, acc)
+    layers = acc.flush()
+    assert layers["slip"]["events"].sum() == 1
+    assert layers["slip"]["n"].sum() == sum(len(e.stance_xy) for e in ticks)
+    # every unguarded tick maps a margin; at the start two footholds are known: a line, margin ≤ 0 (REFERENCE)
+    assert layers["giim"]["n"].sum() == len(ticks) - len(guarded)
+    assert ticks[0].giim == pytest.approx(0.0, abs=1e-12)
+    assert layers["elevation"]["n"].sum() == sum(len(e.footholds) for e in ticks)
+    assert layers["contacts"]["nonfoot"].sum() == 0
