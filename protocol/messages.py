@@ -111,7 +111,11 @@ class RegionQuery:
     stats: tuple[str, ...] = ("value", "n")
 
     def to_parameters(self) -> str:
-        parts = [f"x0={self.x0!r}", f"y0={self.y0!r}", f"x1={self.x1!r}", f"y1={self.y1!r}"]
+        # float() first: a numpy scalar's repr ("np.float64(1.5)") is not a number on the wire
+        parts = [
+            f"{k}={float(v)!r}"
+            for k, v in (("x0", self.x0), ("y0", self.y0), ("x1", self.x1), ("y1", self.y1))
+        ]
         if self.layers is not None:
             parts.append("layers=" + ",".join(self.layers))
         parts.append("stats=" + ",".join(self.stats))

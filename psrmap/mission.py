@@ -28,6 +28,8 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 __all__ = ["MissionConfig", "ScoutPlan", "load_config", "register", "run_mission"]
 
 SCENES = ("lunar", "ramps")
@@ -415,6 +417,7 @@ def run_mission(cfg: MissionConfig, run_dir: Path | None = None, progress: bool 
                 f"[mission] scouts done; server merged {summary['status']['merged']} deltas into {summary['status']['cells']} cells"
             )
             summary["plan"], summary["comparison"] = _plan_and_compare(ctx, cfg, endpoint, run_dir, env)
+            summary["map_png"] = _plot(session, cfg, run_dir, summary)
         finally:
             for p in procs:
                 if p.proc.is_alive():
@@ -506,6 +509,25 @@ def _plan_and_compare(
     return plan, comparison
 
 
+def _plot(session: Any, cfg: MissionConfig, run_dir: Path, summary: dict[str, Any]) -> str | None:
+    """`map.png`: the shared map's layers with the scouts' routes and the planned path."""
+    from consumer_planner.client import ClientConfig, query_region
+    from consumer_planner.errors import PlannerError
+    from psrmap.plots import plot_map
+
+    pts = np.array([p for s in cfg.scouts for p in s.route()] + [cfg.plan_from, cfg.plan_to], dtype=float)
+    (xa, ya), (xb, yb) = pts.min(axis=0) - 2.0, pts.max(axis=0) + 2.0
+    try:
+        grid = query_region(session, cfg.map, (xa, ya, xb, yb), ClientConfig(connect=()))
+    except PlannerError as exc:
+        print(f"warning: no map picture ({exc})", file=sys.stderr)
+        return None
+    plan = summary.get("plan") or {}
+    title = f"map {cfg.map!r} after {len(cfg.scouts)} scouts, {summary['status'].get('merged')} deltas"
+    out = plot_map(grid, {s.id: s.route() for s in cfg.scouts}, run_dir / "map.png", title, plan.get("path"))
+    return str(out)
+
+
 def _log_context(cfg: MissionConfig, run_dir: Path, recording_id: str) -> None:
     """The terrain mesh, friction map and default blueprint, in the mission's own recording."""
     if not cfg.rrd:
@@ -591,8 +613,10 @@ def _print_report(summary: dict[str, Any]) -> None:
         print(route_table(comparison["routes"]))
     elif "error" in comparison:
         print(f"  comparison: {comparison['error']}")
+    if summary.get("map_png"):
+        print(f"\nMap picture: {summary['map_png']}")
     if summary.get("recording"):
-        print(f"\nRecording: rerun {summary['recording']}")
+        print(f"Recording: rerun {summary['recording']}")
 
 
 # --------------------------------------------------------------------------------------------------------

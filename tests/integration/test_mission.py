@@ -55,6 +55,7 @@ def test_scouts_walked_and_published(mission: tuple[dict, Path]) -> None:
     assert st["duplicates"] >= 0 and not st["rejected"]
     assert st["cells"] > 20
     assert (run_dir / "map.db").exists() and (run_dir / "summary.json").exists()
+    assert summary["map_png"] == str(run_dir / "map.png") and (run_dir / "map.png").stat().st_size > 10_000
     on_disk = json.loads((run_dir / "summary.json").read_text())
     assert on_disk["status"]["merged"] == st["merged"]
 
