@@ -90,9 +90,7 @@ def ingest(deltas: list[CellDelta], batch: int) -> tuple[float, float, int]:
     merger = Merger(TiledMap(RES), "bench")
     times = []
     for epoch in (1, 2):
-        samples = [
-            (delta_key(d.map, d.scout), encode(dataclasses.replace(d, epoch=epoch))) for d in deltas
-        ]
+        samples = [(delta_key(d.map, d.scout), encode(dataclasses.replace(d, epoch=epoch))) for d in deltas]
         t0 = time.perf_counter()
         for i in range(0, len(samples), batch):
             r = merger.ingest(samples[i : i + batch])

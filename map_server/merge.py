@@ -199,21 +199,55 @@ class Merger:
                 if keep.any():
                     self.map.merge_columns(name, c.ix[keep], c.iy[keep], c.vals[:, keep])
 
-    def replay(self, payloads: Iterable[bytes]) -> int:
-        """Merge already-accepted payloads (from the store's log) without touching bookkeeping."""
+    def replay(
+        self,
+        payloads: Iterable[bytes | tuple[int, bytes]],
+        upto: dict[tuple[str, int, int], int] | None = None,
+    ) -> int:
+        """Merge already-accepted payloads (from the store's log) without touching bookkeeping.
+
+        Items are payloads or `(log id, payload)`; with ids, a delta's cells skip the tiles whose
+        `upto[(layer, tx, ty)]` >= its id (those tiles were stored with it already merged).
+        """
         n = 0
         chunk: list[tuple[str | None, bytes]] = []
+        ids: list[int] = []
         for p in payloads:
+            if isinstance(p, tuple):
+                ids.append(p[0])
+                p = p[1]
             chunk.append((None, p))
             if len(chunk) == 512:
-                n += self._replay_chunk(chunk)
-                chunk = []
+                n += self._replay_chunk(chunk, ids, upto)
+                chunk, ids = [], []
         if chunk:
-            n += self._replay_chunk(chunk)
+            n += self._replay_chunk(chunk, ids, upto)
         return n
 
-    def _replay_chunk(self, chunk: list[tuple[str | None, bytes]]) -> int:
+    def _replay_chunk(
+        self,
+        chunk: list[tuple[str | None, bytes]],
+        ids: list[int],
+        upto: dict[tuple[str, int, int], int] | None,
+    ) -> int:
         batch = decode_delta_batch(chunk, res=self.map.res, max_bytes=2**62, views=False)
         take = np.array([isinstance(r, CellDelta) for r in batch.results])
+        if upto and ids:
+            sh = self.map.shift
+            id_of = np.array(ids, dtype=np.int64)
+            for name, c in list(batch.columns.items()):
+                if not c.seg.size:
+                    continue
+                tkey = (c.ix.astype(np.int64) >> sh << 32) | ((c.iy.astype(np.int64) >> sh) & 0xFFFFFFFF)
+                uniq, inv = np.unique(tkey, return_inverse=True)
+                lim = np.array(
+                    [upto.get((name, k >> 32, ((k & 0xFFFFFFFF) ^ 2**31) - 2**31), 0) for k in uniq.tolist()],
+                    dtype=np.int64,
+                )
+                keep = id_of[c.seg] > lim[inv.reshape(-1)]
+                if not keep.all():
+                    batch.columns[name] = type(c)(
+                        c.layer, c.seg[keep], c.ix[keep], c.iy[keep], c.vals[:, keep]
+                    )
         self._merge_columns(batch, take)
         return int(take.sum())

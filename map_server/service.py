@@ -17,7 +17,7 @@ import zenoh
 
 from map_server.merge import Merger
 from map_server.store import MapStore
-from map_server.tiles import TiledMap
+from map_server.tiles import TiledMap, trim_heap
 from protocol.codec import DEFAULT_MAX_BYTES, encode
 from protocol.errors import ProtocolError
 from protocol.keys import (
@@ -58,6 +58,11 @@ class ServerConfig:
     snapshot_every: int = 20_000  # deltas logged before tiles are snapshotted and the log truncated
     max_bytes: int = DEFAULT_MAX_BYTES
     rrd: str | None = None  # Rerun recording path; None: no visualisation
+    # Zenoh shared memory: off, because the server would map a 16 MiB pool of every publisher that
+    # ever sent a payload above 3 KiB (a delta is ~5 KiB) and keep it resident; over loopback TCP a
+    # delta costs a copy of 5 KiB instead
+    shared_memory: bool = False
+    checkpoint_s: float = 0.5  # WAL checkpoint period of the background checkpointer
 
 
 class MapService:
@@ -67,7 +72,11 @@ class MapService:
         self.config = config
         self.map = TiledMap(config.res, config.tile)
         self.merger = Merger(self.map, config.map_id, max_bytes=config.max_bytes)
-        self.store = MapStore(config.db, config.map_id, config.res, config.tile) if config.db else None
+        self.store = (
+            MapStore(config.db, config.map_id, config.res, config.tile, auto_checkpoint=False)
+            if config.db
+            else None
+        )
         self.replayed = self.store.load(self.merger) if self.store else 0
         self.lock = threading.Lock()  # guards map + book between the worker and the query thread
         self.alive: dict[str, bool] = {}
@@ -87,7 +96,10 @@ class MapService:
 
     def start(self) -> MapService:
         c = self.config
-        self._session = zenoh.open(zenoh_config(c.connect, c.listen, c.mode))
+        conf = zenoh_config(c.connect, c.listen, c.mode)
+        if not c.shared_memory:
+            conf.insert_json5("transport/shared_memory/enabled", "false")
+        self._session = zenoh.open(conf)
         s = self._session
         self._sub = s.declare_subscriber(
             delta_pattern(c.map_id), zenoh.handlers.FifoChannel(c.channel_capacity)
@@ -102,6 +114,10 @@ class MapService:
             threading.Thread(target=self._merge_loop, name="merge-worker", daemon=True),
             threading.Thread(target=self._query_loop, name="query-worker", daemon=True),
         ]
+        if self.store is not None:
+            self._threads.append(
+                threading.Thread(target=self._checkpoint_loop, name="checkpoint", daemon=True)
+            )
         for t in self._threads:
             t.start()
         self._entities.append(s.liveliness().declare_token(alive_key(c.map_id, "server")))
@@ -150,11 +166,18 @@ class MapService:
     def _merge_loop(self) -> None:
         sub = self._sub
         c = self.config
+        store = self.store
         while not self._stopping.is_set():
-            try:
-                first = sub.recv()
-            except zenoh.ZError:
-                break
+            if store is not None and store.snapshotting:
+                first = sub.try_recv()  # snapshot slices fill the gaps between batches
+                if first is None:
+                    store.snapshot_step(self.map)
+                    continue
+            else:
+                try:
+                    first = sub.recv()
+                except zenoh.ZError:
+                    break
             batch = [first]
             while len(batch) < c.batch_max:
                 nxt = sub.try_recv()
@@ -179,18 +202,33 @@ class MapService:
             self._process(rest)
 
     def _process(self, samples: list[tuple[str, bytes]]) -> None:
+        # merge + commit under the lock: a query sees a delta only once it is durable
         with self.lock:
             res = self.merger.ingest(samples)
             if self.store is not None and (res.accepted or res.rejected or res.duplicates):
                 self.store.commit(res.accepted, self.merger.book, res.touched)
-                if self.store.since_snapshot >= self.config.snapshot_every:
-                    self.store.snapshot(self.map)
             touched = self.map.take_touched() if self._viz is not None else set()
             version = self.merger.book.version
         for ack in res.acks.values():
             self._session.put(ack_key(ack.map, ack.scout), encode(ack))
+        store = self.store
+        if store is not None:
+            # only this thread changes the map, so snapshot slices read it without the lock (queries
+            # go on); a slice of a few MiB at a time, never the whole map in one stall
+            if not store.snapshotting and store.since_snapshot >= self.config.snapshot_every:
+                store.begin_snapshot(self.map)
+            if store.snapshotting and store.snapshot_step(self.map):
+                trim_heap()
         if self._viz is not None and touched:
             self._viz.log_tiles(self.map, touched, self.lock, version)
+
+    def _checkpoint_loop(self) -> None:
+        assert self.store is not None
+        while not self._stopping.wait(self.config.checkpoint_s):
+            try:
+                self.store.checkpoint()
+            except Exception as exc:  # e.g. busy: the next period retries
+                log.debug("checkpoint: %s", exc)
 
     # ------------------------------------------------------------------ queries
 

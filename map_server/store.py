@@ -3,8 +3,15 @@ snapshots that let the log be truncated.
 
 Crash safety (`kill -9` at any instant): a batch's deltas, seq states and counters are one
 transaction, and acks go out only after it commits; so an acknowledged delta is always on disk and a
-delta is on disk at most once. On open, tiles are loaded and the log since the last snapshot is
-replayed. `synchronous=NORMAL` in WAL mode survives process death (not power loss).
+delta is on disk at most once. `synchronous=NORMAL` in WAL mode survives process death (not power loss).
+
+Log ids only grow (`meta.last_id`). Every stored tile carries `upto`: it holds exactly the deltas with
+id <= upto (it was written after the batch that ended with that id, and before the next was merged).
+On open, tiles are loaded and the log is replayed, each delta's cells only into tiles with upto < id.
+That lets a snapshot be written a few tiles at a time between batches (`begin_snapshot` /
+`snapshot_step`) instead of stalling the merge worker for the whole map: a round snapshots the tiles
+dirty at its start, and when all are written it deletes the log up to the id it started at (every
+delta up to there is then in every tile it touched).
 """
 
 from __future__ import annotations
@@ -26,18 +33,28 @@ CREATE TABLE IF NOT EXISTS deltas (id INTEGER PRIMARY KEY, scout TEXT, epoch INT
 CREATE TABLE IF NOT EXISTS seqs (scout TEXT, epoch INTEGER, hw INTEGER, above TEXT,
                                  PRIMARY KEY (scout, epoch));
 CREATE TABLE IF NOT EXISTS tiles (layer TEXT, tx INTEGER, ty INTEGER, data BLOB NOT NULL,
-                                  PRIMARY KEY (layer, tx, ty));
+                                  upto INTEGER NOT NULL DEFAULT 0, PRIMARY KEY (layer, tx, ty));
 """
+SNAPSHOT_SLICE_BYTES = 4 << 20  # tile bytes written per `snapshot_step`
 
 
 class MapStore:
     """One map's database. `path` may be ":memory:" (tests)."""
 
-    def __init__(self, path: str | Path, map_id: str, res: float, tile: int) -> None:
+    def __init__(
+        self, path: str | Path, map_id: str, res: float, tile: int, *, auto_checkpoint: bool = True
+    ) -> None:
         self.path = str(path)
         self.db = sqlite3.connect(self.path, check_same_thread=False, isolation_level=None)
         self.db.execute("PRAGMA journal_mode=WAL")
         self.db.execute("PRAGMA synchronous=NORMAL")
+        if auto_checkpoint:
+            self.db.execute("PRAGMA wal_autocheckpoint=1000")
+        else:
+            # the service checkpoints from its own thread (`checkpoint`): a commit of the merge worker
+            # then never waits for a checkpoint's copy + fsync
+            self.db.execute("PRAGMA wal_autocheckpoint=0")
+        self._ckpt: sqlite3.Connection | None = None
         self.db.executescript(_SCHEMA)
         want = {"map": map_id, "res": repr(float(res)), "tile": str(tile)}
         have = dict(
@@ -55,7 +72,14 @@ class MapStore:
             with self.db:
                 self.db.execute("BEGIN")
                 self.db.executemany("INSERT INTO meta VALUES (?, ?)", list(want.items()))
+        cols = [r[1] for r in self.db.execute("PRAGMA table_info(tiles)")]
+        if "upto" not in cols:  # a database from before per-tile watermarks: its tiles predate its log
+            self.db.execute("ALTER TABLE tiles ADD COLUMN upto INTEGER NOT NULL DEFAULT 0")
+        max_id = self.db.execute("SELECT COALESCE(MAX(id), 0) FROM deltas").fetchone()[0]
+        self.last_id = max(int(self._meta("last_id", "0")), int(max_id))
         self.since_snapshot = 0
+        self._pending: list[tuple[str, int, int]] = []  # tiles of the snapshot round under way
+        self._cut = 0  # the round deletes the log up to this id when its tiles are written
 
     def _meta(self, key: str, default: str) -> str:
         row = self.db.execute("SELECT value FROM meta WHERE key = ?", (key,)).fetchone()
@@ -64,8 +88,10 @@ class MapStore:
     def load(self, merger: Merger) -> int:
         """Fill `merger` (map + book) from disk; returns the number of log deltas replayed."""
         tiled, book = merger.map, merger.book
-        for layer, tx, ty, data in self.db.execute("SELECT layer, tx, ty, data FROM tiles"):
+        upto: dict[tuple[str, int, int], int] = {}
+        for layer, tx, ty, data, up in self.db.execute("SELECT layer, tx, ty, data, upto FROM tiles"):
             tiled.load_tile(layer, tx, ty, data)
+            upto[(layer, tx, ty)] = int(up)
         tiled.clear_dirty()
         for scout, epoch, hw, above in self.db.execute("SELECT scout, epoch, hw, above FROM seqs"):
             book.seqs[(scout, epoch)] = SeqState(hw, set(json.loads(above)))
@@ -73,8 +99,8 @@ class MapStore:
         book.merged = int(self._meta("merged", "0"))
         book.duplicates = int(self._meta("duplicates", "0"))
         book.rejected = Counter(json.loads(self._meta("rejected", "{}")))
-        cur = self.db.execute("SELECT payload FROM deltas ORDER BY id")
-        n = merger.replay(row[0] for row in cur)
+        cur = self.db.execute("SELECT id, payload FROM deltas ORDER BY id")
+        n = merger.replay(((int(i), p) for i, p in cur), upto)
         self.since_snapshot = n
         return n
 
@@ -83,9 +109,13 @@ class MapStore:
         db = self.db
         db.execute("BEGIN")
         try:
+            first = self.last_id + 1
             db.executemany(
-                "INSERT INTO deltas (scout, epoch, seq, payload) VALUES (?, ?, ?, ?)",
-                [(a.delta.scout, a.delta.epoch, a.delta.seq, a.payload) for a in accepted],
+                "INSERT INTO deltas (id, scout, epoch, seq, payload) VALUES (?, ?, ?, ?, ?)",
+                [
+                    (first + k, a.delta.scout, a.delta.epoch, a.delta.seq, a.payload)
+                    for k, a in enumerate(accepted)
+                ],
             )
             db.executemany(
                 "INSERT OR REPLACE INTO seqs VALUES (?, ?, ?, ?)",
@@ -101,36 +131,87 @@ class MapStore:
                     ("merged", str(book.merged)),
                     ("duplicates", str(book.duplicates)),
                     ("rejected", json.dumps(dict(book.rejected))),
+                    ("last_id", str(first + len(accepted) - 1)),
                 ],
             )
             db.execute("COMMIT")
         except BaseException:
             db.execute("ROLLBACK")
             raise
+        self.last_id = first + len(accepted) - 1
         self.since_snapshot += len(accepted)
 
     def snapshot(self, tiled: TiledMap) -> int:
-        """Write changed tiles and truncate the log they cover, atomically; returns tiles written."""
+        """Write every changed tile and truncate the whole log, atomically; returns tiles written."""
+        self.begin_snapshot(tiled)
+        n = len(self._pending)
+        self.snapshot_step(tiled, max_bytes=None)
+        return n
+
+    @property
+    def snapshotting(self) -> bool:
+        """A snapshot round is under way (call `snapshot_step` until it returns True)."""
+        return bool(self._pending) or self._cut > 0
+
+    def begin_snapshot(self, tiled: TiledMap) -> None:
+        """Start a round: the tiles changed so far, then the log up to the last committed delta."""
         dirty = tiled.clear_dirty()
+        self._pending = sorted(set(self._pending) | dirty)
+        self._cut = self.last_id
+
+    def snapshot_step(self, tiled: TiledMap, max_bytes: int | None = SNAPSHOT_SLICE_BYTES) -> bool:
+        """Write the next tiles of the round (about `max_bytes`; None: all) in one transaction; when
+        none are left, delete the log the round covers. Call between batches (after a commit), from the
+        thread that merges. Returns True when the round is complete."""
+        take: list[tuple[str, int, int]] = []
+        size = 0
+        for key in self._pending:
+            if max_bytes is not None and take and size >= max_bytes:
+                break
+            take.append(key)
+            size += tiled.grids[key[0]].store.itemsize * tiled.grids[key[0]].store[0].size
+        rest = self._pending[len(take) :]
+        done = not rest
         db = self.db
         db.execute("BEGIN")
         try:
             db.executemany(
-                "INSERT OR REPLACE INTO tiles VALUES (?, ?, ?, ?)",
+                "INSERT OR REPLACE INTO tiles VALUES (?, ?, ?, ?, ?)",
                 # a generator: one tile's blob at a time, never a second copy of the whole map
-                ((layer, tx, ty, tiled.tile_blob(layer, tx, ty)) for layer, tx, ty in sorted(dirty)),
+                ((layer, tx, ty, tiled.tile_blob(layer, tx, ty), self.last_id) for layer, tx, ty in take),
             )
-            db.execute("DELETE FROM deltas")
+            if done:
+                db.execute("DELETE FROM deltas WHERE id <= ?", (self._cut,))
             db.execute("COMMIT")
         except BaseException:
             db.execute("ROLLBACK")
-            tiled.dirty |= dirty
             raise
-        self.since_snapshot = 0
-        return len(dirty)
+        self._pending = rest
+        if done:
+            self.since_snapshot = self.last_id - self._cut
+            self._cut = 0
+        return done
+
+    def checkpoint(self) -> tuple[int, int]:
+        """Copy the WAL into the database without blocking the writer (PASSIVE), from any one thread.
+
+        Returns (frames in the WAL, frames checkpointed). Uses its own connection, so it runs beside
+        the merge worker's commits; when a checkpoint has caught up, the next commit restarts the WAL
+        from its beginning, so the file stays bounded.
+        """
+        if self.path == ":memory:":
+            return (0, 0)
+        if self._ckpt is None:
+            self._ckpt = sqlite3.connect(self.path, check_same_thread=False, isolation_level=None)
+            self._ckpt.execute("PRAGMA synchronous=NORMAL")
+        _, frames, done = self._ckpt.execute("PRAGMA wal_checkpoint(PASSIVE)").fetchone()
+        return int(frames), int(done)
 
     def log_size(self) -> int:
         return int(self.db.execute("SELECT COUNT(*) FROM deltas").fetchone()[0])
 
     def close(self) -> None:
+        if self._ckpt is not None:
+            self._ckpt.close()
+            self._ckpt = None
         self.db.close()

@@ -15,7 +15,7 @@ import numpy as np
 from protocol.errors import ProtocolError
 from protocol.layers import LAYERS, Layer, derived_names, empty_value, get_layer, layer_derived, merge_op
 
-__all__ = ["LayerGrid", "TiledMap"]
+__all__ = ["LayerGrid", "TiledMap", "trim_heap"]
 
 TileKey = tuple[int, int]
 
@@ -109,7 +109,7 @@ class LayerGrid:
                 flags = np.zeros(cap, dtype=bool)
                 flags[:n0] = getattr(self, name)[:n0]
                 setattr(self, name, flags)
-            _trim()
+            trim_heap()
         self.store[n0 : n0 + k] = self.empty[None, :, :]
         for j, key in enumerate(keys):
             self.slots[key] = n0 + j
@@ -125,7 +125,7 @@ class LayerGrid:
         return self.store[: len(self.keys)]
 
 
-def _trim() -> None:
+def trim_heap() -> None:
     """Give freed heap memory back to the OS after a store grew (glibc only; no-op elsewhere)."""
     global _malloc_trim
     if _malloc_trim is None:

@@ -115,3 +115,13 @@ def test_wrong_map_is_rejected():
     m = Merger(TiledMap(RES), "other-map")
     r = m.ingest([sample(make_delta())])
     assert r.rejected[0][0] == "key_mismatch" and "holds 'other-map'" in r.rejected[0][1]
+
+
+def test_a_layer_the_map_lacks_rejects_that_delta_only():
+    m = Merger(TiledMap(RES, tile=8, layers=["elevation"]), MAP)
+    ok = make_delta(seq=0, layers=("elevation",))
+    other = make_delta(seq=1, layers=("slip", "elevation"))
+    r = m.ingest([sample(ok), sample(other)])
+    assert [reason for reason, _ in r.rejected] == ["unknown_layer"]
+    assert "map has no layer 'slip'" in r.rejected[0][1]
+    assert m.book.merged == 1 and m.map.cells == 3

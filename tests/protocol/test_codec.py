@@ -5,6 +5,7 @@ import pytest
 
 from protocol import REASONS, Ack, MapRegion, ProtocolError, ScoutStatus, Status, decode, encode
 from protocol.keys import ack_key, delta_key
+from protocol.messages import CellDelta
 from protocol.testing import MAP, RES, SCOUT, broken, make_delta, raw_delta
 
 
@@ -108,3 +109,67 @@ def test_batch_decode_agrees_with_single_decode(reason):
                 for s, a in cells.items():
                     np.testing.assert_array_equal(batch.results[i].layers[name][s], a)
         assert sum(c.ix.size for c in batch.columns.values()) == 3 * 2 * 3
+
+
+def _variants():
+    """Payloads that probe each check of the batch fast path (some valid, most not)."""
+    import copy
+
+    import msgpack
+
+    base = msgpack.unpackb(encode(make_delta(seq=5, seed=5)), raw=False)
+    out = []
+
+    def v(fn):
+        d = copy.deepcopy(base)
+        fn(d)
+        out.append(msgpack.packb(d, use_bin_type=True))
+
+    v(lambda d: d.update(v=True))  # bool, not int
+    v(lambda d: d.update(t=3))  # int t: valid (single path converts)
+    v(lambda d: d.update(t=float("nan")))
+    v(lambda d: d.update(res=1))  # int res equal? no: 1 != 0.4
+    v(lambda d: d.update(epoch=True))
+    v(lambda d: d.update(seq=2**63))
+    v(lambda d: d.update(extra="ignored"))  # extra top-level field: accepted by both paths
+    v(lambda d: d["layers"].update(slip="notamap"))
+    v(lambda d: d["layers"]["slip"].update(ix="text"))  # str instead of bytes
+    v(lambda d: d["layers"]["slip"].update(n=5))  # int instead of bytes
+    v(lambda d: d["layers"]["slip"].update(events=d["layers"]["slip"]["events"][:8]))
+    v(lambda d: d["layers"]["slip"].update(iy=d["layers"]["slip"]["iy"][:4]))
+    v(lambda d: d["layers"]["slip"].pop("events"))
+    v(lambda d: d["layers"]["slip"].update(ix=b"", iy=b"", n=b"", events=b""))  # empty layer: valid
+    v(lambda d: d["layers"].clear())  # no layers: valid
+    v(lambda d: d["layers"].update({7: {}}))  # non-str layer name
+    v(lambda d: d["layers"]["elevation"].update(n=np.array([1.0, -1.0, 2.0]).tobytes()))
+    v(lambda d: d["layers"]["elevation"].update(ix=np.array([0, 0, 0], np.int32).tobytes()))  # dup
+    v(lambda d: d["layers"]["elevation"].update(ix=np.array([0, 2**30 + 1, 3], np.int32).tobytes()))
+    v(lambda d: d["layers"]["elevation"].update(sum=np.array([0.0, np.inf, 3.0]).tobytes()))
+    return out
+
+
+@pytest.mark.parametrize("key", [delta_key(MAP, SCOUT), None, "psr/m1/delta/other", "bad key"])
+def test_batch_fast_path_accepts_and_rejects_exactly_like_single_decode(key):
+    from protocol.batch import decode_delta_batch
+
+    good = [(delta_key(MAP, SCOUT), encode(make_delta(seq=i, seed=i))) for i in range(2)]
+    variants = _variants()
+    samples = [good[0], *((key, p) for p in variants), good[1]]
+    batch = decode_delta_batch(samples, res=RES)
+    n_cells = 0
+    for (k, p), got in zip(samples, batch.results, strict=True):
+        try:
+            want = decode(p, expected_type="cell_delta", key=k, res=RES)
+        except ProtocolError as exc:
+            assert isinstance(got, ProtocolError) and (got.reason, str(got)) == (exc.reason, str(exc))
+            continue
+        assert isinstance(got, CellDelta), got
+        assert (got.map, got.scout, got.epoch, got.seq, got.t, got.res) == (
+            want.map, want.scout, want.epoch, want.seq, want.t, want.res,
+        )  # fmt: skip
+        assert set(got.layers) == set(want.layers)
+        for name, cells in want.layers.items():
+            n_cells += cells["ix"].size
+            for s, a in cells.items():
+                np.testing.assert_array_equal(got.layers[name][s], a)
+    assert sum(c.ix.size for c in batch.columns.values()) == n_cells
