@@ -24,6 +24,7 @@ from protocol.layers import (
     layer_derived,
     layer_value,
     merge_op,
+    plane_fit,
 )
 from protocol.messages import VERSION, Ack, CellDelta, MapRegion, RegionQuery, ScoutStatus, Status
 from protocol.publisher import DeltaPublisher, InMemoryTransport, Transport, UnackedBufferFull
@@ -61,6 +62,7 @@ __all__ = [
     "layer_value",
     "map_key",
     "merge_op",
+    "plane_fit",
     "parse_delta_key",
     "status_key",
     "validate_id",

@@ -24,6 +24,7 @@ __all__ = [
     "cell_index",
     "derived_names",
     "elevation_slope_deg",
+    "plane_fit",
     "empty_value",
     "get_layer",
     "layer_derived",
@@ -34,7 +35,7 @@ __all__ = [
 MergeOp = Literal["add", "min", "max"]
 
 MIN_COT_DIST_M = 0.05  # cot is NaN where less distance than this was walked in the cell [m]
-MIN_PLANE_SPREAD_M = 0.02  # plane fit needs footholds spread at least this much along both axes [m]
+MIN_PLANE_SPREAD_M = 0.03  # plane fit along a direction needs footholds spread (std) at least this much [m]
 
 
 @dataclass(frozen=True)
@@ -139,31 +140,46 @@ def _ratio(num: np.ndarray, den: np.ndarray, ok: np.ndarray) -> np.ndarray:
     return out
 
 
-def _plane_fit(stats: Stats) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Least-squares plane z = h + gx x + gy y per cell -> (h, gx, gy, ok), ok = well conditioned."""
+def plane_fit(
+    stats: Stats, min_spread_m: float | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Least-squares plane z = z0 + gx·dx + gy·dy per cell from summed moments -> (z0, gx, gy, rank).
+
+    dx, dy are relative to the cell centre, so z0 is the height at the centre. The gradient is fitted only
+    along the principal directions of the footholds' xy spread whose standard deviation is at least
+    `min_spread_m` (default `MIN_PLANE_SPREAD_M`), and set to zero across the others (a truncated
+    pseudo-inverse). `rank` (0, 1, 2) says how many directions were fitted: 2 is a full plane; 1 is a cell
+    crossed by one straight foot track, whose slope is then the slope *along* the track (a lower bound of the
+    true slope); 0 leaves z0 = the mean height and no slope. NaN where n == 0.
+    """
+    spread = MIN_PLANE_SPREAD_M if min_spread_m is None else min_spread_m
     n = _f(stats, "n")
-    with np.errstate(divide="ignore", invalid="ignore"):
-        mx, my, mz = _f(stats, "sx") / n, _f(stats, "sy") / n, _f(stats, "sum") / n
-        cxx = _f(stats, "sxx") / n - mx * mx
-        cyy = _f(stats, "syy") / n - my * my
-        cxy = _f(stats, "sxy") / n - mx * my
-        cxz = _f(stats, "sxz") / n - mx * mz
-        cyz = _f(stats, "syz") / n - my * mz
-        det = cxx * cyy - cxy * cxy
-        half_tr = 0.5 * (cxx + cyy)
-        lam_min = half_tr - np.sqrt(np.maximum(half_tr * half_tr - det, 0.0))
-        ok = (n >= 3) & np.isfinite(lam_min) & (lam_min >= MIN_PLANE_SPREAD_M**2)
-        safe_det = np.where(ok, det, 1.0)
-        gx = np.where(ok, (cyy * cxz - cxy * cyz) / safe_det, np.nan)
-        gy = np.where(ok, (cxx * cyz - cxy * cxz) / safe_det, np.nan)
-        h = np.where(ok, mz - gx * mx - gy * my, np.nan)
-    return h, gx, gy, ok
+    empty = ~(n > 0)
+    nn = np.where(empty, 1.0, n)
+    mx, my, mz = _f(stats, "sx") / nn, _f(stats, "sy") / nn, _f(stats, "sum") / nn
+    cxx = _f(stats, "sxx") / nn - mx * mx
+    cyy = _f(stats, "syy") / nn - my * my
+    cxy = _f(stats, "sxy") / nn - mx * my
+    cxz = _f(stats, "sxz") / nn - mx * mz
+    cyz = _f(stats, "syz") / nn - my * mz
+    cov = np.stack([np.stack([cxx, cxy], -1), np.stack([cxy, cyy], -1)], -2)  # (..., 2, 2)
+    lam, vec = np.linalg.eigh(cov)  # ascending eigenvalues; columns of vec are the principal directions
+    proj = np.einsum("...ik,...i->...k", vec, np.stack([cxz, cyz], -1))
+    keep = (lam >= spread**2) & (n >= 3)[..., None]
+    coef = np.where(keep, proj / np.where(keep, lam, 1.0), 0.0)
+    g = np.einsum("...ik,...k->...i", vec, coef)
+    gx, gy = g[..., 0], g[..., 1]
+    z0 = mz - gx * mx - gy * my
+    nan = np.where(empty, np.nan, 0.0)
+    return z0 + nan, gx + nan, gy + nan, keep.sum(axis=-1) + nan
 
 
 def elevation_slope_deg(stats: Stats) -> np.ndarray:
-    """Terrain slope [deg] from the plane fit of elevation stats; NaN where the fit is ill conditioned."""
-    _, gx, gy, _ = _plane_fit(stats)
-    return np.degrees(np.arctan(np.hypot(gx, gy)))
+    """Terrain slope [deg] from the plane fit of elevation stats: along the footholds' spread where they span
+    one direction only (a lower bound), NaN where they span none (see `plane_fit`)."""
+    _, gx, gy, rank = plane_fit(stats)
+    with np.errstate(invalid="ignore"):
+        return np.where(rank >= 1, np.degrees(np.arctan(np.hypot(gx, gy))), np.nan)
 
 
 def _mean(stats: Stats) -> np.ndarray:
@@ -179,8 +195,7 @@ def _std(stats: Stats) -> np.ndarray:
 
 
 def _elevation(stats: Stats) -> np.ndarray:
-    h, _, _, ok = _plane_fit(stats)
-    return np.where(ok, h, _mean(stats))
+    return plane_fit(stats)[0]
 
 
 def _worst(stats: Stats) -> np.ndarray:
@@ -224,8 +239,8 @@ _DERIVED = {
 def layer_value(layer_name: str, stats: Stats) -> np.ndarray:
     """The layer's value per cell from its merged statistics (NaN where `n == 0`).
 
-    elevation: plane-fit height at the cell centre if well conditioned (>= 3 footholds spread at least
-    `MIN_PLANE_SPREAD_M` along both principal axes), else the mean height [m];
+    elevation: plane-fit height at the cell centre (`plane_fit`: along the directions the footholds span by
+    at least `MIN_PLANE_SPREAD_M`; the mean height where they span none) [m];
     slip: events / n; cot: work / dist (NaN where dist < `MIN_COT_DIST_M`); giim, giam: mean;
     contacts: nonfoot / n.
     """

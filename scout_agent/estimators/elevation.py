@@ -19,6 +19,8 @@ import math
 
 import numpy as np
 
+from protocol.layers import plane_fit
+
 __all__ = [
     "PLANE_STATS",
     "foothold_world",
@@ -76,36 +78,10 @@ def plane_moments(x: np.ndarray, y: np.ndarray, z: np.ndarray, cx: np.ndarray, c
 
 
 def plane_from_moments(stats: dict, min_spread_m: float = 0.03) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Least-squares plane z = z0 + gx·dx + gy·dy per cell from summed moments (dx, dy about the cell centre).
-
-    The slope is fitted only along the principal directions of the points' xy spread whose standard deviation
-    exceeds `min_spread_m`, and set to zero across them (a truncated pseudo-inverse): exact wherever the points
-    span the cell, and a cell with one straight foot track gets its height without an invented cross slope.
-    Returns (z_centre [m], gx, gy) arrays; NaN where n == 0.
-    """
-    n = np.asarray(stats["n"], dtype=float)
-    empty = n <= 0
-    nn = np.where(empty, 1.0, n)
-    mx = np.asarray(stats["sx"], float) / nn
-    my = np.asarray(stats["sy"], float) / nn
-    mz = np.asarray(stats["sum"], float) / nn
-    cxx = np.asarray(stats["sxx"], float) / nn - mx * mx
-    cyy = np.asarray(stats["syy"], float) / nn - my * my
-    cxy = np.asarray(stats["sxy"], float) / nn - mx * my
-    cxz = np.asarray(stats["sxz"], float) / nn - mx * mz
-    cyz = np.asarray(stats["syz"], float) / nn - my * mz
-    cov = np.stack([np.stack([cxx, cxy], -1), np.stack([cxy, cyy], -1)], -2)  # (..., 2, 2)
-    lam, vec = np.linalg.eigh(cov)  # (..., 2), (..., 2, 2) columns are eigenvectors
-    cz = np.stack([cxz, cyz], -1)  # (..., 2)
-    proj = np.einsum("...ik,...i->...k", vec, cz)  # v_k · cz
-    keep = lam > min_spread_m**2
-    coef = np.where(keep, proj / np.where(keep, lam, 1.0), 0.0)
-    g = np.einsum("...ik,...k->...i", vec, coef)
-    gx, gy = g[..., 0], g[..., 1]
-    z0 = mz - gx * mx - gy * my
-    z0 = np.where(empty, np.nan, z0)
-    gx = np.where(empty, np.nan, gx)
-    gy = np.where(empty, np.nan, gy)
+    """Plane z = z0 + gx·dx + gy·dy per cell from summed moments (dx, dy about the cell centre): the map's own
+    truncated fit (`protocol.layers.plane_fit`), so the scout, the server and the planner read one slope.
+    Returns (z_centre [m], gx, gy) arrays; NaN where n == 0."""
+    z0, gx, gy, _ = plane_fit(stats, min_spread_m)
     return z0, gx, gy
 
 

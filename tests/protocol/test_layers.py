@@ -11,6 +11,7 @@ from protocol import (
     elevation_slope_deg,
     layer_value,
     merge_op,
+    plane_fit,
 )
 from protocol.layers import MIN_COT_DIST_M, layer_derived
 
@@ -58,11 +59,25 @@ def test_elevation_plane_fit_recovers_plane_and_slope():
     assert layer_derived("elevation", "mean", st)[0] == pytest.approx(z.mean())
 
 
-def test_elevation_ill_conditioned_falls_back_to_mean():
-    x = np.array([0.1, 0.1, 0.1, 0.1])  # all footholds on one line: no plane
-    y = np.array([-0.1, 0.0, 0.1, 0.15])
+def test_elevation_one_track_fits_along_it_only():
+    # one straight foot track along y at x = 0.1 on the plane z = 1 + 0.3 x + 0.5 y
+    x = np.full(6, 0.1)
+    y = np.linspace(-0.15, 0.15, 6)
+    z = 1.0 + 0.3 * x + 0.5 * y
+    st = elevation_stats(x, y, z)
+    z0, gx, gy, rank = plane_fit(st)
+    assert rank[0] == 1 and gx[0] == pytest.approx(0.0, abs=1e-12) and gy[0] == pytest.approx(0.5)
+    # no cross slope is invented: the centre height is the track's height carried across at zero slope
+    assert layer_value("elevation", st)[0] == pytest.approx(z.mean())
+    assert elevation_slope_deg(st)[0] == pytest.approx(np.degrees(np.arctan(0.5)))
+
+
+def test_elevation_clustered_footholds_fall_back_to_mean():
+    x = np.array([0.1, 0.1, 0.11, 0.1])  # footholds within a centimetre: no direction is spanned
+    y = np.array([0.0, 0.01, 0.0, 0.005])
     z = np.array([1.0, 1.1, 1.2, 1.3])
     st = elevation_stats(x, y, z)
+    assert plane_fit(st)[3][0] == 0
     assert layer_value("elevation", st)[0] == pytest.approx(z.mean())
     assert np.isnan(elevation_slope_deg(st)[0])
 
