@@ -112,11 +112,18 @@ class Merger:
     def ingest(self, samples: Iterable[tuple[str, bytes]]) -> IngestResult:
         """Validate, deduplicate and merge a batch; returns what happened (acks for every scout touched)."""
         samples = list(samples)
+        return self.apply(samples, self.decode(samples))
+
+    def decode(self, samples: list[tuple[str, bytes]]) -> DeltaBatch:
+        """The stateless half of `ingest` (decode + validate): needs no lock on the map."""
+        return decode_delta_batch(samples, res=self.map.res, max_bytes=self.max_bytes, views=False)
+
+    def apply(self, samples: list[tuple[str, bytes]], batch: DeltaBatch) -> IngestResult:
+        """The half of `ingest` that reads and changes state: dedupe, book-keep, merge `decode(samples)`."""
         res = IngestResult()
         book = self.book
         seqs = book.seqs
         map_id = self.map_id
-        batch = decode_delta_batch(samples, res=self.map.res, max_bytes=self.max_bytes, views=False)
         unknown = {name for name in batch.columns if name not in self.map.grids}
         no_layer = self._without_layer(batch, unknown) if unknown else {}
         take = [False] * len(samples)

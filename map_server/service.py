@@ -202,9 +202,10 @@ class MapService:
             self._process(rest)
 
     def _process(self, samples: list[tuple[str, bytes]]) -> None:
+        batch = self.merger.decode(samples)  # validation needs no lock: queries go on meanwhile
         # merge + commit under the lock: a query sees a delta only once it is durable
         with self.lock:
-            res = self.merger.ingest(samples)
+            res = self.merger.apply(samples, batch)
             if self.store is not None and (res.accepted or res.rejected or res.duplicates):
                 self.store.commit(res.accepted, self.merger.book, res.touched)
             touched = self.map.take_touched() if self._viz is not None else set()

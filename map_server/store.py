@@ -35,7 +35,8 @@ CREATE TABLE IF NOT EXISTS seqs (scout TEXT, epoch INTEGER, hw INTEGER, above TE
 CREATE TABLE IF NOT EXISTS tiles (layer TEXT, tx INTEGER, ty INTEGER, data BLOB NOT NULL,
                                   upto INTEGER NOT NULL DEFAULT 0, PRIMARY KEY (layer, tx, ty));
 """
-SNAPSHOT_SLICE_BYTES = 4 << 20  # tile bytes written per `snapshot_step`
+SNAPSHOT_SLICE_BYTES = 2 << 20  # tile bytes written per `snapshot_step`
+DELETE_SLICE = 1000  # log rows deleted per `snapshot_step` (a delta's blob spans overflow pages)
 
 
 class MapStore:
@@ -160,19 +161,33 @@ class MapStore:
         self._cut = self.last_id
 
     def snapshot_step(self, tiled: TiledMap, max_bytes: int | None = SNAPSHOT_SLICE_BYTES) -> bool:
-        """Write the next tiles of the round (about `max_bytes`; None: all) in one transaction; when
-        none are left, delete the log the round covers. Call between batches (after a commit), from the
-        thread that merges. Returns True when the round is complete."""
+        """Write the next tiles of the round (about `max_bytes`; None: all) in one transaction; once
+        they are all written, delete the log the round covers (DELETE_SLICE rows a step). Call between
+        batches (after a commit), from the thread that merges. Returns True when the round is complete."""
+        db = self.db
+        if not self._pending:  # tiles done: every delta up to the cut is in every tile it touched
+            lo = db.execute("SELECT MIN(id) FROM deltas").fetchone()[0]
+            if lo is not None and lo <= self._cut:
+                hi = self._cut if max_bytes is None else min(self._cut, lo - 1 + DELETE_SLICE)
+                db.execute("BEGIN")
+                try:
+                    db.execute("DELETE FROM deltas WHERE id <= ?", (hi,))
+                    db.execute("COMMIT")
+                except BaseException:
+                    db.execute("ROLLBACK")
+                    raise
+                if hi < self._cut:
+                    return False
+            self.since_snapshot = self.last_id - self._cut
+            self._cut = 0
+            return True
         take: list[tuple[str, int, int]] = []
         size = 0
         for key in self._pending:
             if max_bytes is not None and take and size >= max_bytes:
                 break
             take.append(key)
-            size += tiled.grids[key[0]].store.itemsize * tiled.grids[key[0]].store[0].size
-        rest = self._pending[len(take) :]
-        done = not rest
-        db = self.db
+            size += tiled.grids[key[0]].store[0].nbytes
         db.execute("BEGIN")
         try:
             db.executemany(
@@ -180,17 +195,14 @@ class MapStore:
                 # a generator: one tile's blob at a time, never a second copy of the whole map
                 ((layer, tx, ty, tiled.tile_blob(layer, tx, ty), self.last_id) for layer, tx, ty in take),
             )
-            if done:
-                db.execute("DELETE FROM deltas WHERE id <= ?", (self._cut,))
             db.execute("COMMIT")
         except BaseException:
             db.execute("ROLLBACK")
             raise
-        self._pending = rest
-        if done:
-            self.since_snapshot = self.last_id - self._cut
-            self._cut = 0
-        return done
+        self._pending = self._pending[len(take) :]
+        if not self._pending and max_bytes is None:
+            return self.snapshot_step(tiled, None)
+        return False
 
     def checkpoint(self) -> tuple[int, int]:
         """Copy the WAL into the database without blocking the writer (PASSIVE), from any one thread.

@@ -7,6 +7,7 @@ one `ufunc.at` per tile and merge operation, never a Python loop per cell.
 
 from __future__ import annotations
 
+import mmap
 from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
@@ -20,7 +21,21 @@ __all__ = ["LayerGrid", "TiledMap", "trim_heap"]
 TileKey = tuple[int, int]
 
 _DIR_LIMIT = 1 << 22  # entries of the dense tile directory (int32) before falling back to a dict lookup
-_GROW_MIN = 16  # tiles added at least when a store grows
+_GROW_MIN = 16  # tiles added at least when the occupancy array grows
+RESERVE_TILES = 4096  # tiles of address space a layer's store reserves at first (pages come on use)
+
+
+def _reserve(shape: tuple[int, ...]) -> np.ndarray | None:
+    """float64 array of `shape` over reserved address space: anonymous memory mapped without reserving
+    swap, so a page becomes resident only when first written. The store never has to be copied to
+    grow (no stall, no transient double) until the reservation is used up. None if refused."""
+    size = int(np.prod(shape)) * 8
+    try:
+        flags = mmap.MAP_PRIVATE | mmap.MAP_ANONYMOUS | getattr(mmap, "MAP_NORESERVE", 0)
+        buf = mmap.mmap(-1, size, flags=flags, prot=mmap.PROT_READ | mmap.PROT_WRITE)
+    except (OSError, ValueError, AttributeError):
+        return None
+    return np.frombuffer(buf, dtype=np.float64).reshape(shape)
 
 
 def _unkey(k: int) -> TileKey:
@@ -101,15 +116,20 @@ class LayerGrid:
         """New tiles (identity values) for `keys`, whose map-wide numbers are `gids`."""
         n0, k = len(self.keys), len(keys)
         if n0 + k > self.store.shape[0]:
-            cap = max(n0 + k, 2 * self.store.shape[0], _GROW_MIN)
-            store = np.empty((cap, *self.store.shape[1:]))
-            store[:n0] = self.store[:n0]
+            cap = max(n0 + k, 4 * self.store.shape[0], RESERVE_TILES)
+            store = _reserve((cap, *self.store.shape[1:]))
+            if store is None:  # no overcommit: grow geometrically with ordinary memory
+                cap = max(n0 + k, 2 * self.store.shape[0], _GROW_MIN)
+                store = np.empty((cap, *self.store.shape[1:]))
+            if n0:  # only when the reservation is exhausted (or could not be made)
+                store[:n0] = self.store[:n0]
             self.store = store
             for name in ("dirty", "touched"):
                 flags = np.zeros(cap, dtype=bool)
                 flags[:n0] = getattr(self, name)[:n0]
                 setattr(self, name, flags)
-            trim_heap()
+            if n0:
+                trim_heap()
         self.store[n0 : n0 + k] = self.empty[None, :, :]
         for j, key in enumerate(keys):
             self.slots[key] = n0 + j
