@@ -81,11 +81,18 @@ def ramp_slippery_patch(terrain: Terrain, mu: float) -> Patch:
 
 
 def lunar_slippery_patches(terrain: Terrain, n: int, seed: int = 0, size_m: float = 1.6,
-                           mu_range: tuple[float, float] = (0.2, 0.35)) -> tuple[Patch, ...]:
-    """`n` seeded patches, preferably where a lunar route descends 10–20°, else anywhere on a route."""
+                           mu_range: tuple[float, float] = (0.2, 0.35), margin: float = 0.02) -> tuple[Patch, ...]:
+    """`n` seeded patches spread over the lunar routes in turn, preferably where the route descends 10–20°
+    (else anywhere on it). Each patch stays walkable: its μ is drawn from `mu_range` but at least
+    tan(steepest slope inside the patch) + `margin` (below that the robot slides away); places where
+    that exceeds the range's top are skipped."""
     rng = np.random.default_rng(seed + 1000)
-    cands, fallback = [], []
+    h = size_m / 2
+    grid = np.linspace(-h, h, 17)
+    gx_, gy_ = np.meshgrid(grid, grid)
+    pools = []
     for route in LUNAR_ROUTES.values():
+        cands, fallback = [], []
         pts = np.asarray(route, dtype=float)
         for a, b in zip(pts[:-1], pts[1:], strict=True):
             length = float(np.hypot(*(b - a)))
@@ -95,16 +102,28 @@ def lunar_slippery_patches(terrain: Terrain, n: int, seed: int = 0, size_m: floa
                 gx, gy = terrain.gradient(x, y)
                 descent = -np.degrees(np.arctan(gx * u[0] + gy * u[1]))
                 (cands if 10.0 <= descent <= 20.0 else fallback).append((x, y))
+        pools.append([cands[k] for k in rng.permutation(len(cands))]
+                     + [fallback[k] for k in rng.permutation(len(fallback))])
     patches: list[Patch] = []
-    for pool in (cands, fallback):
-        order = rng.permutation(len(pool))
-        for k in order:
+    cursor = [0] * len(pools)
+    stuck = 0
+    while len(patches) < n and stuck < len(pools):
+        stuck = 0
+        for r, pool in enumerate(pools):
             if len(patches) >= n:
                 break
-            x, y = pool[k]
-            if any(abs(x - (p.x0 + p.x1) / 2) < size_m * 1.5 and abs(y - (p.y0 + p.y1) / 2) < size_m * 1.5
-                   for p in patches):
-                continue
-            h = size_m / 2
-            patches.append(Patch(x - h, y - h, x + h, y + h, float(rng.uniform(*mu_range))))
+            placed = False
+            while cursor[r] < len(pool) and not placed:
+                x, y = pool[cursor[r]]
+                cursor[r] += 1
+                if any(abs(x - (p.x0 + p.x1) / 2) < size_m * 1.5 and abs(y - (p.y0 + p.y1) / 2) < size_m * 1.5
+                       for p in patches):
+                    continue
+                steep = float(np.max(terrain.slope_deg(x + gx_, y + gy_)))
+                mu_min = max(mu_range[0], np.tan(np.radians(steep)) + margin)
+                if mu_min > mu_range[1]:
+                    continue
+                patches.append(Patch(x - h, y - h, x + h, y + h, float(rng.uniform(mu_min, mu_range[1]))))
+                placed = True
+            stuck += not placed
     return tuple(patches)

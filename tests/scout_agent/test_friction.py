@@ -8,7 +8,7 @@ import pytest
 from scout_agent.robot.constants import FOOT_GEOMS
 from scout_agent.sim.friction import FrictionMap, Patch, lunar_slippery_patches, ramp_slippery_patch
 from scout_agent.sim.simulator import ScoutSim
-from scout_agent.sim.terrain import LunarConfig, RampConfig, make_lunar, make_ramps
+from scout_agent.sim.terrain import LUNAR_ROUTES, LunarConfig, RampConfig, _polyline_distance, make_lunar, make_ramps
 
 
 def test_default_and_patches_later_override():
@@ -33,13 +33,18 @@ def test_ramp_patch_covers_the_middle_of_the_down_ramp():
     assert (p.x0 + p.x1) / 2 == pytest.approx((a + b) / 2)
 
 
-def test_lunar_patches_are_seeded_slippery_and_on_descents():
+def test_lunar_patches_are_seeded_slippery_walkable_and_on_routes():
     t = make_lunar(LunarConfig(seed=1))
-    ps = lunar_slippery_patches(t, 4, seed=1)
-    assert len(ps) == 4 and ps == lunar_slippery_patches(t, 4, seed=1)
+    ps = lunar_slippery_patches(t, 6, seed=1)
+    assert len(ps) == 6 and ps == lunar_slippery_patches(t, 6, seed=1)
     assert all(0.2 <= p.mu <= 0.35 for p in ps)
-    slopes = [float(t.slope_deg((p.x0 + p.x1) / 2, (p.y0 + p.y1) / 2)) for p in ps]
-    assert np.median(slopes) > 5.0
+    for p in ps:  # never below what the steepest ground inside needs
+        xs, ys = np.meshgrid(np.linspace(p.x0, p.x1, 17), np.linspace(p.y0, p.y1, 17))
+        assert p.mu >= np.tan(np.radians(t.slope_deg(xs, ys).max()))
+    for route in LUNAR_ROUTES.values():  # every route gets patches
+        centres = np.array([((p.x0 + p.x1) / 2, (p.y0 + p.y1) / 2) for p in ps])
+        d = min(_polyline_distance(centres[:, 0], centres[:, 1], route))
+        assert d < 0.01
 
 
 def test_feet_take_friction_from_the_map():
