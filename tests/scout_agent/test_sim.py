@@ -96,3 +96,16 @@ def test_a_base_estimator_can_fill_the_base_state():
     s, g = sim.step(0.0, 0.0)
     np.testing.assert_array_equal(s.base.vel, 0.0)
     assert np.any(g.base.vel != 0.0)
+
+
+def test_walking_into_a_hazard_crater_is_a_reported_fall():
+    from scout_agent.run import ScoutRunConfig, run_scout
+    from scout_agent.sim.terrain import LunarConfig, make_lunar
+
+    crater = max((c for c in make_lunar(LunarConfig(seed=0)).info["craters"] if c["hazard"]), key=lambda c: c["depth"])
+    assert crater["depth"] > 0.6
+    x, y = crater["x"], crater["y"]
+    s = run_scout(ScoutRunConfig(scene="lunar", seed=0, start=(x - 2.0, y, 0.0), goal=(x + 2.5, y), sim_seconds=25),
+                  progress=False)
+    assert s["fell"] and not s["reached_goal"]
+    assert np.hypot(s["fall_xy"][0] - x, s["fall_xy"][1] - y) < crater["r"] + 0.5
