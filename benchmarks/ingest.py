@@ -29,23 +29,29 @@ import psutil
 ROOT = Path(__file__).resolve().parents[1]
 MAP, RES = "bench", 0.4
 LAYERS5 = ("elevation", "slip", "cot", "giim", "giam")
-STRIP = (
-    320  # each publisher walks rows of this many cells (a multiple of the 20-cell delta and the 64-cell tile)
-)
+POLL_S = 0.005  # the latency probe queries at least this often while it waits
+LANE_LEN = 320  # cells a scout walks along x before turning into the next lane (128 m at 0.4 m)
+LANE_W = 4  # cells across a lane: the footprint of a legged scout (feet + CoM), 1.6 m at 0.4 m
+STEP = 5  # cells advanced along the lane per delta: a delta covers STEP x LANE_W = 20 cells
 
 
 def layers_for(pid: int, k: int, rng: np.random.Generator) -> dict:
+    """Delta k of scout `pid`: the scout sweeps its own area in boustrophedon lanes (walk LANE_LEN cells
+    along x, step LANE_W cells along y, walk back), the coverage pattern of a mapping fleet; each delta
+    is the STEP x LANE_W patch of cells walked since the previous one. Scouts' areas are 4096 rows apart."""
     from protocol.layers import LAYERS
 
-    start = 20 * k
-    row, col = divmod(start, STRIP)
-    ix = (np.arange(20) + col).astype(np.int32)
-    iy = np.full(20, row + pid * 1024, dtype=np.int32)  # tile-aligned areas, one per publisher
+    per_lane = LANE_LEN // STEP
+    lane, pos = divmod(k, per_lane)
+    x0 = pos * STEP if lane % 2 == 0 else LANE_LEN - STEP - pos * STEP
+    y0 = lane * LANE_W + pid * 4096
+    ix = (x0 + np.tile(np.arange(STEP), LANE_W)).astype(np.int32)
+    iy = (y0 + np.repeat(np.arange(LANE_W), STEP)).astype(np.int32)
     out = {}
     for name in LAYERS5:
         cells = {"ix": ix, "iy": iy}
         for s in LAYERS[name].stats:
-            cells[s] = rng.uniform(0.5, 2.0, 20)
+            cells[s] = rng.uniform(0.5, 2.0, ix.size)
         out[name] = cells
     return out
 
@@ -117,7 +123,7 @@ def main() -> None:
 
     from map_server.service import free_endpoint, wait_for_server
     from protocol import decode, encode, zenoh_config
-    from protocol.keys import delta_key, map_key, status_key
+    from protocol.keys import ack_key, delta_key, map_key, status_key
     from protocol.messages import CellDelta, RegionQuery
     from protocol.testing import layer_cells
 
@@ -185,7 +191,19 @@ def main() -> None:
             lat: list[float] = []
             stop = threading.Event()
 
+            acked = {"seq": -1}
+            ack_event = threading.Event()
+
+            def on_ack(sample: zenoh.Sample) -> None:
+                acked["seq"] = decode(sample.payload.to_bytes()).seq
+                ack_event.set()
+
+            ack_sub = s.declare_subscriber(ack_key(MAP, "probe"), on_ack)
+
             def probe() -> None:
+                """put a 1-cell delta, then query until its cell is visible; a query is sent when the
+                server's ack arrives (acks follow the commit that makes a delta visible) and at
+                least every POLL_S otherwise: the probe measures, it does not flood the server."""
                 rng = np.random.default_rng(9)
                 k = 0
                 while not stop.is_set() and k < args.probes:
@@ -201,9 +219,13 @@ def main() -> None:
                         ("n",),
                     )
                     sel = f"{map_key(MAP)}?{rq.to_parameters()}"
+                    ack_event.clear()
                     t = time.perf_counter()
                     s.put(delta_key(MAP, "probe"), payload)
                     while time.perf_counter() - t < 5:
+                        if acked["seq"] < k:
+                            ack_event.wait(POLL_S)
+                            ack_event.clear()
                         r = list(s.get(sel, timeout=5))
                         if r and r[0].ok is not None:
                             reg = decode(r[0].ok.payload.to_bytes())
@@ -217,9 +239,12 @@ def main() -> None:
             m0, t0 = status().merged, time.perf_counter()
             th.start()
             rss_mid, cells_mid = proc.memory_info().rss, status().cells
-            sent2 = run_load(args.publishers, ep, args.rate, args.seconds, 1024 * 1000)
+            sent2 = run_load(
+                args.publishers, ep, args.rate, args.seconds, 512 * (LANE_LEN // STEP)
+            )  # lanes 512+
             stop.set()
             th.join()
+            ack_sub.undeclare()
             dt = time.perf_counter() - t0
             m1 = status().merged
             ms = np.array(lat) * 1e3

@@ -10,6 +10,7 @@ from __future__ import annotations
 import logging
 import queue
 import threading
+import time
 from dataclasses import dataclass
 from typing import Any
 
@@ -39,6 +40,7 @@ __all__ = ["MapService", "ServerConfig"]
 log = logging.getLogger(__name__)
 
 _WAKE = "--wake--"  # scout id of the self-addressed sample that wakes the worker at shutdown
+FORCED_STEP_S = 0.1  # a snapshot round writes a slice at least this often, even with no idle gap
 MAX_QUERY_CELLS = 4_000_000  # a region query may cover at most this many cells
 
 
@@ -87,6 +89,7 @@ class MapService:
         self._entities: list[Any] = []
         self._threads: list[threading.Thread] = []
         self._viz: Any = None
+        self._last_step = 0.0  # monotonic time of the last snapshot slice
         if config.rrd:
             from map_server.viz import MapViz
 
@@ -171,7 +174,7 @@ class MapService:
             if store is not None and store.snapshotting:
                 first = sub.try_recv()  # snapshot slices fill the gaps between batches
                 if first is None:
-                    store.snapshot_step(self.map)
+                    self._snapshot_step()
                     continue
             else:
                 try:
@@ -218,10 +221,23 @@ class MapService:
             # go on); a slice of a few MiB at a time, never the whole map in one stall
             if not store.snapshotting and store.since_snapshot >= self.config.snapshot_every:
                 store.begin_snapshot(self.map)
-            if store.snapshotting and store.snapshot_step(self.map):
-                trim_heap()
+                self._last_step = time.monotonic()
+            elif (
+                store.snapshotting
+                and store.since_snapshot >= 2 * self.config.snapshot_every
+                and time.monotonic() - self._last_step > FORCED_STEP_S
+            ):
+                # slices normally fill idle gaps between batches; a server busy without gaps long
+                # enough for its log to double still progresses at one slice per FORCED_STEP_S
+                self._snapshot_step()
         if self._viz is not None and touched:
             self._viz.log_tiles(self.map, touched, self.lock, version)
+
+    def _snapshot_step(self) -> None:
+        assert self.store is not None
+        self._last_step = time.monotonic()
+        if self.store.snapshot_step(self.map):
+            trim_heap()  # the round's blobs went through the heap
 
     def _checkpoint_loop(self) -> None:
         assert self.store is not None

@@ -35,8 +35,9 @@ CREATE TABLE IF NOT EXISTS seqs (scout TEXT, epoch INTEGER, hw INTEGER, above TE
 CREATE TABLE IF NOT EXISTS tiles (layer TEXT, tx INTEGER, ty INTEGER, data BLOB NOT NULL,
                                   upto INTEGER NOT NULL DEFAULT 0, PRIMARY KEY (layer, tx, ty));
 """
-SNAPSHOT_SLICE_BYTES = 2 << 20  # tile bytes written per `snapshot_step`
-DELETE_SLICE = 1000  # log rows deleted per `snapshot_step` (a delta's blob spans overflow pages)
+SNAPSHOT_SLICE_BYTES = 512 << 10  # tile bytes written per `snapshot_step`
+PAGE_SIZE = 16384
+DELETE_SLICE = 250  # log rows deleted per `snapshot_step` (a delta's blob spans overflow pages)
 
 
 class MapStore:
@@ -47,6 +48,9 @@ class MapStore:
     ) -> None:
         self.path = str(path)
         self.db = sqlite3.connect(self.path, check_same_thread=False, isolation_level=None)
+        # a new database only (ignored once it exists): a delta's payload (~5 KiB) fits in one page,
+        # so deleting the log needs no walk of overflow chains, and a tile spans 4x fewer pages
+        self.db.execute(f"PRAGMA page_size={PAGE_SIZE}")
         self.db.execute("PRAGMA journal_mode=WAL")
         self.db.execute("PRAGMA synchronous=NORMAL")
         if auto_checkpoint:
