@@ -10,9 +10,11 @@ frame) has a component along the contact normal above `contact_threshold_n`, as 
 
 Base state for the scout (`ProprioSample.base`): the simulator's truth degraded by noise — base velocity
 + white noise (σ = 0.03 m/s per axis) + a bias drawn once per run (norm 0.02 m/s, random direction); pose
-and angular velocity exact (`NoiseConfig`). `GroundTruth.base` is always exact. The controller is fed the
-exact state (a real robot's state estimator would be good enough for balance; the estimators are what
-the noise is for).
+and angular velocity exact (`NoiseConfig`). `GroundTruth.base` is always exact. The controller balances on
+the exact state (a real robot's state estimator would be good enough for balance; the estimators are what
+the noise is for), but the desired foot velocities it publishes (`foot_vel_des_base`) are recomputed with the
+sample's base velocity, so no exact state leaks into `ProprioSample` (with exact ẋ_des the slip detector
+would be circular).
 """
 
 from __future__ import annotations
@@ -226,6 +228,11 @@ class ScoutSim:
             stance_planned=out.stance_planned, phase=out.phase)
         if self.base_estimator is not None:
             sample = dataclasses.replace(sample, base=self.base_estimator(sample))
+        # The controller balances on the exact state, but the desired foot velocities it publishes must be
+        # those a controller using the robot's own base estimate would command: every desired foot velocity
+        # relative to the base contains −R^T·v_base, so swap the exact v_base for the sample's.
+        vel_err_b = (sample.base.vel - vel) @ R
+        sample = dataclasses.replace(sample, foot_vel_des_base=out.foot_vel_des_base - vel_err_b)
         truth = GroundTruth(
             t=self.t, base=truth_base, foot_pos_world=feet_w,
             contact_point_world=np.where(contact[:, None], points, np.nan), stance_disp=disp,

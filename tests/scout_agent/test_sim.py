@@ -109,3 +109,14 @@ def test_walking_into_a_hazard_crater_is_a_reported_fall():
                   progress=False)
     assert s["fell"] and not s["reached_goal"]
     assert np.hypot(s["fall_xy"][0] - x, s["fall_xy"][1] - y) < crater["r"] + 0.5
+
+
+def test_desired_foot_velocities_use_the_noisy_base_not_the_truth():
+    sim = ScoutSim(make_ramps(RampConfig(slope_deg=0.0)))
+    for _ in range(80):
+        s, g = sim.step(0.2, 0.0)
+    R = sim.robot_state().R
+    out = sim.last_output
+    expected = np.broadcast_to(-((s.base.vel - g.base.vel) @ R), (4, 3))
+    np.testing.assert_allclose(s.foot_vel_des_base - out.foot_vel_des_base, expected, atol=1e-12)
+    assert np.abs(s.base.vel - g.base.vel).max() > 1e-3
