@@ -173,3 +173,57 @@ def test_batch_fast_path_accepts_and_rejects_exactly_like_single_decode(key):
             for s, a in cells.items():
                 np.testing.assert_array_equal(got.layers[name][s], a)
     assert sum(c.ix.size for c in batch.columns.values()) == n_cells
+
+
+def test_template_path_agrees_with_single_decode_byte_for_byte():
+    """Once a payload layout is learnt, deltas of that layout skip msgpack; any byte outside the arrays
+    that differs, or a header not in canonical form, sends the delta back to the single path."""
+    import msgpack
+
+    from protocol import batch as B
+
+    key = delta_key(MAP, SCOUT)
+    good = encode(make_delta(seq=0, seed=0))
+    B.decode_delta_batch([(key, good)], res=RES)  # learns the layout
+    j = good.find(b"\xa6layers")
+    assert len(good) - j - 10 in B._TEMPLATES
+
+    def swap(old: bytes, new: bytes) -> bytes:
+        assert len(old) == len(new) and good.count(old) >= 1
+        return good.replace(old, new, 1)
+
+    d = msgpack.unpackb(good, raw=False)
+    nan_first = good.replace(d["layers"]["slip"]["events"], np.array([np.nan, 1, 2]).tobytes(), 1)
+    dup = good.replace(
+        d["layers"]["slip"]["ix"] + b"\xa2iy" + b"\xc4\x0c" + d["layers"]["slip"]["iy"],
+        np.zeros(3, np.int32).tobytes() + b"\xa2iy" + b"\xc4\x0c" + np.zeros(3, np.int32).tobytes(),
+        1,
+    )
+    variants = [
+        encode(make_delta(seq=1, seed=1)),  # same layout, other numbers: template path
+        encode(make_delta(seq=2**40, seed=2)),  # wider seq: other header length, same layers
+        swap(b"\xa6events", b"\xa6evenTs"),  # stat key renamed, same length
+        swap(b"\xa4slip", b"\xa4slop"),  # layer renamed
+        good[:-1] + b"\x02",  # v = 2
+        good.replace(b"\xa3seq\x00", b"\xa3seq\xc0", 1),  # seq = nil (header not canonical ints)
+        good.replace(b"\xa1t\xcb", b"\xa1u\xcb", 1),  # header field renamed
+        nan_first,
+        dup,
+        good.replace(b"\xa3seq\x00", b"\xa3seq\xcc", 1)[: len(good)],  # breaks the framing
+    ]
+    samples = [(key, good), *((key, p) for p in variants)]
+    batch = B.decode_delta_batch(samples, res=RES)
+    for (k, p), got in zip(samples, batch.results, strict=True):
+        try:
+            want = decode(p, expected_type="cell_delta", key=k, res=RES)
+        except ProtocolError as exc:
+            assert isinstance(got, ProtocolError), (p, got)
+            assert (got.reason, str(got)) == (exc.reason, str(exc))
+            continue
+        assert isinstance(got, CellDelta), got
+        assert (got.seq, got.epoch, got.t) == (want.seq, want.epoch, want.t)
+        for name, cells in want.layers.items():
+            for s, a in cells.items():
+                np.testing.assert_array_equal(got.layers[name][s], a)
+    kinds = [type(r).__name__ for r in batch.results]
+    assert kinds[:3] == ["CellDelta"] * 3 and kinds.count("ProtocolError") >= 6
