@@ -1,8 +1,9 @@
 """The map core: a tiled, multi-layer grid of sufficient statistics in pure numpy (no transport).
 
-Each layer keeps a dict of tiles `(tx, ty) -> float64 (S, T*T)` (S = the layer's stats, T = tile
-side in cells), created where data lands, so memory follows the visited area. Merging is vectorised:
-one `ufunc.at` per tile and merge operation, never a Python loop per cell.
+Each layer keeps its tiles `(tx, ty) -> float64 (S, T*T)` (S = the layer's stats, T = tile side in
+cells) in one store, created where data lands, so memory follows the visited area. Merging is
+vectorised: one `ufunc.at` per merge operation over a whole batch (linear indices into the store),
+never a Python loop per cell or per tile.
 """
 
 from __future__ import annotations
@@ -62,7 +63,7 @@ class _TileView(Mapping[TileKey, np.ndarray]):
         self._g = grid
 
     def __getitem__(self, key: TileKey) -> np.ndarray:
-        return self._g.store[self._g.slots[key]]
+        return self._g.store[self._g.slots[key]].T  # (S, T*T) view of the (T*T, S) block
 
     def __iter__(self):  # type: ignore[no-untyped-def]
         return iter(self._g.keys)
@@ -75,10 +76,11 @@ class _TileView(Mapping[TileKey, np.ndarray]):
 
 
 class LayerGrid:
-    """One layer's tiles, kept in one store `(capacity, S, T*T)` so a batch merges with one `ufunc.at`
+    """One layer's tiles, kept in one store `(capacity, T*T, S)` so a batch merges with one `ufunc.at`
     per merge operation over linear indices. `slots[(tx, ty)]` is a tile's row in the store; `tiles`
-    is a `(tx, ty) -> (S, T*T)` mapping of views. Capacity grows geometrically with `np.empty`: pages
-    of slots never used are never touched, so resident memory follows the tiles in use.
+    is a `(tx, ty) -> (S, T*T)` mapping of (transposed) views. A cell's stats are adjacent, so a merge
+    touches one or two cache lines per cell. The store sits in reserved address space (`_reserve`):
+    pages of slots never used are never touched, so resident memory follows the tiles in use.
     """
 
     def __init__(self, layer: Layer, cells: int = 64 * 64) -> None:
@@ -99,7 +101,7 @@ class LayerGrid:
         self.cells = cells
         self.slots: dict[TileKey, int] = {}
         self.keys: list[TileKey] = []
-        self.store = np.empty((0, len(layer.stats), cells))
+        self.store = np.empty((0, cells, len(layer.stats)))
         self.of_global = np.full(0, -1, dtype=np.int64)  # map-wide tile number -> slot (-1: none)
         self.dirty = np.zeros(0, dtype=bool)  # per slot: changed since the last snapshot
         self.touched = np.zeros(0, dtype=bool)  # per slot: changed since `take_touched`
@@ -130,7 +132,7 @@ class LayerGrid:
                 setattr(self, name, flags)
             if n0:
                 trim_heap()
-        self.store[n0 : n0 + k] = self.empty[None, :, :]
+        self.store[n0 : n0 + k] = self.empty.T[None, :, :]
         for j, key in enumerate(keys):
             self.slots[key] = n0 + j
         self.keys.extend(keys)
@@ -354,17 +356,17 @@ class TiledMap:
                 grid.add_tiles([k for k, _ in keys_gids], [v for _, v in keys_gids])
             slot = grid.of_global[g]
         S = len(grid.layer.stats)
-        lin = slot * (S * cells) + local  # index of stat row 0 of each cell in the flat store
+        lin = (slot * cells + local) * S  # index of a cell's first stat in the flat store
         flat = grid.store.reshape(-1)
-        vals = np.ascontiguousarray(vals, dtype=np.float64)
+        vals = np.asarray(vals, dtype=np.float64)
         for ufunc, ranges in grid.ops:
             for a, b in ranges:
                 if b - a == 1:
-                    ufunc.at(flat, lin + a * cells if a else lin, vals[a])
-                else:
-                    idx = (lin[None, :] + (np.arange(a, b, dtype=np.int64) * cells)[:, None]).reshape(-1)
-                    ufunc.at(flat, idx, vals[a:b].reshape(-1))
-        has = flat[lin + grid.n_row * cells] > 0
+                    ufunc.at(flat, lin + a if a else lin, vals[a])
+                else:  # cell-major: a cell's stats are adjacent in memory
+                    idx = (lin[:, None] + np.arange(a, b, dtype=np.int64)[None, :]).reshape(-1)
+                    ufunc.at(flat, idx, vals[a:b].T.reshape(-1))
+        has = flat[lin + grid.n_row] > 0
         self.occ.reshape(-1)[(g * cells + local)[has]] = True
         self._cells = None
         grid.dirty[slot] = True
@@ -430,15 +432,15 @@ class TiledMap:
             return out
         for ty in range(iy0 >> sh, (iy1 >> sh) + 1):
             for tx in range(ix0 >> sh, (ix1 >> sh) + 1):
-                data = grid.tiles.get((tx, ty))
-                if data is None:
+                slot = grid.slots.get((tx, ty))
+                if slot is None:
                     continue
                 cx0, cx1 = max(ix0, tx * T), min(ix1, tx * T + T - 1)
                 cy0, cy1 = max(iy0, ty * T), min(iy1, ty * T + T - 1)
-                block = data.reshape(S, T, T)
+                block = grid.store[slot].reshape(T, T, S)  # (row, column, stat)
                 out[:, cy0 - iy0 : cy1 - iy0 + 1, cx0 - ix0 : cx1 - ix0 + 1] = block[
-                    :, cy0 - ty * T : cy1 - ty * T + 1, cx0 - tx * T : cx1 - tx * T + 1
-                ]
+                    cy0 - ty * T : cy1 - ty * T + 1, cx0 - tx * T : cx1 - tx * T + 1, :
+                ].transpose(2, 0, 1)
         return out
 
     def totals(self) -> dict[str, dict[str, float]]:
@@ -489,7 +491,7 @@ class TiledMap:
         if key not in grid.slots:
             grid.add_tiles([key], [gid])
         s = grid.slots[key]
-        grid.store[s] = data
+        grid.store[s] = data.T
         self.occ[gid] |= data[grid.n_row] > 0
         self._cells = None
 
