@@ -19,7 +19,7 @@ from scout_agent.mapping import add_mapping_arguments, attach_mapping
 from scout_agent.run import SCENES, ScoutRunConfig, build_world, run_scout
 from scout_agent.sim.friction import Patch
 from scout_agent.sim.simulator import NoiseConfig, SimConfig
-from scout_agent.sim.terrain import LUNAR_ROUTES
+from scout_agent.sim.terrain import LUNAR_ROUTES, RampConfig
 
 
 def _floats(n_min: int, n_max: int, what: str):
@@ -29,7 +29,8 @@ def _floats(n_min: int, n_max: int, what: str):
         except ValueError:
             raise argparse.ArgumentTypeError(f"{what}: expected numbers separated by commas, got {text!r}") from None
         if not n_min <= len(vals) <= n_max:
-            raise argparse.ArgumentTypeError(f"{what}: expected {what.split()[0]} ({n_min}–{n_max} numbers), got {text!r}")
+            count = f"{n_min}" if n_min == n_max else f"{n_min} or {n_max}"
+            raise argparse.ArgumentTypeError(f"{what}: expected {count} numbers separated by commas, got {text!r}")
         return vals
 
     return parse
@@ -45,6 +46,8 @@ def _patch(text: str) -> Patch:
 def add_scout_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scene", choices=SCENES, default="ramps", help="ramps testbed or 20×20 m lunar field")
     p.add_argument("--slope", type=float, default=15.0, help="ramps: angle α in degrees, 0–25 (default 15)")
+    p.add_argument("--ramp-lengths", type=_floats(5, 5, "approach,up,platform,down,exit lengths"),
+                   metavar="A,U,P,D,E", help="ramps: horizontal segment lengths [m] (default 1.5,3,2,3,2)")
     p.add_argument("--seed", type=int, default=0, help="lunar terrain and sensor-noise seed")
     p.add_argument("--route", choices=tuple(LUNAR_ROUTES), help="lunar: a named corner-to-corner route")
     p.add_argument("--start", type=_floats(2, 3, "x,y[,yaw] start"), help="start x,y[,yaw] [m, rad]")
@@ -78,8 +81,16 @@ def config_from_args(args: argparse.Namespace, parser: argparse.ArgumentParser) 
         parser.error("--slippery-patches must be ≥ 0")
     if args.route and args.scene != "lunar":
         parser.error(f"--route applies to --scene lunar (routes: {', '.join(LUNAR_ROUTES)})")
+    ramp = RampConfig()
+    if args.ramp_lengths is not None:
+        if args.scene != "ramps":
+            parser.error("--ramp-lengths applies to --scene ramps")
+        if min(args.ramp_lengths) < 0.5:
+            parser.error(f"--ramp-lengths {args.ramp_lengths}: each segment must be ≥ 0.5 m")
+        a, u, pl, d, e = args.ramp_lengths
+        ramp = RampConfig(approach_m=a, up_m=u, platform_m=pl, down_m=d, exit_m=e)
     cfg = ScoutRunConfig(
-        scene=args.scene, slope_deg=args.slope, seed=args.seed, route=args.route, start=args.start,
+        scene=args.scene, slope_deg=args.slope, ramp=ramp, seed=args.seed, route=args.route, start=args.start,
         goal=tuple(args.goal) if args.goal else None, via=tuple(tuple(v) for v in args.via), speed=args.speed,
         sim_seconds=args.sim_seconds, friction_default=args.friction, slippery_mu=args.slippery,
         slippery_patches=args.slippery_patches, patches=tuple(args.patch), scout_id=args.scout_id,

@@ -8,7 +8,14 @@ import pytest
 from scout_agent.robot.constants import FOOT_GEOMS
 from scout_agent.sim.friction import FrictionMap, Patch, lunar_slippery_patches, ramp_slippery_patch
 from scout_agent.sim.simulator import ScoutSim
-from scout_agent.sim.terrain import LUNAR_ROUTES, LunarConfig, RampConfig, _polyline_distance, make_lunar, make_ramps
+from scout_agent.sim.terrain import (
+    LUNAR_ROUTES,
+    LunarConfig,
+    RampConfig,
+    _polyline_distance,
+    make_lunar,
+    make_ramps,
+)
 
 
 def test_default_and_patches_later_override():
