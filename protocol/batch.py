@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 import operator
+import struct
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from itertools import chain
@@ -208,6 +209,60 @@ def _template_header(payload: bytes, j: int, key: str | None, res: float | None)
     return _fast_header(h, key, res)
 
 
+class _Known:
+    """A scout's header bytes as `encode` writes them, up to its seq (map, scout, epoch fixed), and
+    from `t` to the layers key (res fixed): a payload that starts with these bytes has the header
+    they encode, whatever seq and t it carries (both read here, with msgpack's rules)."""
+
+    __slots__ = ("epoch", "map", "prefix", "res", "res_bytes", "scout")
+
+    def __init__(self, head: tuple) -> None:
+        self.map, self.scout, self.epoch = head[0], head[1], head[2]
+        self.res = head[5]
+        pairs = (("type", "cell_delta"), ("map", self.map), ("scout", self.scout), ("epoch", self.epoch))
+        self.prefix = b"\x89" + b"".join(_pack(k) + _pack(v) for k, v in pairs) + _pack("seq")
+        self.res_bytes = _pack("res") + _pack(self.res) + _LAYERS_KEY
+
+
+_pack = msgpack.packb
+_HEADS: dict[tuple[str | None, float | None], _Known] = {}  # by (key expression, map res)
+_D = struct.Struct(">d")
+_INT = {0xCC: 1, 0xCD: 2, 0xCE: 4, 0xCF: 8}  # msgpack unsigned ints: type byte -> width
+
+
+def _known_header(payload: bytes, known: _Known) -> tuple | None:
+    """(map, scout, epoch, seq, t, res, offset of the layers key) or None if the bytes differ."""
+    if not payload.startswith(known.prefix):
+        return None
+    o = len(known.prefix)
+    b = payload[o]
+    if b < 0x80:
+        seq, o = b, o + 1
+    else:
+        w = _INT.get(b)
+        if w is None:
+            return None
+        seq, o = int.from_bytes(payload[o + 1 : o + 1 + w], "big"), o + 1 + w
+        if seq > _INT64_MAX:
+            return None
+    if payload[o : o + 3] != b"\xa1t\xcb":
+        return None
+    (t,) = _D.unpack_from(payload, o + 3)
+    o += 11
+    if not _isfinite(t) or not payload.startswith(known.res_bytes, o) or payload[-3:] != _TAIL:
+        return None
+    return (known.map, known.scout, known.epoch, seq, t, known.res, o + len(known.res_bytes) - 7)
+
+
+def _learn_header(key: str | None, res: float | None, head: tuple, payload: bytes) -> None:
+    known = _Known(head)
+    if _known_header(payload, known) is None:
+        return
+    if len(_HEADS) >= 65536:
+        _HEADS.clear()
+    _HEADS[(key, res)] = known
+
+
 def _learn_templates(samples: Sequence[tuple[str | None, bytes]], raws: dict[int, dict]) -> None:
     for i, raw in raws.items():
         if len(_TEMPLATES) >= _MAX_TEMPLATES:
@@ -360,6 +415,8 @@ def decode_delta_batch(
     unpackb = msgpack.unpackb
     specs = _SPECS
     templates = _TEMPLATES
+    heads_known = _HEADS
+    learn: list[int] = []  # deltas whose header went through msgpack: learn their scout's prefix
     tgroups: dict[int, tuple[list[int], list[bytes]]] = {}
     raws: dict[int, dict] = {}  # generic-path deltas: raw layers (to learn templates from)
     for i, (key, payload) in enumerate(samples):
@@ -367,10 +424,18 @@ def decode_delta_batch(
             slow.add(i)
             continue
         if templates and type(payload) is bytes:
-            j = _split(payload)
+            known = heads_known.get((key, res))
+            head = _known_header(payload, known) if known is not None else None
+            if head is not None:
+                j = head[6]
+            else:
+                j = _split(payload)
             size = len(payload) - j - 10
             if j > 0 and size in templates:
-                head = _template_header(payload, j, key, res)
+                if head is None:
+                    head = _template_header(payload, j, key, res)
+                    if head is not None:
+                        learn.append(i)
                 if head is not None:
                     heads[i] = (*head[:6], templates[size].names)
                     group = tgroups.get(size)
@@ -445,6 +510,9 @@ def decode_delta_batch(
                 columns[name] = LayerColumns(c.layer, c.seg[keep], c.ix[keep], c.iy[keep], c.vals[:, keep])
         for i in bad:
             heads.pop(i, None)
+    for i in learn:
+        if i in heads:
+            _learn_header(samples[i][0], res, heads[i], samples[i][1])
     if len(_TEMPLATES) < _MAX_TEMPLATES and raws:
         _learn_templates(samples, {i: r for i, r in raws.items() if i not in bad and i in heads})
     # the single-delta path decides every delta the fast path did not vouch for

@@ -210,20 +210,30 @@ def test_template_path_agrees_with_single_decode_byte_for_byte():
         nan_first,
         dup,
         good.replace(b"\xa3seq\x00", b"\xa3seq\xcc", 1)[: len(good)],  # breaks the framing
+        good.replace(b"\xa3seq\x00", b"\xa3seq\xcd\x01\x00", 1),  # seq 256 as uint16
+        good.replace(b"\xa3seq\x00", b"\xa3seq\xcf\xff\xff\xff\xff\xff\xff\xff\xff", 1),  # 2**64-1
+        good.replace(
+            b"\xa1t\xcb" + good[good.find(b"\xa1t\xcb") + 3 : good.find(b"\xa1t\xcb") + 11],
+            b"\xa1t\xcb" + np.array([np.inf], ">f8").tobytes(),
+            1,
+        ),
+        encode(make_delta(seq=3, epoch=8, seed=3)),  # another epoch: other header bytes
     ]
     samples = [(key, good), *((key, p) for p in variants)]
-    batch = B.decode_delta_batch(samples, res=RES)
-    for (k, p), got in zip(samples, batch.results, strict=True):
-        try:
-            want = decode(p, expected_type="cell_delta", key=k, res=RES)
-        except ProtocolError as exc:
-            assert isinstance(got, ProtocolError), (p, got)
-            assert (got.reason, str(got)) == (exc.reason, str(exc))
-            continue
-        assert isinstance(got, CellDelta), got
-        assert (got.seq, got.epoch, got.t) == (want.seq, want.epoch, want.t)
-        for name, cells in want.layers.items():
-            for s, a in cells.items():
-                np.testing.assert_array_equal(got.layers[name][s], a)
-    kinds = [type(r).__name__ for r in batch.results]
-    assert kinds[:3] == ["CellDelta"] * 3 and kinds.count("ProtocolError") >= 6
+    for _ in range(2):  # the second time, the scout's header bytes are known too
+        batch = B.decode_delta_batch(samples, res=RES)
+        for (k, p), got in zip(samples, batch.results, strict=True):
+            try:
+                want = decode(p, expected_type="cell_delta", key=k, res=RES)
+            except ProtocolError as exc:
+                assert isinstance(got, ProtocolError), (p, got)
+                assert (got.reason, str(got)) == (exc.reason, str(exc))
+                continue
+            assert isinstance(got, CellDelta), got
+            assert (got.seq, got.epoch, got.t) == (want.seq, want.epoch, want.t)
+            for name, cells in want.layers.items():
+                for s, a in cells.items():
+                    np.testing.assert_array_equal(got.layers[name][s], a)
+        kinds = [type(r).__name__ for r in batch.results]
+        assert kinds[:3] == ["CellDelta"] * 3 and kinds.count("ProtocolError") >= 6
+        assert (key, RES) in B._HEADS
