@@ -83,6 +83,7 @@ def build_world(cfg: ScoutRunConfig) -> World:
         patches.extend(lunar_slippery_patches(terrain, cfg.slippery_patches, seed=cfg.seed))
     patches.extend(cfg.patches)
     friction = FrictionMap(cfg.friction_default, tuple(patches))
+    start_xy: tuple[float, ...]
     if cfg.route is not None:
         if cfg.scene != "lunar" or cfg.route not in LUNAR_ROUTES:
             raise ValueError(f"unknown route {cfg.route!r}; valid (lunar): {', '.join(LUNAR_ROUTES)}")

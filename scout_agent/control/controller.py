@@ -231,7 +231,7 @@ class TrotController:
         p_hold_b = (self.footholds - s.pos) @ R
         v_hold_b = -(s.vel @ R + _cross(s.omega, p_hold_b))
         tau_st = -np.einsum("lji,lj->li", J, f_b) + c.stance_kd * np.linalg.solve(J + _EPS3, v_hold_b[..., None])[..., 0]
-        for i in idx:
+        for i in idx.tolist():
             tau[3 * i : 3 * i + 3] = tau_st[i]
         pos_des_b[idx] = p_hold_b[idx]
         vel_des_b[idx] = v_hold_b[idx]
@@ -261,7 +261,7 @@ class TrotController:
             vel_des_b[sw_idx] = v_b
             q_ik = K.ik(pos_des_b).reshape(4, 3)
             dq_sw = np.linalg.solve(J[sw_idx] + _EPS3, v_b[..., None])[..., 0]
-            for k, i in enumerate(sw_idx):
+            for k, i in enumerate(sw_idx.tolist()):
                 sl = slice(3 * i, 3 * i + 3)
                 q_des[sl] = q_ik[i]
                 kp[sl] = c.swing_kp

@@ -92,7 +92,8 @@ def lunar_slippery_patches(terrain: Terrain, n: int, seed: int = 0, size_m: floa
     gx_, gy_ = np.meshgrid(grid, grid)
     pools = []
     for route in LUNAR_ROUTES.values():
-        cands, fallback = [], []
+        cands: list[tuple[float, float]] = []
+        fallback: list[tuple[float, float]] = []
         pts = np.asarray(route, dtype=float)
         for a, b in zip(pts[:-1], pts[1:], strict=True):
             length = float(np.hypot(*(b - a)))

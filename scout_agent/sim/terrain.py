@@ -279,8 +279,8 @@ def make_lunar(cfg: LunarConfig = LunarConfig()) -> Terrain:
             z[i0:i1, j0:j1] += h * np.exp(-d2 / (2 * sigma**2))
 
     # flat spawn/goal patches: blend to the local mean height
-    for route in routes_arr:
-        for ex, ey in (route[0], route[-1]):
+    for rt in routes_arr:
+        for ex, ey in (rt[0], rt[-1]):
             d = np.hypot(X - ex, Y - ey)
             inner = d <= cfg.spawn_radius_m
             w = np.clip((cfg.spawn_radius_m + 0.6 - d) / 0.6, 0.0, 1.0)
