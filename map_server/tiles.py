@@ -281,11 +281,11 @@ class TiledMap:
             break
         tkey = (tx.astype(np.int64) << 32) | (ty.astype(np.int64) & 0xFFFFFFFF)
         uniq, inv = np.unique(tkey, return_inverse=True)
-        keys = [_unkey(k) for k in uniq.tolist()]
-        fresh = [k for k in keys if k not in self.gslots]
+        tiles = [_unkey(k) for k in uniq.tolist()]
+        fresh = [k for k in tiles if k not in self.gslots]
         if fresh:
             self._new_global(fresh)
-        return np.array([self.gslots[k] for k in keys], dtype=np.int64)[inv.reshape(-1)]
+        return np.array([self.gslots[k] for k in tiles], dtype=np.int64)[inv.reshape(-1)]
 
     # ------------------------------------------------------------------ merging
 

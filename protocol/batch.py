@@ -322,8 +322,8 @@ def _structural_bad(acc: _Acc) -> set[int]:
         if any(type(b) is not bytes for b in tup):
             bad.add(i)
             continue
-        n4 = len(tup[0])
-        if n4 % 4 or len(tup[1]) != n4 or any(len(b) != 2 * n4 for b in tup[2:]):
+        nb = len(tup[0])
+        if nb % 4 or len(tup[1]) != nb or any(len(b) != 2 * nb for b in tup[2:]):
             bad.add(i)
     return bad
 
@@ -525,15 +525,15 @@ def decode_delta_batch(
             results[i] = exc
     for i, delta in extra.items():
         heads[i] = (delta.map, delta.scout, delta.epoch, delta.seq, delta.t, delta.res, delta.layers)
-        for name, cells in delta.layers.items():
+        for name, got in delta.layers.items():
             layer = LAYERS[name]
             add = LayerColumns(
                 layer,
-                np.full(cells["ix"].size, i, dtype=np.int64),
-                cells["ix"],
-                cells["iy"],
-                np.stack([cells[s] for s in layer.stats])
-                if cells["ix"].size
+                np.full(got["ix"].size, i, dtype=np.int64),
+                got["ix"],
+                got["iy"],
+                np.stack([got[s] for s in layer.stats])
+                if got["ix"].size
                 else np.empty((len(layer.stats), 0)),
             )
             columns[name] = _concat(columns[name], add) if name in columns else add
