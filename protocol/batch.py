@@ -525,16 +525,14 @@ def decode_delta_batch(
             results[i] = exc
     for i, delta in extra.items():
         heads[i] = (delta.map, delta.scout, delta.epoch, delta.seq, delta.t, delta.res, delta.layers)
-        for name, got in delta.layers.items():
+        for name, lc in delta.layers.items():
             layer = LAYERS[name]
             add = LayerColumns(
                 layer,
-                np.full(got["ix"].size, i, dtype=np.int64),
-                got["ix"],
-                got["iy"],
-                np.stack([got[s] for s in layer.stats])
-                if got["ix"].size
-                else np.empty((len(layer.stats), 0)),
+                np.full(lc["ix"].size, i, dtype=np.int64),
+                lc["ix"],
+                lc["iy"],
+                np.stack([lc[s] for s in layer.stats]) if lc["ix"].size else np.empty((len(layer.stats), 0)),
             )
             columns[name] = _concat(columns[name], add) if name in columns else add
     # CellDelta views for callers that want per-delta objects
