@@ -91,7 +91,9 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="experiment", metavar="EXPERIMENT", required=True)
     for name in (*EXPERIMENTS, "all"):
         mod = EXPERIMENTS.get(name)
-        doc = (mod.__doc__ if mod else "every experiment in turn, runs shared, each in DIR/<name>/").strip()
+        doc = (
+            (mod.__doc__ or name) if mod else "every experiment in turn, runs shared, each in DIR/<name>/"
+        ).strip()
         q = sub.add_parser(
             name,
             help=doc.splitlines()[0],

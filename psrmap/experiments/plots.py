@@ -153,7 +153,7 @@ def slopes(path: Path, pts: list[dict], fits: dict[str, Any], metrics: tuple[str
                 ax.scatter(xy[:, 0], xy[:, 1], c=color, marker=marker, s=22, alpha=0.7, label=label)
             f = fits.get(metric)
             if f:
-                xs = np.linspace(*f["x_range"], 200)
+                xs = np.linspace(float(f["x_range"][0]), float(f["x_range"][1]), 200)
                 ax.plot(xs, np.polyval(f["coef_high_to_low"], xs), color=color, lw=1.5)
         ax.set_title(f"GIA margins: {title}")
         ax.set_xlabel("inclination [deg]  (negative = uphill, positive = downhill)")
@@ -191,7 +191,7 @@ def lunar_maps(out_dir: Path, seed: int, terrain: Any, runs: dict[str, dict], me
     from psrmap.experiments.lunar import dense
 
     paths = []
-    routes = [r for r in ("direct", "west", "east") if r in runs]
+    routes: list[str] = [r for r in ("direct", "west", "east") if r in runs]
     patches = next(iter(runs.values()))["friction"]["patches"] if runs else []
     # terrain overview
     fig, ax = plt.subplots(figsize=(6, 6))
@@ -214,7 +214,9 @@ def lunar_maps(out_dir: Path, seed: int, terrain: Any, runs: dict[str, dict], me
     paths.append(_save(fig, out_dir / f"lunar_seed{seed}_terrain.png"))
     for layer in ("elevation", "slip", "cot", "giim", "giam"):
         what = "events" if layer == "slip" else "value"
-        grids = [(name, dense(runs[name]["cells"][layer], layer, what=what)) for name in routes]
+        grids: list[tuple[str, np.ndarray]] = [
+            (name, dense(runs[name]["cells"][layer], layer, what=what)) for name in routes
+        ]
         grids.append(("merged", dense(merged.cells(layer), layer, what=what)))
         finite = np.concatenate([g[np.isfinite(g)] for _, g in grids]) if grids else np.array([])
         if finite.size:

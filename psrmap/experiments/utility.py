@@ -117,9 +117,12 @@ def simplify(points: np.ndarray, tol: float) -> np.ndarray:
 def _cost_config(args: argparse.Namespace, unknown: str | None = None):
     from dataclasses import replace
 
-    from consumer_planner.costs import CostConfig, parse_weights
+    from consumer_planner.costs import UNKNOWN_POLICIES, CostConfig, parse_weights
 
-    return replace(CostConfig(), weights=parse_weights(args.weights), unknown=unknown or args.unknown)
+    policy: Any = unknown or args.unknown  # one of UNKNOWN_POLICIES, checked here
+    if policy not in UNKNOWN_POLICIES:
+        raise SystemExit(f"psrmap experiment: --unknown {policy!r}; policies: {', '.join(UNKNOWN_POLICIES)}")
+    return replace(CostConfig(), weights=parse_weights(args.weights), unknown=policy)
 
 
 def plan(args: argparse.Namespace, seed: int, scouts: list[dict], out_dir: Path) -> dict[str, Any]:
@@ -366,7 +369,9 @@ def run(args: argparse.Namespace, pool: RunPool, out_dir: Path) -> dict[str, Any
         if fig is not None:
             figures.append(fig)
     summary = _summary(per_seed)
-    figures.append(plots.utility_bars(out_dir / "utility_summary.png", per_seed))
+    bars = plots.utility_bars(out_dir / "utility_summary.png", per_seed)
+    if bars is not None:
+        figures.append(bars)
     return {
         "experiment": NAME,
         "protocol": {
