@@ -40,6 +40,7 @@ __all__ = ["MapService", "ServerConfig"]
 log = logging.getLogger(__name__)
 
 _WAKE = "--wake--"  # scout id of the self-addressed sample that wakes the worker at shutdown
+IDLE_STEP_PAUSE_S = 0.002  # pause after a snapshot slice written in an idle gap
 FORCED_STEP_S = 0.1  # a snapshot round writes a slice at least this often, even with no idle gap
 MAX_QUERY_CELLS = 4_000_000  # a region query may cover at most this many cells
 
@@ -175,6 +176,7 @@ class MapService:
                 first = sub.try_recv()  # snapshot slices fill the gaps between batches
                 if first is None:
                     self._snapshot_step()
+                    time.sleep(IDLE_STEP_PAUSE_S)  # leave the GIL to queries between slices
                     continue
             else:
                 try:
