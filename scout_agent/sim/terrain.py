@@ -183,7 +183,7 @@ class LunarConfig:
     size_m: float = 20.0
     res: float = 0.05
     relief_m: float = 3.0  # peak-to-peak of the coarse relief (±1.5 m), before the slope cap
-    relief_cells: int = 4  # coarse noise grid (bicubic-upsampled)
+    relief_cells: int = 3  # coarse noise grid (bicubic-upsampled)
     relief_max_slope_deg: float = 12.0  # the broad relief is scaled down until its steepest slope is this
     fine_noise_m: float = 0.004  # smoothed fine noise std
     # crater classes: (min radius, max radius, density per m²), OmniLRS-like
