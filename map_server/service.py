@@ -57,7 +57,7 @@ class ServerConfig:
     listen: tuple[str, ...] = ()
     mode: str = "peer"
     channel_capacity: int = 4096  # deltas buffered between the network and the merge worker
-    batch_max: int = 512  # deltas merged and committed together at most
+    batch_max: int = 128  # deltas merged and committed together at most (bounds the lock hold)
     snapshot_every: int = 20_000  # deltas logged before tiles are snapshotted and the log truncated
     max_bytes: int = DEFAULT_MAX_BYTES
     rrd: str | None = None  # Rerun recording path; None: no visualisation
