@@ -510,9 +510,12 @@ def decode_delta_batch(
                 columns[name] = LayerColumns(c.layer, c.seg[keep], c.ix[keep], c.iy[keep], c.vals[:, keep])
         for i in bad:
             heads.pop(i, None)
-    for i in learn:
-        if i in heads:
-            _learn_header(samples[i][0], res, heads[i], samples[i][1])
+    learnt: set[str | None] = set()
+    for i in learn:  # the newest accepted delta of each key expression
+        key = samples[i][0]
+        if i in heads and key not in learnt:
+            learnt.add(key)
+            _learn_header(key, res, heads[i], samples[i][1])
     if len(_TEMPLATES) < _MAX_TEMPLATES and raws:
         _learn_templates(samples, {i: r for i, r in raws.items() if i not in bad and i in heads})
     # the single-delta path decides every delta the fast path did not vouch for
