@@ -511,7 +511,7 @@ def decode_delta_batch(
         for i in bad:
             heads.pop(i, None)
     learnt: set[str | None] = set()
-    for i in learn:  # the newest accepted delta of each key expression
+    for i in learn:  # the first accepted delta of each key expression in the batch
         key = samples[i][0]
         if i in heads and key not in learnt:
             learnt.add(key)
