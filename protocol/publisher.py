@@ -17,7 +17,7 @@ import numpy as np
 
 from protocol.codec import encode
 from protocol.keys import delta_key, validate_id
-from protocol.messages import Ack, CellDelta, LayerCells
+from protocol.messages import Ack, CellDelta
 
 __all__ = ["DeltaPublisher", "InMemoryTransport", "Transport", "UnackedBufferFull", "new_epoch"]
 
@@ -102,7 +102,7 @@ class DeltaPublisher:
     def full(self) -> bool:
         return len(self._pending) >= self.max_unacked
 
-    def build(self, layers: Mapping[str, LayerCells], t: float, seq: int) -> CellDelta:
+    def build(self, layers: Mapping[str, Mapping[str, np.ndarray]], t: float, seq: int) -> CellDelta:
         clean = {}
         for name, cells in layers.items():
             clean[name] = {
@@ -111,7 +111,7 @@ class DeltaPublisher:
             }
         return CellDelta(self.map_id, self.scout_id, self.epoch, seq, float(t), self.res, clean)
 
-    def send(self, layers: Mapping[str, LayerCells], t: float) -> int:
+    def send(self, layers: Mapping[str, Mapping[str, np.ndarray]], t: float) -> int:
         """Publish the statistics gathered since the previous delta; returns its seq."""
         with self._lock:
             if len(self._pending) >= self.max_unacked:

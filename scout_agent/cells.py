@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -179,7 +180,7 @@ class LocalMap:
         """Write the whole map as `map_region` arrays: `<layer>/<stat>` (h, w) and res, ix0, iy0, w, h."""
         b = self.bounds() or (0, 0, -1, -1)
         ix0, iy0, ix1, iy1 = b
-        arrays: dict[str, np.ndarray] = {
+        arrays: dict[str, Any] = {
             "res": np.float64(self.res),
             "ix0": np.int64(ix0),
             "iy0": np.int64(iy0),

@@ -284,8 +284,8 @@ class Evaluator:
                             _r(float(np.nanmean(v[m]))) if np.isfinite(v[m]).any() else None
                         )
                 for key in ("giim", "giam"):
-                    cm = self.paper_means[key].cell_means()
-                    vals = [v for (ix, _), v in cm.items() if a <= (ix + 0.5) * res < b]
+                    means = self.paper_means[key].cell_means()
+                    vals = [v for (ix, _), v in means.items() if a <= (ix + 0.5) * res < b]
                     entry[f"{key}_paper_mean"] = _r(float(np.mean(vals))) if vals else None
                 entry["slip_events"] = int(sum(1 for sx in slips_x if a <= sx < b))
                 gts = [self.stances[k][0] for k in truth]

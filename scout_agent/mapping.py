@@ -46,7 +46,7 @@ def default_pipeline_config(feet: PinocchioFeet, **changes: Any) -> PipelineConf
     """Pipeline defaults with the simulated model's mass and CoM (mass declared in robot/constants)."""
     return replace(
         PipelineConfig(
-            mass_kg=feet.total_mass_kg, com_offset_base=tuple(float(v) for v in feet.com_home_base)
+            mass_kg=feet.total_mass_kg, com_offset_base=(float(feet.com_home_base[0]), float(feet.com_home_base[1]), float(feet.com_home_base[2]))
         ),
         **changes,
     )

@@ -171,7 +171,7 @@ class EstimatorPipeline:
         )
         r = c.foot_radius_m
         contact = s.contact.tolist()
-        lf = self._last_foot
+        lf: list[Any] = self._last_foot  # entries known in self._known are never None
 
         # footholds: slip layer n at touchdown, events at the same foothold, elevation at the end of the stance
         stance_xy = slip_xy = _EMPTY2

@@ -44,7 +44,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -180,7 +180,10 @@ class SlipDetector:
         cont = contact.tolist()
         eps_v, eps_p = self.eps_v, c.eps_p_m
         touched, vflag, slipped = self._touched, self._vflag, self._slipped
-        rot = fpos = fvel = fomega = None
+        rot: Any = None  # nested lists, filled on first use (hot path: Python scalars, no numpy)
+        fpos: Any = None
+        fvel: Any = None
+        fomega: Any = None
         vb = (0.0, 0.0, 0.0)
         wx = wy = wz = 0.0
         h = c.h_mps
