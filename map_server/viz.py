@@ -29,6 +29,9 @@ RANGES = {
 }
 
 
+COUNT_MAX = 1000.0  # counts are shown on a log scale up to this many observations
+
+
 class MapViz:
     def __init__(
         self, rrd_path: str, map_id: str, recording_id: str | None = None, interval_s: float = 1.0
@@ -55,24 +58,37 @@ class MapViz:
         self.stream.set_time("version", sequence=version)
         for layer, tx, ty in sorted(pending):
             with lock:
-                value = tiled.region(tx * T, ty * T, tx * T + T - 1, ty * T + T - 1, [layer], ["value"])[
+                grid = tiled.region(tx * T, ty * T, tx * T + T - 1, ty * T + T - 1, [layer], ["value", "n"])[
                     layer
-                ]["value"]
+                ]
+            value, count = grid["value"], grid["n"]
             lo, hi = RANGES.get(layer, (0.0, 1.0))
-            img = np.zeros(value.shape, dtype=np.uint8)
-            ok = np.isfinite(value)
-            img[ok] = (1 + np.clip((value[ok] - lo) / (hi - lo), 0.0, 1.0) * 254).astype(np.uint8)
-            fmt = rr.components.ImageFormat(width=T, height=T, color_model="L", channel_datatype="U8")
-            self.stream.log(
-                f"map/{layer}/{tx}_{ty}",
-                rr.GridMap(
-                    data=img.tobytes(),
-                    format=fmt,
-                    cell_size=tiled.res,
-                    translation=[tx * T * tiled.res, ty * T * tiled.res, 0.0],
-                ),
+            self._grid_map(f"map/{layer}/{tx}_{ty}", value, lo, hi, tiled.res, tx, ty, T)
+            # counts: how many observations back each cell (log scale, 1 .. COUNT_MAX)
+            n = np.where(count > 0, np.log1p(count), np.nan)
+            self._grid_map(
+                f"map/counts/{layer}/{tx}_{ty}", n, 0.0, float(np.log1p(COUNT_MAX)), tiled.res, tx, ty, T
             )
+        with lock:
+            cells = tiled.cells
+        self.stream.log("map/status/cells", rr.Scalars(float(cells)))
+        self.stream.log("map/status/version", rr.Scalars(float(version)))
         return len(pending)
+
+    def _grid_map(
+        self, path: str, value: np.ndarray, lo: float, hi: float, res: float, tx: int, ty: int, T: int
+    ) -> None:
+        """One tile as an 8-bit grid map: 0 = no data, 1..255 = `lo`..`hi`."""
+        img = np.zeros(value.shape, dtype=np.uint8)
+        ok = np.isfinite(value)
+        img[ok] = (1 + np.clip((value[ok] - lo) / (hi - lo), 0.0, 1.0) * 254).astype(np.uint8)
+        fmt = rr.components.ImageFormat(width=T, height=T, color_model="L", channel_datatype="U8")
+        self.stream.log(
+            path,
+            rr.GridMap(
+                data=img.tobytes(), format=fmt, cell_size=res, translation=[tx * T * res, ty * T * res, 0.0]
+            ),
+        )
 
     def close(self) -> None:
         self.stream.flush()

@@ -113,9 +113,10 @@ def cmd_scout(args: argparse.Namespace) -> int:
         rec = viz.open_recording(args.rrd)
         viz.log_terrain(rec, world.terrain)
         viz.log_friction(rec, world.friction, world.terrain)
-        logger = viz.ScoutLogger(rec, cfg.scout_id)
+        logger = viz.ScoutLogger(rec, cfg.scout_id, height=world.terrain.height)
         on_tick = lambda sample, truth, sim: logger.log_tick(sample, truth)  # noqa: E731
-    with attach_mapping(args, cfg, on_tick) as mapping:  # estimators + cell deltas (scout_agent.mapping)
+    on_estimates = logger.log_estimates if logger is not None else None
+    with attach_mapping(args, cfg, on_tick, on_estimates) as mapping:  # estimators + cell deltas (scout_agent.mapping)
         summary = run_scout(cfg, on_tick=mapping.on_tick, progress=not args.quiet, world=world)
     summary["map"] = mapping.summary
     if logger is not None:

@@ -145,19 +145,27 @@ class MappingSession:
     the Zenoh link; `summary` then holds the mapping figures (None without a map)."""
 
     def __init__(
-        self, mapper: Mapper | None, publisher: Any | None, save_path: str | None, chained: Any | None = None
+        self,
+        mapper: Mapper | None,
+        publisher: Any | None,
+        save_path: str | None,
+        chained: Any | None = None,
+        on_estimates: Any | None = None,
     ) -> None:
         self.mapper = mapper
         self.publisher = publisher
         self.save_path = save_path
         self.chained = chained
+        self.on_estimates = on_estimates  # called with each tick's TickEstimates (e.g. the Rerun logger)
         self.summary: dict | None = None
 
     def on_tick(self, sample: ProprioSample, truth: object = None, sim: object = None) -> None:
         if self.chained is not None:
             self.chained(sample, truth, sim)
         if self.mapper is not None:
-            self.mapper.update(sample)
+            est = self.mapper.update(sample)
+            if self.on_estimates is not None:
+                self.on_estimates(est)
 
     def finish(self) -> dict | None:
         if self.mapper is None or self.summary is not None:
@@ -179,9 +187,12 @@ class MappingSession:
         self.finish()
 
 
-def attach_mapping(args: argparse.Namespace, run_config: Any, on_tick: Any | None = None) -> MappingSession:
+def attach_mapping(
+    args: argparse.Namespace, run_config: Any, on_tick: Any | None = None, on_estimates: Any | None = None
+) -> MappingSession:
     """Build the scout's mapping from parsed `add_mapping_arguments` options; `on_tick` (optional) is an
-    existing per-tick callback to chain. With `--no-map` the session only forwards to `on_tick`."""
+    existing per-tick callback to chain, `on_estimates` receives each tick's estimates. With `--no-map` the
+    session only forwards to `on_tick`."""
     if getattr(args, "no_map", False):
         return MappingSession(None, None, None, on_tick)
     parser = getattr(args, "_parser", None)
@@ -205,4 +216,4 @@ def attach_mapping(args: argparse.Namespace, run_config: Any, on_tick: Any | Non
 
         publisher = ScoutPublisher(args.map, run_config.scout_id, args.res, args.connect)
     mapper = Mapper(MapperConfig(res=args.res, delta_hz=args.delta_hz), publisher=publisher)
-    return MappingSession(mapper, publisher, args.save_map, on_tick)
+    return MappingSession(mapper, publisher, args.save_map, on_tick, on_estimates)

@@ -56,14 +56,32 @@ def log_friction(rec: rr.RecordingStream, friction: FrictionMap, terrain: Terrai
 
 
 class ScoutLogger:
-    """Logs one scout's state every `every` control ticks."""
+    """Logs one scout: pose, feet and contacts, signals every `every` control ticks; the trail every
+    `trail_every_s`; the estimators' outputs (ΔV, ε_v, CoT, GIIM, GIAM) and slip events as they happen.
 
-    def __init__(self, rec: rr.RecordingStream, scout_id: str, every: int = 5) -> None:
+    `height(x, y)` (optional, e.g. the terrain's) only places slip-event markers on the ground for display."""
+
+    def __init__(
+        self,
+        rec: rr.RecordingStream,
+        scout_id: str,
+        every: int = 5,
+        height=None,
+        trail_every_s: float = 2.0,
+    ) -> None:
         self.rec = rec
         self.root = f"world/scouts/{scout_id}"
         self.every = every
+        self.height = height
+        self.trail_every_s = trail_every_s
         self._k = 0
+        self._ke = 0
         self._traj: list[np.ndarray] = []
+        self._next_trail = 0.0
+        self._slips: list[list[float]] = []
+        self._work = 0.0
+        self._dist = 0.0
+        self._t = 0.0
 
     def log_tick(self, sample: ProprioSample, truth: GroundTruth) -> None:
         self._k += 1
@@ -71,6 +89,7 @@ class ScoutLogger:
             return
         rec, root = self.rec, self.root
         rec.set_time(TIMELINE, duration=truth.t)
+        self._t = truth.t
         b = truth.base
         self._traj.append(b.pos.copy())
         rec.log(f"{root}/base", rr.Transform3D(translation=b.pos, quaternion=rr.Quaternion(
@@ -86,8 +105,38 @@ class ScoutLogger:
         rec.log(f"{sig}/stance_disp_m", rr.Scalars(np.nan_to_num(truth.stance_disp)))
         rec.log(f"{sig}/nonfoot_contacts", rr.Scalars(float(truth.nonfoot_contacts)))
         rec.log(f"{sig}/tau", rr.Scalars(sample.tau))
+        if truth.t >= self._next_trail:
+            self._next_trail = truth.t + self.trail_every_s
+            self._log_trail()
+
+    def log_estimates(self, est) -> None:
+        """One tick of `scout_agent.estimators.TickEstimates` (after `log_tick` of the same tick)."""
+        self._work += est.work_m
+        self._dist += est.dist_m
+        if any(est.slip.event) and len(est.slip_xy):
+            self.rec.set_time(TIMELINE, duration=est.t)
+            for x, y in np.asarray(est.slip_xy, dtype=float).reshape(-1, 2):
+                z = float(self.height(x, y)) + 0.02 if self.height is not None else 0.0
+                self._slips.append([float(x), float(y), z])
+            self.rec.log(f"{self.root}/slips", rr.Points3D(self._slips, radii=0.05, colors=[255, 40, 40]))
+        self._ke += 1
+        if self._ke % self.every:
+            return
+        rec, est_root = self.rec, f"{self.root}/estimates"
+        rec.set_time(TIMELINE, duration=est.t)
+        dv = np.asarray(est.slip.dv, dtype=float)
+        rec.log(f"{est_root}/dv", rr.Scalars(np.nan_to_num(dv)))
+        rec.log(f"{est_root}/eps_v", rr.Scalars(float(est.slip.eps_v)))
+        if self._dist > 0.05:
+            rec.log(f"{est_root}/cot_running", rr.Scalars(self._work / self._dist))
+        if np.isfinite(est.giim):
+            rec.log(f"{est_root}/giim_rad", rr.Scalars(float(est.giim)))
+            rec.log(f"{est_root}/giam_mps2", rr.Scalars(float(est.giam)))
+
+    def _log_trail(self) -> None:
+        if len(self._traj) > 1:
+            self.rec.log(f"{self.root}/trajectory", rr.LineStrips3D([np.array(self._traj)], colors=[255, 60, 60]))
 
     def finish(self) -> None:
-        if self._traj:
-            self.rec.log(f"{self.root}/trajectory", rr.LineStrips3D([np.array(self._traj)], colors=[255, 60, 60]),
-                         static=True)
+        self.rec.set_time(TIMELINE, duration=self._t)
+        self._log_trail()

@@ -50,3 +50,22 @@ def test_short_run_prints_json_and_writes_rrd(tmp_path, capsys):
     assert summary["fell"] is False and summary["sim_seconds"] == pytest.approx(2.0, abs=0.02)
     assert len(summary["friction"]["patches"]) == 2
     assert rrd.exists() and rrd.stat().st_size > 10_000
+
+
+def test_recording_holds_pose_trail_estimates_and_slip_events(tmp_path, capsys):
+    from rerun.chunk import RrdReader
+
+    rrd = tmp_path / "scout.rrd"
+    # a slippery down-ramp makes slip events; a short ramp layout reaches it within seconds
+    args = _parser().parse_args(["scout", "--scene", "ramps", "--slope", "20", "--slippery", "0.4",
+                                 "--ramp-lengths", "0.5,1,0.5,2,0.5", "--sim-seconds", "30", "--json",
+                                 "--quiet", "--rrd", str(rrd)])
+    args.func(args)
+    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    entities = {c.entity_path for c in RrdReader(rrd).stream()}
+    root = "/world/scouts/scout1"
+    for suffix in ("/base", "/feet", "/trajectory", "/estimates/dv", "/estimates/eps_v", "/estimates/cot_running",
+                   "/estimates/giim_rad", "/estimates/giam_mps2", "/signals/speed_mps"):
+        assert root + suffix in entities, suffix
+    assert "/world/terrain" in entities and "/world/friction" in entities
+    assert summary["map"]["slip_events"] > 0 and root + "/slips" in entities
