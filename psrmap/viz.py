@@ -16,26 +16,33 @@ import rerun.blueprint as rrb
 APP_ID = "psrmap"
 
 
+MAP_LAYERS = ("elevation", "slip", "cot", "giim", "giam", "contacts")
+
+
 def default_blueprint(scout_ids: list[str]) -> rrb.Blueprint:
-    """3-D world (terrain, scouts, merged layers, plans) beside the maps, the scouts' signals and the plans."""
-    signals = [
-        rrb.TimeSeriesView(name=f"{sid} signals", origin=f"world/scouts/{sid}/signals") for sid in scout_ids
-    ]
+    """The mission in 3-D (terrain, scouts, slips, routes, plans) beside one top-down view per shared layer
+    (each with the plans over it), the scouts' estimates and signals, and the plans' breakdowns."""
     estimates = [
         rrb.TimeSeriesView(name=f"{sid} estimates", origin=f"world/scouts/{sid}/estimates")
         for sid in scout_ids
     ]
+    signals = [
+        rrb.TimeSeriesView(name=f"{sid} signals", origin=f"world/scouts/{sid}/signals") for sid in scout_ids
+    ]
+    layers = [
+        rrb.Spatial3DView(name=name, origin="/", contents=[f"map/{name}/**", "plans/**"])
+        for name in MAP_LAYERS
+    ]
+    layers.append(rrb.Spatial3DView(name="counts", origin="/", contents=["map/counts/**", "plans/**"]))
+    layers.append(rrb.Spatial3DView(name="planner cost", origin="/", contents=["map/cost/**", "plans/**"]))
     return rrb.Blueprint(
         rrb.Horizontal(
+            rrb.Spatial3DView(name="mission", origin="/", contents=["world/**", "plans/**"]),
             rrb.Vertical(
-                rrb.Spatial3DView(name="mission", origin="/", contents=["world/**", "map/**", "plans/**"]),
-                rrb.Spatial3DView(name="shared map and plans", origin="/", contents=["map/**", "plans/**"]),
-                row_shares=[3, 2],
-            ),
-            rrb.Vertical(
-                rrb.Tabs(*estimates, name="estimates") if estimates else rrb.TextDocumentView(origin="plans"),
-                rrb.Tabs(*signals, name="signals") if signals else rrb.TextDocumentView(origin="plans"),
+                rrb.Tabs(*layers, name="shared map"),
+                rrb.Tabs(*estimates, *signals, rrb.TimeSeriesView(name="server", origin="map/status")),
                 rrb.TextDocumentView(name="plan breakdown", origin="plans"),
+                row_shares=[3, 2, 1],
             ),
             column_shares=[3, 2],
         ),
