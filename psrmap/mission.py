@@ -103,6 +103,12 @@ def _scout(d: dict[str, Any], i: int) -> ScoutPlan:
     return ScoutPlan(sid, (start[0], start[1], start[2]), goal, via)
 
 
+_MISSION_KEYS = ("map", "res", "sim_seconds", "speed", "rate_hz", "out")
+_TERRAIN_KEYS = ("scene", "seed", "slope", "slippery_patches")
+_PLANNER_KEYS = ("from", "to", "unknown", "weights")
+_SCOUT_KEYS = ("id", "start", "goal", "via")
+
+
 def load_config(path: str | Path | None = None) -> MissionConfig:
     """The mission config from a TOML file (None: the embedded default `mission_default.toml`)."""
     if path is None:
@@ -123,6 +129,19 @@ def load_config(path: str | Path | None = None) -> MissionConfig:
     if unknown:
         raise MissionError(f"{where}: unknown section(s) {sorted(unknown)}; sections: {sorted(known)}")
     m, t, p = doc.get("mission", {}), doc.get("terrain", {}), doc.get("planner", {})
+    for section, table, keys in (
+        ("mission", m, _MISSION_KEYS),
+        ("terrain", t, _TERRAIN_KEYS),
+        ("planner", p, _PLANNER_KEYS),
+        *(("scouts", s, _SCOUT_KEYS) for s in doc.get("scouts", [])),
+    ):
+        if not isinstance(table, dict):
+            raise MissionError(f"{where}: [{section}] must be a table")
+        extra = set(table) - set(keys)
+        if extra:
+            raise MissionError(
+                f"{where}: unknown key(s) {sorted(extra)} in [{section}]; keys: {', '.join(keys)}"
+            )
     base = MissionConfig()
     cfg = dataclasses.replace(
         base,

@@ -120,6 +120,9 @@ def test_bad_config_is_rejected_with_reason(tmp_path: Path) -> None:
     bad.write_text("[[scouts]]\nid = 'a'\nstart = [1, 1]\ngoal = [2, 2]\n")
     with pytest.raises(MissionError, match=r"\[x, y, yaw\]"):
         load_config(bad)
+    bad.write_text("[mission]\nsim_second = 10\n")
+    with pytest.raises(MissionError, match=r"unknown key\(s\) \['sim_second'\] in \[mission\]; keys: .*sim_seconds"):
+        load_config(bad)
     with pytest.raises(MissionError, match="at least 1"):
         with_scouts(load_config(), 0)
 
