@@ -78,6 +78,9 @@ def _add_common(p: argparse.ArgumentParser) -> None:
         help="cap on each run's simulated time (reduced sets; default: the whole path)",
     )
     p.add_argument("--fresh", action="store_true", help="walk every run again instead of reading the cache")
+    p.add_argument(
+        "--cache", metavar="DIR", help="run cache folder (default OUT/runs); share it between --out folders"
+    )
     p.add_argument("--quiet", action="store_true", help="no progress bars")
 
 
@@ -147,7 +150,8 @@ def _cmd(args: argparse.Namespace) -> int:
     if args.sim_seconds is not None and not args.sim_seconds > 0:
         args._parser.error(f"--sim-seconds {args.sim_seconds}: need > 0")
     out = Path(args.out)
-    pool = RunPool(out / "runs", workers=args.workers, progress=not args.quiet, fresh=args.fresh)
+    cache = Path(args.cache) if args.cache else out / "runs"
+    pool = RunPool(cache, workers=args.workers, progress=not args.quiet, fresh=args.fresh)
     t0 = time.perf_counter()
     if args.experiment != "all":
         res = run_experiment(args.experiment, args, pool, out)

@@ -140,7 +140,13 @@ def slopes_tables(r: dict) -> str:
     rows = []
     for k, t in r["trends"].items():
         rows.append(
-            [k, ", ".join(f"{kk}: {_f(vv, 1) if isinstance(vv, float) else _f(vv)}" for kk, vv in t.items())]
+            [
+                k,
+                ", ".join(
+                    f"{kk}: {_f(vv, 1 if kk.endswith('deg') else 3) if isinstance(vv, float) else _f(vv)}"
+                    for kk, vv in t.items()
+                ),
+            ]
         )
     parts.append("Trend checks on the 4th-degree fits:\n\n" + _table(["metric", "result"], rows))
     return "\n\n".join(parts)
