@@ -46,13 +46,13 @@ def ramps_tables(r: dict) -> str:
             rows.append(
                 [f"{a}°", cond]
                 + [
-                    f"{_f(el[res]['rmse_mean_only_m'])} / {_f(el[res]['rmse_m'])} / {_f(el[res].get('rmse_plane_m'))}"
+                    f"{_f(el[res]['rmse_mean_only_m'], 4)} / {_f(el[res]['rmse_m'], 4)} / {_f(el[res].get('rmse_plane_m'), 4)}"
                     for res in ("0.4", "0.2", "0.1")
                 ]
                 + [
-                    _f(el["0.4"].get("rmse_ramps_mean_only_m"))
+                    _f(el["0.4"].get("rmse_ramps_mean_only_m"), 4)
                     + " / "
-                    + _f(el["0.4"].get("rmse_ramps_plane_m"))
+                    + _f(el["0.4"].get("rmse_ramps_plane_m"), 4)
                 ]
             )
     parts.append(
