@@ -2,8 +2,8 @@
 
     psrmap experiment ramps   [--seeds 0] [--runs 4] [--angles 5,10,15,20] --out DIR
     psrmap experiment slopes  [--seeds 0] [--runs 4] --out DIR
-    psrmap experiment lunar   [--seeds 0,1,2] [--runs 1] [--slippery-patches 4] --out DIR
-    psrmap experiment utility [--seeds 0,1,2] [--runs 1] [--scouts west,east] [--unknown infer] --out DIR
+    psrmap experiment lunar   [--seeds 0,1,2,3,4] [--runs 1] [--slippery-patches 4] --out DIR
+    psrmap experiment utility [--seeds 0,1,2,3,4] [--runs 1] [--scouts west,east] [--unknown infer] --out DIR
     psrmap experiment all     --out DIR          # each experiment in DIR/<name>/, runs shared
 
 Each writes `results.json` (every figure quoted in docs/results.md) and PNG figures into its folder, with
@@ -60,7 +60,7 @@ def _add_common(p: argparse.ArgumentParser) -> None:
         type=_seeds,
         metavar="S,...",
         help="seeds (ramps/slopes: noise seeds ×100 + run; lunar/utility: terrain seeds); "
-        "default per experiment: ramps/slopes 0, lunar/utility 0,1,2",
+        "default per experiment: ramps/slopes 0, lunar/utility 0,1,2,3,4",
     )
     p.add_argument(
         "--runs",
