@@ -1,11 +1,13 @@
 """`psrmap plan` and `psrmap compare`: costed paths and route breakdowns from the shared (or a saved) map.
 
     psrmap plan --map ID --connect tcp/HOST:7447 --from x,y --to x,y [--weights cot=1,slip=2]
-                [--unknown forbid|penalty|infer] [--json] [--rrd PATH]
+                [--unknown forbid|penalty|infer] [--slip-spread M] [--json] [--rrd PATH]
     psrmap compare --map ID --connect ... --route "x,y x,y ..." [--route ...] [--json]
 
-`--npz FILE` plans on a scout's saved map instead of querying a server. Output: a table, or with
-`--json` one JSON object (`plan`: path, length_m, cost, breakdown; `compare`: routes = a list of those).
+`--npz FILE` plans on a scout's saved map instead of querying a server. `--slip-spread M` (default
+0.8 m, 0 = the raw slip layer): each cell's slip term reads the largest slip rate within M metres
+(`consumer_planner.costs`). Output: a table, or with `--json` one JSON object (`plan`: path, length_m,
+cost, breakdown; `compare`: routes = a list of those).
 """
 
 from __future__ import annotations
@@ -42,6 +44,18 @@ def _route(text: str) -> list[Point]:
     return pts
 
 
+def _spread(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        v = math.nan
+    if not (v >= 0 and math.isfinite(v)):
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: give a radius in metres, 0 <= M < inf (0 = the raw slip layer)"
+        )
+    return v
+
+
 def _common(p: argparse.ArgumentParser) -> None:
     src = p.add_argument_group("map source (one of --connect, --npz)")
     src.add_argument("--map", metavar="ID", help="map id (with --connect)")
@@ -67,6 +81,14 @@ def _common(p: argparse.ArgumentParser) -> None:
         default="penalty",
         metavar="POLICY",
         help=f"unknown cells: {' | '.join(UNKNOWN_POLICIES)} (default penalty)",
+    )
+    p.add_argument(
+        "--slip-spread",
+        type=_spread,
+        default=CostConfig.slip_spread_m,
+        metavar="M",
+        help="each cell's slip term reads the largest slip rate within M metres, 0 <= M "
+        f"(default {CostConfig.slip_spread_m:g}; 0 = the raw slip layer)",
     )
     p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
     p.add_argument("--rrd", metavar="PATH", help="also save a Rerun recording of the cost grid and routes")
@@ -112,7 +134,12 @@ def _config(args: argparse.Namespace) -> CostConfig:
     if args.unknown not in UNKNOWN_POLICIES:
         args._parser.error(f"--unknown {args.unknown!r}; choose one of: {', '.join(UNKNOWN_POLICIES)}")
     try:
-        return replace(CostConfig(), weights=parse_weights(args.weights), unknown=args.unknown)
+        return replace(
+            CostConfig(),
+            weights=parse_weights(args.weights),
+            unknown=args.unknown,
+            slip_spread_m=args.slip_spread,
+        )
     except PlannerError as exc:
         args._parser.error(f"--weights: {exc}")
         raise  # unreachable: error() exits
@@ -178,6 +205,7 @@ def _finish(args: argparse.Namespace, grid: LayerGrid, costs, routes: list[Route
         "map": grid.map,
         "version": grid.version,
         "unknown": costs.config.unknown,
+        "slip_spread_m": costs.config.slip_spread_m,
         "weights": asdict(costs.config.weights),
     }
     if args.json:
@@ -185,7 +213,10 @@ def _finish(args: argparse.Namespace, grid: LayerGrid, costs, routes: list[Route
         print(json.dumps({**head, **body}))
     else:
         size = f"{grid.w}x{grid.h} cells of {grid.res:g} m"
-        print(f"map {grid.map} v{grid.version}, {size}, unknown={head['unknown']}")
+        print(
+            f"map {grid.map} v{grid.version}, {size}, unknown={head['unknown']}, "
+            f"slip spread {head['slip_spread_m']:g} m"
+        )
         print(_table(routes))
     return 0
 

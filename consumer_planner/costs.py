@@ -22,6 +22,20 @@ normalised by the weight of the known cells: sum_uv m_uv S_uv N(.) / sum_uv m_uv
 `infer_sigma_cells`, cut at 3 sigma); the cell is marked `inferred` and costed like a known one
 (its confidence term is the full weight, n = 0); cells with no known cell within reach stay
 impassable. Hard limits (`Limits`) make a known or inferred cell impassable.
+
+Slip spreading (`slip_spread_m`, default 0.8 m; 0 = off): the slip-rate metric of every cell is the
+largest measured slip rate (events / n of a known cell) within `slip_spread_m` of it, centre to centre
+(a grey dilation over a disc; a cell's own rate counts, and a gap- or eq.-17-filled rate is kept where
+it is larger). A scout's slip layer marks only the cells its feet slipped in, a strip narrower than the
+slippery ground; read raw, a planner steps one cell aside and still crosses the patch (paper eq. 17
+smooths the slip layer at read time for the same reason). A cell reached only by the spread (no
+samples, not inferred) counts as known *for the slip term alone*: it keeps its unknown policy for
+everything else — under `penalty` it costs distance + `unknown_penalty` + the slip term (spreading
+never makes unmapped ground cheaper), under `forbid` (and `infer` beyond reach) it stays impassable,
+it does not make a cell `inferred`, and it counts as unknown in a route's `unknown_fraction`.
+`Limits.max_slip_rate` reads the spread rate too. The breakdown's `expected_slip_events` reads the
+same spread rate the slip term charges (so terms["slip"] = weights.slip * expected_slip_events): an
+upper estimate near slip cells; `slip_spread_m=0` gives the raw layer's count.
 """
 
 from __future__ import annotations
@@ -47,6 +61,7 @@ __all__ = [
     "Weights",
     "build_costs",
     "parse_weights",
+    "spread_max",
 ]
 
 UNKNOWN_POLICIES = ("forbid", "penalty", "infer")
@@ -92,10 +107,15 @@ class CostConfig:
     giam_ref: float = 0.9  # [m/s^2], ditto (flat static ~0.9 m/s^2)
     slope_ref_deg: float = 30.0  # slope term = 1 at this slope
     confidence_n: float = 10.0  # samples at which the confidence term halves
+    # [m] the slip term of a cell reads the largest slip rate within this radius (0 = the raw layer);
+    # 0.8 m = half a slippery patch: in the map-utility experiment this made planned routes avoid patches
+    slip_spread_m: float = 0.8
 
     def __post_init__(self) -> None:
         if self.unknown not in UNKNOWN_POLICIES:
             raise PlannerError(f"no unknown policy {self.unknown!r}; policies: {', '.join(UNKNOWN_POLICIES)}")
+        if not (self.slip_spread_m >= 0 and math.isfinite(self.slip_spread_m)):
+            raise PlannerError(f"slip_spread_m={self.slip_spread_m} must be a finite radius >= 0 m (0 = off)")
         bad = [f"{t}={getattr(self.weights, t)}" for t in TERMS if not getattr(self.weights, t) >= 0]
         if bad:
             raise PlannerError(f"weights must be finite and >= 0: {', '.join(bad)}")
@@ -169,6 +189,19 @@ def read_metrics(grid: LayerGrid) -> tuple[dict[str, np.ndarray], np.ndarray]:
     return metrics, count
 
 
+def spread_max(values: np.ndarray, radius_m: float, res: float) -> np.ndarray:
+    """Per cell, the largest finite value among the cells whose centres lie within `radius_m` of its
+    centre (itself included; a grey dilation over a disc of cells); NaN where none is finite."""
+    r = int(math.floor(radius_m / res + 1e-9))
+    if r < 1:
+        return values.copy()
+    yy, xx = np.mgrid[-r : r + 1, -r : r + 1]
+    disc = (xx**2 + yy**2) * res**2 <= radius_m**2 + 1e-9 * res**2
+    lifted = np.where(np.isfinite(values), values, -np.inf)
+    out = ndimage.maximum_filter(lifted, footprint=disc, mode="constant", cval=-np.inf)
+    return np.where(np.isfinite(out), out, np.nan)
+
+
 def _margin_term(x: np.ndarray, ref: float) -> np.ndarray:
     return np.maximum(0.0, (ref - x) / ref)
 
@@ -191,6 +224,7 @@ def build_costs(grid: LayerGrid, config: CostConfig | None = None) -> CostMap:
     known = count > 0
     metrics: dict[str, np.ndarray] = {}
     known_weight: np.ndarray | None = None  # the fill's denominator, shared by metrics known on `known`
+    measured_slip = np.where(known, raw["slip_rate"], np.nan)
     for name, m in raw.items():
         keep = np.where(known, m, np.nan)  # only samples of known cells feed the fill
         weight = None
@@ -210,6 +244,11 @@ def build_costs(grid: LayerGrid, config: CostConfig | None = None) -> CostMap:
     else:
         inferred = np.zeros(grid.shape, bool)
     costed = known | inferred
+    if config.slip_spread_m > 0:  # after `inferred`: the spread alone never makes a cell inferred
+        metrics["slip_rate"] = np.fmax(
+            metrics["slip_rate"], spread_max(measured_slip, config.slip_spread_m, grid.res)
+        )
+    slip_costed = costed | np.isfinite(metrics["slip_rate"])  # + cells reached only by the spread
 
     lim = config.limits
     with np.errstate(invalid="ignore"):
@@ -222,11 +261,14 @@ def build_costs(grid: LayerGrid, config: CostConfig | None = None) -> CostMap:
     terms: dict[str, np.ndarray] = {}
     for name in TERMS:
         t = np.nan_to_num(_TERM_FUNCS[name](metrics, count, config), nan=0.0)
-        terms[name] = np.where(costed, getattr(config.weights, name) * t, 0.0)
+        terms[name] = np.where(
+            slip_costed if name == "slip" else costed, getattr(config.weights, name) * t, 0.0
+        )
     penalized = ~costed if config.unknown == "penalty" else np.zeros(grid.shape, bool)
     terms["distance"] = np.where(penalized, config.weights.distance, terms["distance"])
     terms["unknown"] = np.where(penalized, config.unknown_penalty, 0.0)
-    impassable = (costed & over) | (~costed & ~penalized)
+    # metrics are NaN (never over a limit) on uncosted cells, except a spread slip rate there
+    impassable = over | (~costed & ~penalized)
     cost = np.zeros(grid.shape)
     for t in terms.values():
         cost += t

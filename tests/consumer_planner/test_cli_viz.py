@@ -55,6 +55,8 @@ def test_compare_table_and_json(npz, capsys):
     [
         (["--unknown", "guess"], "forbid, penalty, infer"),
         (["--weights", "cots=1"], "distance, cot, slip, giim, giam, slope, confidence"),
+        (["--slip-spread=-0.4"], "0 <= M < inf (0 = the raw slip layer)"),
+        (["--slip-spread", "wide"], "0 <= M < inf (0 = the raw slip layer)"),
     ],
 )
 def test_bad_options_name_valid_values(npz, capsys, extra, message):
@@ -83,3 +85,30 @@ def test_compare_names_routes_in_order(npz, capsys):
         main(["compare", "--npz", str(npz), routes[0], routes[1], "--name", "a", "--name", "b"])
     assert exc.value.code == 2
     assert "at most one name per route" in capsys.readouterr().err
+
+
+def test_slip_spread_option_reaches_the_cost(npz, capsys):
+    """The fixture's slip rate (0.1) spreads into the unexplored band: penalty + slip term there."""
+    route = ["--route", "-0.5,-0.5 6.5,-0.5"]
+    costs = {}
+    for spread in ("0", "0.8"):
+        argv = [
+            "compare",
+            "--npz",
+            str(npz),
+            *route,
+            "--unknown",
+            "penalty",
+            "--slip-spread",
+            spread,
+            "--json",
+        ]
+        assert main(argv) == 0
+        out = json.loads(capsys.readouterr().out)
+        assert out["slip_spread_m"] == float(spread)
+        costs[spread] = out["routes"][0]["breakdown"]
+    assert costs["0.8"]["unknown_fraction"] == costs["0"]["unknown_fraction"] > 0
+    assert costs["0.8"]["expected_slip_events"] > costs["0"]["expected_slip_events"]
+    assert costs["0.8"]["terms"]["slip"] == pytest.approx(costs["0.8"]["expected_slip_events"])
+    assert main(["compare", "--npz", str(npz), *route]) == 0
+    assert "slip spread 0.8 m" in capsys.readouterr().out

@@ -81,7 +81,7 @@ def test_breakdown_equals_independent_sums_along_path():
     shape = (9, 11)
     g = make_grid(shape, cot=rng.uniform(0.8, 2, shape), slip=rng.uniform(0, 0.1, shape),
                   giim=rng.uniform(0.2, 0.8, shape), giam=rng.uniform(0.3, 1.2, shape))  # fmt: skip
-    cm = build_costs(g)
+    cm = build_costs(g, CostConfig(slip_spread_m=0.0))  # the raw slip layer (spread: test_slip_spread.py)
     r = plan_route(g, cm, (0.2, 0.2), (5.3, 4.3))
     assert r is not None
     res, cells = g.res, [tuple(c) for c in r.cells]
