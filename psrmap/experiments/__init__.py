@@ -3,7 +3,8 @@
     psrmap experiment ramps   [--seeds 0] [--runs 4] [--angles 5,10,15,20] --out DIR
     psrmap experiment slopes  [--seeds 0] [--runs 4] --out DIR
     psrmap experiment lunar   [--seeds 0,1,2,3,4] [--runs 1] [--slippery-patches 4] --out DIR
-    psrmap experiment utility [--seeds 0,1,2,3,4] [--runs 1] [--scouts west,east] [--unknown infer] --out DIR
+    psrmap experiment utility [--seeds 0,1,2,3,4] [--runs 1] [--scouts west,east] [--unknown infer]
+                              [--slip-spread 0.8] --out DIR
     psrmap experiment all     --out DIR          # each experiment in DIR/<name>/, runs shared
 
 Each writes `results.json` (every figure quoted in docs/results.md) and PNG figures into its folder, with

@@ -186,11 +186,13 @@ def trajectory_row(runs: list[dict]) -> dict[str, Any]:
 
 
 def compare_on_merged(grid: Any, routes: dict[str, Any]) -> dict[str, Any]:
-    """The planner's breakdown of each named route on the merged map (default cost config)."""
+    """The planner's breakdown of each named route on the merged map: default cost config but the raw
+    slip layer (`slip_spread_m=0`), so the expected slips count what the map holds on the route's cells
+    (the planner's spread would charge every cell within 0.8 m of a slip cell its rate)."""
     from consumer_planner.compare import evaluate_route
     from consumer_planner.costs import CostConfig, build_costs
 
-    costs = build_costs(grid, CostConfig())
+    costs = build_costs(grid, CostConfig(slip_spread_m=0.0))
     out = {}
     for name, pts in routes.items():
         b = evaluate_route(grid, costs, pts, name=name).breakdown.as_dict()
@@ -250,7 +252,8 @@ def analyse(args: argparse.Namespace, runs: list[dict], out_dir: Path) -> dict[s
             "table_from": "each trajectory's own map: slips = Σ slip-layer events, CoT = mean over CoT "
             "cells, GIIM/GIAM = mean over cells (four-foothold default; paper variant beside)",
             "merged_from": "LocalMap merge of every run of the seed → npz → consumer_planner LayerGrid → "
-            "compare.evaluate_route on the nominal route polyline (CostConfig defaults)",
+            "compare.evaluate_route on the nominal route polyline (CostConfig defaults, raw slip layer: "
+            "slip_spread_m 0)",
             "sim_seconds_cap": args.sim_seconds,
         },
         "table": table,

@@ -226,6 +226,11 @@ def lunar_tables(r: dict) -> str:
 
 
 def utility_tables(r: dict) -> str:
+    proto = r.get("protocol", {})
+    head = (
+        f"Planner: `--unknown {proto.get('unknown')}`, slip spread "
+        f"{_f(proto.get('slip_spread_m', proto.get('inflate_slip_m')), 1)} m, weights {proto.get('weights')}."
+    )
     rows = []
     for seed, e in r["per_seed"].items():
         if "error" in e:
@@ -250,6 +255,7 @@ def utility_tables(r: dict) -> str:
                 ]
             )
     parts = [
+        head,
         "Predicted (scouts' map, planner breakdown) / experienced (fresh robot) per route:\n\n"
         + _table(
             [
@@ -267,7 +273,7 @@ def utility_tables(r: dict) -> str:
                 "fell",
             ],
             rows,
-        )
+        ),
     ]
     rows = []
     for seed, e in r["per_seed"].items():

@@ -4,7 +4,8 @@ Per terrain seed: scouts walk part of the lunar field (`--scouts`, default the w
 same runs as `lunar`'s first run, shared through the cache); their maps are merged (the server's rule) and
 read as the planner's `LayerGrid`; the planner picks the cheapest route from `--from` to `--to` across it
 (`--unknown infer` by default: unmapped cells near mapped ones are filled by the paper's eq. 17, farther
-ones are impassable). A fresh robot (a new noise seed, its own start offset) then walks the planned route
+ones are impassable; `--slip-spread M`, default the planner's 0.8 m: each cell's slip term reads the
+largest slip rate within M metres, 0 = the raw slip layer). A fresh robot (a new noise seed, its own start offset) then walks the planned route
 and the straight one, mapping as it goes.
 
 Reported per route: what the scouts' map predicted (planner breakdown: mean CoT, expected slip events, mean
@@ -34,6 +35,7 @@ __all__ = [
     "run",
     "scout_specs",
     "simplify",
+    "slip_spread_m",
     "specs",
 ]
 
@@ -75,12 +77,33 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--weights", default="", metavar="NAME=W,...", help="planner cost weights (default: planner's)"
     )
     g.add_argument(
-        "--inflate-slip",
-        type=float,
-        default=0.0,
+        "--slip-spread",
+        "--inflate-slip",  # the experiment's option before the planner had it
+        dest="slip_spread",
+        type=_spread,
+        default=None,
         metavar="M",
-        help="spread each cell's slip rate over this radius [m] before planning (default 0: the map as is)",
+        help="planner's slip spread: each cell's slip term reads the largest slip rate within M metres, "
+        "0 <= M (default: the planner's, 0.8; 0 = the raw slip layer)",
     )
+
+
+def _spread(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        v = math.nan
+    if not (v >= 0 and math.isfinite(v)):
+        raise argparse.ArgumentTypeError(f"{text!r}: give a radius in metres, 0 <= M < inf (0 = off)")
+    return v
+
+
+def slip_spread_m(args: argparse.Namespace) -> float:
+    """The planner's slip spread radius [m] this run uses (`--slip-spread`, else the planner default)."""
+    from consumer_planner.costs import CostConfig
+
+    v = getattr(args, "slip_spread", None)
+    return CostConfig.slip_spread_m if v is None else float(v)
 
 
 def _scouts(args: argparse.Namespace) -> tuple[str, ...]:
@@ -129,7 +152,9 @@ def _cost_config(args: argparse.Namespace, unknown: str | None = None):
     policy: Any = unknown or args.unknown  # one of UNKNOWN_POLICIES, checked here
     if policy not in UNKNOWN_POLICIES:
         raise SystemExit(f"psrmap experiment: --unknown {policy!r}; policies: {', '.join(UNKNOWN_POLICIES)}")
-    return replace(CostConfig(), weights=parse_weights(args.weights), unknown=policy)
+    return replace(
+        CostConfig(), weights=parse_weights(args.weights), unknown=policy, slip_spread_m=slip_spread_m(args)
+    )
 
 
 def plan(args: argparse.Namespace, seed: int, scouts: list[dict], out_dir: Path) -> dict[str, Any]:
@@ -138,8 +163,6 @@ def plan(args: argparse.Namespace, seed: int, scouts: list[dict], out_dir: Path)
     from consumer_planner.errors import PlannerError
 
     grid = lunar.merged_grid(scouts, out_dir / f"scouts_seed{seed}.npz", f"scouts{seed}")
-    if getattr(args, "inflate_slip", 0.0) > 0:
-        grid = inflate_slip(grid, args.inflate_slip)
     costs = build_costs(grid, _cost_config(args))
     start, goal = tuple(args.utility_from), tuple(args.utility_to)
     out: dict[str, Any] = {"grid": grid, "costs": costs}
@@ -167,30 +190,6 @@ def plan(args: argparse.Namespace, seed: int, scouts: list[dict], out_dir: Path)
     out["waypoints"] = [tuple(round(float(v), 3) for v in p) for p in wps]
     out["planned_predicted"] = route.breakdown.as_dict()
     return out
-
-
-def inflate_slip(grid: Any, radius_m: float) -> Any:
-    """The grid with its slip layer spread: every cell within `radius_m` of a cell takes at least that cell's
-    slip rate (a grey dilation over a disc). A scout's slips mark only the cells its feet slipped in, a strip
-    narrower than the slippery ground; a planner reading the raw layer can dodge by one cell and still cross
-    the patch. Cells that had no stance get n = 1 and the spread rate as events (so they count as known)."""
-    from dataclasses import replace
-
-    from scipy.ndimage import grey_dilation
-
-    slip = grid.layers["slip"]
-    n = np.nan_to_num(slip["n"], nan=0.0)
-    rate = np.where(n > 0, np.nan_to_num(slip["events"], nan=0.0) / np.maximum(n, 1e-12), 0.0)
-    r = int(np.ceil(radius_m / grid.res))
-    yy, xx = np.mgrid[-r : r + 1, -r : r + 1]
-    disc = (xx**2 + yy**2) * grid.res**2 <= radius_m**2 + 1e-9
-    spread = grey_dilation(rate, footprint=disc, mode="constant", cval=0.0)
-    n_new = np.where((n <= 0) & (spread > 0), 1.0, n)
-    events = np.where(spread > rate, spread * n_new, np.nan_to_num(slip["events"], nan=0.0))
-    layers = {k: dict(v) for k, v in grid.layers.items()}
-    layers["slip"] = {**slip, "n": n_new, "events": events}
-    layers["slip"].pop("value", None)
-    return replace(grid, layers=layers)
 
 
 def fresh_specs(args: argparse.Namespace, seed: int, routes: dict[str, list]) -> list[RunSpec]:
@@ -415,7 +414,7 @@ def run(args: argparse.Namespace, pool: RunPool, out_dir: Path) -> dict[str, Any
             "to": list(args.utility_to),
             "unknown": args.unknown,
             "weights": args.weights or "planner defaults",
-            "inflate_slip_m": getattr(args, "inflate_slip", 0.0),
+            "slip_spread_m": slip_spread_m(args),
             "slippery_patches": args.slippery_patches,
             "fresh_noise_seed": f"seed·100 + {FRESH_NOISE_OFFSET} + run (scouts: seed·100)",
             "energy": "Σ E/(m·g) over the walk [m] = whole-walk CoT × distance",

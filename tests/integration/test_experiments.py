@@ -107,6 +107,27 @@ def test_utility_plans_on_the_scouts_map_and_walks_both_routes(reduced: tuple[Pa
         assert seed["experienced"][name]["reached_goal"] == 1
         assert seed["predicted"][name]["mean_cot"] is not None
     assert set(seed["planned_beat_straight"]) >= {"energy", "gt_slips", "giim_mean"}
+    assert res["protocol"]["slip_spread_m"] == 0.8  # the planner's default slip spread
+
+
+def test_utility_slip_spread_is_the_planners_option() -> None:
+    import argparse
+
+    from psrmap.experiments import register
+    from psrmap.experiments.utility import _cost_config
+
+    parser = argparse.ArgumentParser()
+    register(parser.add_subparsers())
+
+    def config(*extra: str):
+        return _cost_config(parser.parse_args(["experiment", "utility", "--out", "x", *extra]))
+
+    assert config().slip_spread_m == 0.8  # the planner's default
+    assert config("--slip-spread", "0").slip_spread_m == 0.0
+    assert config("--inflate-slip", "1.2").slip_spread_m == 1.2  # the old option's name still works
+    assert config("--unknown", "penalty").unknown == "penalty"
+    with pytest.raises(SystemExit):
+        config("--slip-spread=-1")
 
 
 def test_second_call_reads_the_cache(reduced: tuple[Path, float]) -> None:
