@@ -18,21 +18,40 @@ Two detector forms share this module (`SlipConfig.form`):
   2. The ΔV flag is sticky within a stance and confirmed by ΔP: ΔV peaks at slip onset, ΔP builds up later, so
      "both at the same instant" (eq. 3) almost never holds.
   3. Touchdown is the first contact flag inside the gait's planned stance and is never re-taken inside it:
-     contact flicker otherwise resets the reference and hides the displacement.
-  4. The first `settle_s` of each stance is skipped (impact transients).
+     contact flicker otherwise resets the reference and hides the displacement. Its reference point, though,
+     is where the foot was at the last tick of the planned swing if the foot was already in contact then
+     (it usually lands a tick early: 77 % of stances on lunar terrain): the foot moves 1 mm on average,
+     up to 7 mm, between that tick and the first in-stance tick, and the ground-truth criterion (the contact
+     point's displacement since its first contact) counts that motion. Measured on the 9 lunar runs: without
+     it ΔP read 1–3 mm short of the true displacement on exactly the borderline 2.0–2.6 cm slips that were
+     missed. (Uses only the contact flag and the gait schedule, both in ProprioSample.)
+  4. The first `settle_s` of each stance is skipped (impact transients): no ΔV or ΔP is looked at then. A
+     displacement made inside it still counts once settled (ΔP is measured from the touchdown point), as in
+     the ground truth, but only through ΔP > `eps_p_alone_m` (item 8), since its ΔV was not seen.
   5. The base velocity the robot knows carries a bias (the simulator's honest input: 0.02 m/s); integrated
      over a 0.4 s stance it alone makes ΔP ≈ 8 mm. The detector estimates it like a kinematic-inertial state
      estimator would: the apparent world velocity of a planted foot, minus its rolling ω_foot × r·n̂ (a ball
      foot's centre rolls 4–7 mm per stance), is the base velocity's error; its per-stance mean, from stances
      that ended without a slip, moves the estimate with time constant `bias_tau_s`, and the estimate is
      subtracted from the base velocity before ΔV and ΔP. Not circular: one stance weighs ≈ 0.2 in a 2 s
-     average across all feet, and slipping stances are left out.
+     average across all feet, and slipping stances are left out. Only ticks ≥ `bias_settle_s` (0.1 s) after
+     touchdown feed it: a landing foot rebounds out of the (soft) ground, its centre rises ≈ 5.5 mm in the
+     first 0.1 s (≈ 0.07 m/s at 0.05–0.075 s, measured on ramps with exact state), and with those ticks
+     the estimate carried a spurious +0.005 m/s vertical bias even with exact state (2 mm of false ΔP per
+     stance; 3 of the 49 lunar slips missed with exact state were missed for this alone).
   6. The velocity error is low-passed (`dv_tau_s` = 24 ms) within a stance before ΔV: the 0.03 m/s white
      noise divided by h = 0.05 m/s on the axes where ẋ_des ≈ 0 otherwise puts ΔV ≈ 1 on every tick.
   7. ε_v history: the ΔV values of stances that ended without a slip (the paper: "recent ΔV"). Where slips
      are dense (25–75 % of stances on a slippery patch) the plain percentile rises into the slips themselves.
      Floor `eps_v_floor` = 1.0 (REFERENCE suggests 1.5 for a 500 Hz loop without input noise; here slow
      downhill slips peak at ΔV ≈ 1–2, because eq. 1 divides the along-track error by |ẋ_des| + h ≈ 0.25).
+  8. A ΔP above `eps_p_alone_m` (0.024 m = 1.2 ε_p) is a slip without any ΔV flag. Slow creeping slips
+     (0.1 m/s or less, common on lunar slippery patches) never raise the noise-filtered ΔV above ε_v: on the
+     9 lunar runs 3 true slips of 2.6–3.3 cm (ΔP 2.4–3.3 cm) had ΔV peaks of 0.76–0.96 with ε_v 1.0–1.26;
+     the velocity normalisation of eq. 1 divides a slow along-track creep by |ẋ_des| + h ≈ 0.3. ΔV's job is to
+     reject ΔP made of base-velocity error; with the bias estimated, ΔP of non-slipping stances stayed
+     ≤ 0.0216 m on lunar terrain and ≤ 0.016 m on plain 5–20° ramps (honest state), so 0.024 m keeps a
+     margin. Between ε_p and this, the ΔV confirmation of item 2 is still required.
 
 Both forms: ε_v = max(`eps_v_floor`, `eps_v_percentile` percentile of ≈ `eps_v_window_s` of recent ΔV), updated
 when a stance ends; ε_p is fixed (0.02 m, the ground-truth criterion); at most one event per foot per planned
@@ -59,9 +78,11 @@ class SlipConfig:
     eps_v_percentile: float = 95.0  # ε_v = this percentile of recent ΔV
     eps_v_window_s: float = 1.5  # window of recent ΔV [s]
     eps_v_floor: float = 1.0  # ε_v never below this (dimensionless, like ΔV)
+    eps_p_alone_m: float = 0.024  # ΔP above this is a slip with no ΔV flag [m] (default form; inf = off)
     settle_s: float = 0.05  # start-of-stance settling skipped [s] (default form)
     dv_tau_s: float = 0.024  # low-pass of the foot velocity error before ΔV [s] (default form; 0 = off)
     bias_tau_s: float = 2.0  # time constant of the base-velocity bias estimate [s] (default form; 0 = off)
+    bias_settle_s: float = 0.1  # planted feet feed the bias only this long after touchdown [s]
     bias_gate_mps: float = 0.15  # feet whose apparent world velocity exceeds this do not feed the bias [m/s]
     foot_radius_m: float = 0.0265  # ball foot radius, for the rolling term of the bias estimate [m]
 
@@ -131,6 +152,8 @@ class SlipDetector:
         self._t_td = [0.0] * 4
         self._p_td = [[0.0, 0.0, 0.0] for _ in range(4)]  # touchdown foot points, integration frame [m]
         self._vflag = [False] * 4
+        self._pre = [False] * 4  # in contact at the last planned-swing tick
+        self._p_pre = [[0.0, 0.0, 0.0] for _ in range(4)]  # the foot point then, integration frame [m]
         self._slipped = [False] * 4
         self._err = [[0.0, 0.0, 0.0] for _ in range(4)]  # low-passed foot velocity error, base frame [m/s]
         self._err_new = [True] * 4
@@ -202,9 +225,17 @@ class SlipDetector:
                     slip_out[i] = slipped[i]
                 self._commit(i, slipped[i])
                 touched[i] = vflag[i] = slipped[i] = False
-            if not p:
-                continue
             ci = cont[i]
+            if not p:
+                if ci and not paper:  # in contact before the planned stance (early touchdown): remember where
+                    if rot is None:
+                        rot, fpos = world_R_base.tolist(), foot_pos.tolist()
+                    f = fpos[i]
+                    self._p_pre[i] = [
+                        pb[k] + rot[k][0] * f[0] + rot[k][1] * f[1] + rot[k][2] * f[2] for k in range(3)
+                    ]
+                self._pre[i] = ci
+                continue
             if ci and (not self._contact_prev[i] if paper else not touched[i]):
                 if rot is None:
                     rot, fpos = world_R_base.tolist(), foot_pos.tolist()
@@ -213,9 +244,13 @@ class SlipDetector:
                 self._err_new[i] = True
                 self._t_td[i] = t
                 f = fpos[i]
-                self._p_td[i] = [
-                    pb[k] + rot[k][0] * f[0] + rot[k][1] * f[1] + rot[k][2] * f[2] for k in range(3)
-                ]
+                # the foot landed in late swing: the reference is its point then (as in the ground truth)
+                if self._pre[i] and not paper:
+                    self._p_td[i] = self._p_pre[i]
+                else:
+                    self._p_td[i] = [
+                        pb[k] + rot[k][0] * f[0] + rot[k][1] * f[1] + rot[k][2] * f[2] for k in range(3)
+                    ]
             if not (ci and touched[i]) or (not paper and t - self._t_td[i] < c.settle_s - 1e-9):
                 slip_out[i] = slip_out[i] or slipped[i]
                 continue
@@ -263,8 +298,8 @@ class SlipDetector:
                 dpi = math.sqrt((xd[0] - f[0]) ** 2 + (xd[1] - f[1]) ** 2 + (xd[2] - f[2]) ** 2)
                 if dvi > eps_v:
                     vflag[i] = True
-                hit = vflag[i] and dpi > eps_p
-            if use_bias:
+                hit = dpi > eps_p and (vflag[i] or dpi > c.eps_p_alone_m)
+            if use_bias and t - self._t_td[i] >= c.bias_settle_s - 1e-9:
                 # a planted ball foot moves only by rolling, ω_foot × r·n̂ (n̂ ≈ world up, in the base frame the
                 # third row of R); the rest of its apparent velocity is the base velocity's error. Summed here,
                 # it updates the bias at the end of the stance if the stance had no slip (`_commit`).

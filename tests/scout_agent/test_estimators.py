@@ -169,10 +169,30 @@ def test_sticky_flag_catches_a_slip_whose_displacement_builds_after_the_velocity
             return np.array([0.04, 0, 0])
         return Z3
 
-    ev_default, _ = run_stance(warm(SlipDetector()), v, duration=0.7)
+    # (ΔP-alone confirmation off: this checks the held ΔV flag on its own)
+    ev_default, _ = run_stance(warm(SlipDetector(SlipConfig(eps_p_alone_m=math.inf))), v, duration=0.7)
     ev_paper, _ = run_stance(warm(SlipDetector(SlipConfig(form="paper"))), v, duration=0.7)
     assert ev_default.sum() == 1
     assert ev_paper.sum() == 0
+
+
+@pytest.mark.parametrize(("creep_s", "expect"), [(0.45, 1), (0.36, 0)])
+def test_a_slow_creep_is_a_slip_once_dp_passes_eps_p_alone_without_a_dv_flag(creep_s, expect):
+    # the base walks at 0.25 m/s, so ẋ_des ≈ −0.25 along x and a 0.06 m/s creep gives ΔV = 0.06/0.30 = 0.2 ≪ ε_v
+    v_base = np.array([0.25, 0.0, 0.0])
+    creep = slide(0.05, 0.05 + creep_s, [0.06, 0.0, 0.0])  # 0.45 s → 2.7 cm; 0.36 s → 2.16 cm
+    ev, ticks = run_stance(warm(SlipDetector()), creep, duration=0.6, base_vel=v_base)
+    assert np.nanmax([t.dv[0] for t in ticks]) < 0.25
+    assert ev.sum() == expect
+    if expect:  # the event comes when ΔP passes 0.024 m: 0.4 s of creep after its onset at 0.05 s
+        assert ticks[int(np.argmax(ev))].dp[0] == pytest.approx(0.024, abs=2e-4)
+        assert 0.43 <= int(np.argmax(ev)) * DT <= 0.456
+    else:  # 2.16 cm: above ε_p, below ε_p-alone, no ΔV flag → not a slip
+        assert np.nanmax([t.dp[0] for t in ticks]) > 0.02
+    off, _ = run_stance(
+        warm(SlipDetector(SlipConfig(eps_p_alone_m=math.inf))), creep, duration=0.6, base_vel=v_base
+    )
+    assert off.sum() == 0  # without the ΔP-alone rule the creep is never confirmed
 
 
 def test_contact_flicker_does_not_reset_the_default_reference():
@@ -195,11 +215,56 @@ def test_touchdown_is_the_first_contact_inside_the_planned_stance():
     assert td == [25]
 
 
+@pytest.mark.parametrize("form", ["default", "paper"])
+def test_the_reference_is_the_last_swing_tick_when_the_foot_lands_early(form):
+    # FL touches the ground at A at the last tick of its planned swing, then slides 6 mm (0.3 m/s for 20 ms)
+    # over the first stance ticks: ΔP must count from A, as ground truth does
+    cfg = SlipConfig(form=form, settle_s=0.0, dv_tau_s=0.0, bias_tau_s=0.0)
+    det = warm(SlipDetector(cfg))
+    a = FOOT0.copy()
+    off = np.zeros(4, dtype=bool)
+    fl = np.array([True, False, False, False])
+    t0 = 0.0
+    det.update(t0 - DT, off, fl, np.tile(a, (4, 1)), np.zeros((4, 3)), I3, Z3, Z3)  # swing, in contact at A
+    p = a.copy()
+    v = np.array([0.3, 0.0, 0.0])
+    dps = []
+    for k in range(20):  # planned stance, in contact, sliding at 0.3 m/s for 20 ms then still
+        fv = v if k < 10 else Z3
+        tick = det.update(t0 + k * DT, fl, fl, np.tile(p, (4, 1)), np.tile(fv, (4, 1)), I3, Z3, Z3)
+        dps.append(tick.dp[0])
+        p = p + fv * DT
+    if form == "default":
+        assert dps[0] == pytest.approx(0.0, abs=1e-12)  # at the first stance tick the foot is still at A
+        assert dps[-1] == pytest.approx(0.006, abs=1e-9)  # all 6 mm since A
+        assert dps[-1] == pytest.approx(float(np.linalg.norm(p - a)), abs=1e-9)
+    else:  # the paper form takes its reference at a rising edge of the contact flag, and there was none
+        assert all(math.isnan(d) for d in dps)
+
+
+def test_the_early_touchdown_reference_is_used_only_if_the_last_swing_tick_had_contact():
+    cfg = SlipConfig(settle_s=0.0, dv_tau_s=0.0, bias_tau_s=0.0)
+    det = warm(SlipDetector(cfg))
+    off = np.zeros(4, dtype=bool)
+    fl = np.array([True, False, False, False])
+    # contact early in the swing at B (a scuff), lifted again at the last swing tick: B must not be used
+    b = FOOT0 + [0.05, 0.0, 0.0]
+    det.update(-2 * DT, off, fl, np.tile(b, (4, 1)), np.zeros((4, 3)), I3, Z3, Z3)
+    det.update(-DT, off, off, np.tile(FOOT0, (4, 1)), np.zeros((4, 3)), I3, Z3, Z3)
+    tick = det.update(0.0, fl, fl, np.tile(FOOT0, (4, 1)), np.zeros((4, 3)), I3, Z3, Z3)
+    assert tick.touchdown[0] and tick.dp[0] == pytest.approx(0.0, abs=1e-12)
+
+
 def test_slip_during_settling_is_ignored_and_a_later_stance_can_slip_again():
     det = warm(SlipDetector())
-    # a 3 cm slide entirely inside the first 50 ms (impact) must not count
-    ev, _ = run_stance(det, slide(0.0, 0.045, [0.7, 0, 0]))
+    # a 2.2 cm slide entirely inside the first 50 ms (impact): ΔV is not looked at while settling, and the
+    # 2.2 cm left afterwards is below ε_p-alone, so it does not count
+    ev, _ = run_stance(det, slide(0.0, 0.044, [0.5, 0, 0]))
     assert ev.sum() == 0
+    # a 3 cm one does: the ground-truth criterion counts it, and ΔP > ε_p-alone needs no ΔV flag; the event
+    # comes at the first settled tick
+    ev, ticks = run_stance(warm(SlipDetector()), slide(0.0, 0.045, [0.7, 0, 0]))
+    assert ev.sum() == 1 and int(np.argmax(ev)) * DT == pytest.approx(0.05)
     det2 = warm(SlipDetector())
     ev1, _ = run_stance(det2, slide(0.1, 0.25, [0.3, 0, 0]))
     ev2, _ = run_stance(det2, slide(0.1, 0.25, [0.3, 0, 0]), t0=1.0)
@@ -275,6 +340,40 @@ def test_a_constant_base_velocity_bias_is_learnt_from_planted_feet():
     # the white noise is common to all feet of a tick: over τ = 2 s it leaves σ ≈ 0.03/√250 ≈ 0.002 m/s
     np.testing.assert_allclose(det.bias, bias, atol=0.005)
     assert events == 0
+
+
+@pytest.mark.parametrize(("bias_settle_s", "spurious"), [(0.1, False), (0.05, True)])
+def test_the_landing_rebound_does_not_feed_the_bias(bias_settle_s, spurious):
+    # exact base velocity; every landing foot rises 5.5 mm out of the ground in its first 0.1 s, then stays
+    det = SlipDetector(SlipConfig(bias_settle_s=bias_settle_s))
+    v_true = np.array([0.2, 0.0, 0.0])
+    base = np.zeros(3)
+    nominal = np.array([FOOT0, FOOT0 * [1, -1, 1], FOOT0 * [-1, 1, 1], FOOT0 * [-1, -1, 1]])
+    p_world = nominal.copy()
+    t_td = np.zeros(4)
+    prev = np.zeros(4, dtype=bool)
+    for k in range(int(8.0 / 0.008)):
+        t = k * 0.008
+        phase = (t % 0.714) / 0.714
+        diag = phase < 0.6
+        other = phase >= 0.5 or phase < 0.1
+        planned = np.array([diag, other, other, diag])
+        new = planned & ~prev
+        p_world[new] = base + nominal[new]
+        t_td[new] = t
+        rising = planned & (t - t_td < 0.1 - 1e-9)
+        vel = np.where(planned[:, None], -v_true, 0.0)
+        vel[rising, 2] += 0.055
+        tick = det.update(t, planned, planned, p_world - base, vel, I3, v_true, Z3)
+        assert not any(tick.event)
+        p_world[rising, 2] += 0.055 * 0.008
+        base = base + v_true * 0.008
+        prev = planned
+    if spurious:  # ticks 0.05–0.1 s after touchdown: ≈ 0.055 · 0.05 / 0.38 ≈ 0.007 m/s of false bias
+        assert det.bias[2] > 0.003
+    else:
+        assert abs(det.bias[2]) < 1e-6
+    np.testing.assert_allclose(det.bias[:2], 0.0, atol=1e-9)
 
 
 def test_unknown_form_names_the_valid_ones():
