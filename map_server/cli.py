@@ -116,18 +116,7 @@ def cmd_status(args: argparse.Namespace) -> int:
 
     st = decode(_get_one(args, status_key(args.map)), expected_type="status")
     assert isinstance(st, Status)
-    out = {
-        "map": st.map,
-        "res": st.res,
-        "version": st.version,
-        "cells": st.cells,
-        "merged": st.merged,
-        "duplicates": st.duplicates,
-        "rejected": st.rejected,
-        "scouts": {
-            k: {"epoch": v.epoch, "last_seq": v.last_seq, "alive": v.alive} for k, v in st.scouts.items()
-        },
-    }
+    out = st.to_json()
     print(json.dumps(out, indent=2))
     return 0
 

@@ -91,6 +91,22 @@ class Status:
     rejected: dict[str, int] = field(default_factory=dict)
     scouts: dict[str, ScoutStatus] = field(default_factory=dict)
 
+    def to_json(self) -> dict:
+        """Plain JSON-ready dict (what `psrmap status` prints and a mission's summary.json keeps)."""
+        return {
+            "map": self.map,
+            "res": self.res,
+            "version": self.version,
+            "cells": self.cells,
+            "merged": self.merged,
+            "duplicates": self.duplicates,
+            "rejected": dict(self.rejected),
+            "scouts": {
+                k: {"epoch": v.epoch, "last_seq": v.last_seq, "alive": v.alive}
+                for k, v in self.scouts.items()
+            },
+        }
+
 
 def _split(value: str) -> tuple[str, ...]:
     return tuple(s for s in (p.strip() for p in value.split(",")) if s)

@@ -480,20 +480,7 @@ def deltas_sent(scout_summary: dict[str, Any]) -> int:
 
 
 def _status_json(st: Any) -> dict[str, Any]:
-    if st is None:
-        return {"error": "no status reply"}
-    return {
-        "map": st.map,
-        "res": st.res,
-        "version": st.version,
-        "cells": st.cells,
-        "merged": st.merged,
-        "duplicates": st.duplicates,
-        "rejected": dict(st.rejected),
-        "scouts": {
-            k: {"epoch": v.epoch, "last_seq": v.last_seq, "alive": v.alive} for k, v in st.scouts.items()
-        },
-    }
+    return {"error": "no status reply"} if st is None else st.to_json()
 
 
 def _plan_and_compare(
