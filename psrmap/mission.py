@@ -71,7 +71,7 @@ class MissionConfig:
     scouts: tuple[ScoutPlan, ...] = ()
     plan_from: tuple[float, float] = (2.0, 2.0)
     plan_to: tuple[float, float] = (18.0, 18.0)
-    unknown: str = "infer"
+    unknown: str = "penalty"
     weights: dict[str, float] = field(default_factory=dict)
     rrd: bool = True  # write Rerun recordings
     timeout_s: float = 900.0  # the whole mission gives up after this long [s wall clock]
@@ -502,7 +502,8 @@ def _plan_and_compare(
     p = _spawn(ctx, "plan", plan_argv, run_dir, env, json_out=True)
     p.proc.join(timeout=300)
     plan = _read_json(p.out) or {"error": f"plan failed (exit {p.proc.exitcode}); see {p.log}"}
-    cmp_argv = ["compare", *common, "--unknown", cfg.unknown]
+    # the comparison reads the slip layer as the map holds it (no spread): the paper's table of trajectories
+    cmp_argv = ["compare", *common, "--unknown", cfg.unknown, "--slip-spread", "0"]
     if weights:
         cmp_argv += ["--weights", weights]
     for s in cfg.scouts:
@@ -604,7 +605,8 @@ def _print_report(summary: dict[str, Any]) -> None:
             continue
         print(
             f"  {sid}: {s.get('distance_m', float('nan')):.1f} m in {s.get('sim_seconds', float('nan')):.0f} s, "
-            f"fell={s.get('fell')}, reached_goal={s.get('reached_goal')}, deltas={deltas_sent(s)}"
+            f"fell={s.get('fell')}, reached_goal={s.get('reached_goal')}, deltas={deltas_sent(s)}, "
+            f"slip events felt={s.get('map', {}).get('slip_events')}"
         )
     plan = summary.get("plan") or {}
     if "error" in plan:
@@ -617,6 +619,10 @@ def _print_report(summary: dict[str, Any]) -> None:
     if comparison.get("routes"):
         print()
         print(route_table(comparison["routes"]))
+        print(
+            "(routes costed on the slip layer as the map holds it; the planner itself spreads slip rates over "
+            f"{(summary.get('plan') or {}).get('slip_spread_m', '?')} m when it plans)"
+        )
     elif "error" in comparison:
         print(f"  comparison: {comparison['error']}")
     if summary.get("map_png"):
