@@ -21,6 +21,7 @@ from consumer_planner.compare import Route, evaluate_route, plan_route
 from consumer_planner.costs import TERMS, UNKNOWN_POLICIES, CostConfig, build_costs, parse_weights
 from consumer_planner.errors import PlannerError
 from consumer_planner.grid import LayerGrid, load_npz
+from protocol.keys import id_arg
 
 __all__ = ["register"]
 
@@ -58,7 +59,7 @@ def _spread(text: str) -> float:
 
 def _common(p: argparse.ArgumentParser) -> None:
     src = p.add_argument_group("map source (one of --connect, --npz)")
-    src.add_argument("--map", metavar="ID", help="map id (with --connect)")
+    src.add_argument("--map", metavar="ID", type=id_arg("map"), help="map id (with --connect)")
     src.add_argument(
         "--connect",
         metavar="ENDPOINT",

@@ -12,6 +12,8 @@ from collections.abc import Sequence
 from dataclasses import replace
 from typing import Any
 
+from protocol.keys import id_arg
+
 __all__ = ["main", "register"]
 
 log = logging.getLogger("map_server")
@@ -45,15 +47,30 @@ def _logging(args: argparse.Namespace) -> None:
     )
 
 
-def cmd_router(args: argparse.Namespace) -> int:
+def _open(conf: Any, args: argparse.Namespace) -> Any:
+    """A Zenoh session, or a usage error that names the endpoints and what would have worked."""
     import zenoh
+
+    try:
+        return zenoh.open(conf)
+    except zenoh.ZError as exc:
+        eps = ", ".join(
+            [*_endpoints(getattr(args, "listen", None)), *_endpoints(getattr(args, "connect", None))]
+        )
+        args.parser.error(
+            f"cannot open a Zenoh session on {eps or '(no endpoint)'}: {exc} "
+            "(endpoints look like tcp/127.0.0.1:7447; to connect, a router must be listening there)"
+        )
+
+
+def cmd_router(args: argparse.Namespace) -> int:
 
     from protocol.session import zenoh_config
 
     _logging(args)
     listen = _endpoints(args.listen)
     stop = _stop_on_signals()
-    with zenoh.open(zenoh_config(connect=_endpoints(args.connect), listen=listen, mode="router")):
+    with _open(zenoh_config(connect=_endpoints(args.connect), listen=listen, mode="router"), args):
         print(json.dumps({"router": "up", "listen": list(listen)}), flush=True)
         stop.wait()
     return 0
@@ -96,11 +113,10 @@ def cmd_server(args: argparse.Namespace) -> int:
 
 
 def _get_one(args: argparse.Namespace, selector: str) -> bytes:
-    import zenoh
 
     from protocol.session import zenoh_config
 
-    with zenoh.open(zenoh_config(connect=_endpoints(args.connect), mode="client")) as s:
+    with _open(zenoh_config(connect=_endpoints(args.connect), mode="client"), args) as s:
         for reply in s.get(selector, timeout=args.timeout):
             if reply.ok is not None:
                 return reply.ok.payload.to_bytes()
@@ -177,7 +193,7 @@ def register(subparsers: Any) -> None:
     p.set_defaults(func=cmd_router, parser=p)
 
     p = subparsers.add_parser("server", help="run the map server of one map")
-    p.add_argument("--map", required=True, help="map id ([A-Za-z0-9_-]+)")
+    p.add_argument("--map", required=True, type=id_arg("map"), help="map id ([A-Za-z0-9_-]+)")
     p.add_argument("--res", type=float, default=0.4, help="cell size [m] (default 0.4)")
     p.add_argument("--db", default=None, help="SQLite file (default: memory only, nothing persisted)")
     p.add_argument("--tile", type=int, default=64, help="tile side [cells], a power of two")
@@ -194,7 +210,7 @@ def register(subparsers: Any) -> None:
         ("query", cmd_query, "query a box of the map"),
     ):
         p = subparsers.add_parser(name, help=helptext)
-        p.add_argument("--map", required=True)
+        p.add_argument("--map", required=True, type=id_arg("map"), help="map id ([A-Za-z0-9_-]+)")
         p.add_argument("--connect", action="append", required=True, help="router endpoint")
         p.add_argument("--timeout", type=float, default=5.0, help="reply timeout [s]")
         if name == "query":

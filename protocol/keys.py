@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import argparse
 import re
+from collections.abc import Callable
 
 from protocol.errors import ProtocolError
 
@@ -35,6 +37,19 @@ def validate_id(s: object, what: str = "id") -> str:
     if not ID_PATTERN.fullmatch(s):
         raise ProtocolError("bad_id", f"{what} {s!r} must match [A-Za-z0-9_-]+ (letters, digits, '_', '-')")
     return s
+
+
+def id_arg(what: str) -> Callable[[str], str]:
+    """An argparse `type=` for a map or scout id: a bad one is a usage error naming the valid pattern."""
+
+    def parse(s: str) -> str:
+        try:
+            return validate_id(s, what)
+        except ProtocolError as exc:
+            raise argparse.ArgumentTypeError(exc.detail) from None
+
+    parse.__name__ = f"{what} id"
+    return parse
 
 
 def delta_key(map_id: str, scout_id: str) -> str:

@@ -14,6 +14,7 @@ import argparse
 import json
 from dataclasses import replace
 
+from protocol.keys import id_arg
 from scout_agent.evaluate import register_evaluate
 from scout_agent.mapping import add_mapping_arguments, attach_mapping
 from scout_agent.run import SCENES, ScoutRunConfig, build_world, run_scout
@@ -63,7 +64,7 @@ def add_scout_arguments(p: argparse.ArgumentParser) -> None:
                    help="friction rectangle (repeatable)")
     p.add_argument("--vel-noise", type=float, default=0.03, help="white noise on base velocity [m/s]")
     p.add_argument("--vel-bias", type=float, default=0.02, help="bias on base velocity [m/s]")
-    p.add_argument("--scout-id", default="scout1")
+    p.add_argument("--scout-id", default="scout1", type=id_arg("scout"), help="scout id ([A-Za-z0-9_-]+)")
 
 
 def config_from_args(args: argparse.Namespace, parser: argparse.ArgumentParser) -> ScoutRunConfig:

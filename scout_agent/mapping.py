@@ -18,6 +18,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
+from protocol.keys import id_arg
 from scout_agent.cells import CellAccumulator, LocalMap
 from scout_agent.estimators import EstimatorPipeline, PipelineConfig, TickEstimates, record
 from scout_agent.estimators.feet import PinocchioFeet
@@ -123,7 +124,7 @@ class Mapper:
 
 def add_mapping_arguments(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("mapping")
-    g.add_argument("--map", metavar="ID", help="map id to publish to (with --connect)")
+    g.add_argument("--map", metavar="ID", type=id_arg("map"), help="map id to publish to (with --connect)")
     g.add_argument(
         "--connect",
         action="append",
@@ -214,6 +215,9 @@ def attach_mapping(
     if args.connect:
         from scout_agent.publisher import ScoutPublisher
 
-        publisher = ScoutPublisher(args.map, run_config.scout_id, args.res, args.connect)
+        try:
+            publisher = ScoutPublisher(args.map, run_config.scout_id, args.res, args.connect)
+        except ConnectionError as exc:
+            err(str(exc))
     mapper = Mapper(MapperConfig(res=args.res, delta_hz=args.delta_hz), publisher=publisher)
     return MappingSession(mapper, publisher, args.save_map, on_tick, on_estimates)

@@ -40,7 +40,13 @@ class ScoutPublisher:
 
         if not connect:
             raise ValueError("no endpoint to connect to; give one like tcp/127.0.0.1:7447")
-        self._session = zenoh.open(zenoh_config(connect=list(connect), mode=mode))
+        try:
+            self._session = zenoh.open(zenoh_config(connect=list(connect), mode=mode))
+        except zenoh.ZError as exc:
+            raise ConnectionError(
+                f"cannot reach the map service's router at {', '.join(connect)} ({exc}); "
+                "is `psrmap router --listen ...` (or `psrmap server --listen ...`) running there?"
+            ) from None
         self.transport = ZenohTransport(self._session)
         self.publisher = DeltaPublisher(
             self.transport, map_id, scout_id, res, max_unacked=max_unacked, resend_after_s=resend_after_s

@@ -1,0 +1,48 @@
+"""Bad command-line input is a usage error (exit 2) that names what would have been valid — never a traceback."""
+
+from __future__ import annotations
+
+import socket
+
+import pytest
+
+from psrmap.cli import main
+
+
+def _closed_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])  # closed again when the block ends: nothing listens there
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["server", "--map", "bad.id", "--connect", "tcp/127.0.0.1:1"], "must match [A-Za-z0-9_-]+"),
+        (["status", "--map", "a/b", "--connect", "tcp/127.0.0.1:1"], "must match [A-Za-z0-9_-]+"),
+        (["plan", "--map", "x y", "--connect", "tcp/127.0.0.1:1", "--from", "1,1", "--to", "2,2"], "must match"),
+        (["scout", "--scout-id", "bad.id"], "scout 'bad.id' must match"),
+        (["scout", "--scene", "mars"], "choose from"),
+        (["scout", "--slope", "40"], "valid range is 0–25 degrees"),
+        (["query", "--map", "m", "--connect", "tcp/127.0.0.1:1", "--box", "1,2"], "give x0,y0,x1,y1"),
+        (["mission", "--scouts", "0"], "need at least 1"),
+        (["router", "--listen", "tcp/127.0.0.1:notaport"], "endpoints look like tcp/127.0.0.1:7447"),
+    ],
+)
+def test_bad_arguments_name_what_is_valid(argv, message, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    assert exc.value.code == 2
+    assert message in capsys.readouterr().err
+
+
+def test_unreachable_router_is_a_clear_error(capsys):
+    ep = f"tcp/127.0.0.1:{_closed_port()}"
+    for argv, message in (
+        (["status", "--map", "m", "--connect", ep], "a router must be listening there"),
+        (["scout", "--map", "m", "--connect", ep, "--sim-seconds", "1", "--quiet"], "is `psrmap router"),
+    ):
+        with pytest.raises(SystemExit) as exc:
+            main(argv)
+        assert exc.value.code == 2
+        assert message in capsys.readouterr().err
