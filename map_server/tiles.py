@@ -45,17 +45,6 @@ def _unkey(k: int) -> TileKey:
     return k >> 32, lo - (1 << 32) if lo >= 1 << 31 else lo
 
 
-def _contiguous_ranges(rows: np.ndarray) -> list[tuple[int, int]]:
-    """[start, stop) runs of consecutive row numbers."""
-    out: list[tuple[int, int]] = []
-    for r in rows.tolist():
-        if out and out[-1][1] == r:
-            out[-1] = (out[-1][0], r + 1)
-        else:
-            out.append((r, r + 1))
-    return out
-
-
 class _TileView(Mapping[TileKey, np.ndarray]):
     """Read-only `(tx, ty) -> (S, T*T)` view of a layer's tiles (views into the layer's store)."""
 
@@ -92,7 +81,7 @@ class LayerGrid:
         }
         self.add_rows, self.min_rows, self.max_rows = rows["add"], rows["min"], rows["max"]
         self.ops = [
-            (ufunc, _contiguous_ranges(rows[op]))
+            (ufunc, rows[op].tolist())
             for op, ufunc in (("add", np.add), ("min", np.minimum), ("max", np.maximum))
             if rows[op].size
         ]
@@ -185,6 +174,7 @@ class TiledMap:
         self._dir = np.full((0, 0), -1, dtype=np.int32)  # dense directory: [ty - ty0, tx - tx0] -> number
         self._dir0 = (0, 0)  # (tx0, ty0) of the directory
         self._cells: int | None = 0
+        self._last_cells: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
 
     # ------------------------------------------------------------------ bookkeeping
 
@@ -339,14 +329,35 @@ class TiledMap:
         grid = self._grid(name)
         if not ix.size:
             return 0
-        return self._merge_layer(name, grid, ix.astype(np.int64), iy.astype(np.int64), vals)
+        return self._merge_layer(name, grid, ix, iy, vals)
+
+    def _cell_ids(self, ix: np.ndarray, iy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(map-wide tile number, cell within the tile) of each cell, int64. The layers of a batch
+        usually list the same cells: the last answer is reused when ix, iy are equal to its inputs
+        (tile numbers never change once given, so an equal input has the same answer)."""
+        last = self._last_cells
+        if (
+            last is not None
+            and last[0].shape == ix.shape
+            and last[0].dtype == ix.dtype
+            and last[1].dtype == iy.dtype
+            and np.array_equal(last[0], ix)
+            and np.array_equal(last[1], iy)
+        ):
+            return last[2], last[3]
+        sh, mask = self.shift, self.tile - 1
+        x = ix.astype(np.int64, copy=False)
+        y = iy.astype(np.int64, copy=False)
+        g = self._global_ids(x >> sh, y >> sh)  # arithmetic shift = floor, also for negative indices
+        local = ((y & mask) << sh) | (x & mask)
+        self._last_cells = (ix.copy(), iy.copy(), g, local)  # copies: the caller may reuse its arrays
+        return g, local
 
     def _merge_layer(
         self, name: str, grid: LayerGrid, ix: np.ndarray, iy: np.ndarray, vals: np.ndarray
     ) -> int:
-        sh, mask, cells = self.shift, self.tile - 1, self.tile * self.tile
-        g = self._global_ids(ix >> sh, iy >> sh)  # arithmetic shift = floor, also for negative indices
-        local = ((iy & mask) << sh) | (ix & mask)
+        cells = self.tile * self.tile
+        g, local = self._cell_ids(ix, iy)
         slot = grid.of_global[g] if g.size and int(g.max()) < grid.of_global.size else None
         if slot is None or (slot < 0).any():
             new = np.unique(g if slot is None else g[slot < 0])
@@ -356,18 +367,21 @@ class TiledMap:
                 grid.add_tiles([k for k, _ in keys_gids], [v for _, v in keys_gids])
             slot = grid.of_global[g]
         S = len(grid.layer.stats)
-        lin = (slot * cells + local) * S  # index of a cell's first stat in the flat store
+        lin = slot * cells
+        lin += local
+        lin *= S  # index of a cell's first stat in the flat store
         flat = grid.store.reshape(-1)
-        vals = np.asarray(vals, dtype=np.float64)
-        for ufunc, ranges in grid.ops:
-            for a, b in ranges:
-                if b - a == 1:
-                    ufunc.at(flat, lin + a if a else lin, vals[a])
-                else:  # cell-major: a cell's stats are adjacent in memory
-                    idx = (lin[:, None] + np.arange(a, b, dtype=np.int64)[None, :]).reshape(-1)
-                    ufunc.at(flat, idx, vals[a:b].T.reshape(-1))
-        has = flat[lin + grid.n_row] > 0
-        self.occ.reshape(-1)[(g * cells + local)[has]] = True
+        vals = np.ascontiguousarray(vals, dtype=np.float64)
+        idx = np.empty_like(lin)
+        for ufunc, rows in grid.ops:
+            for r in rows:  # one pass over the cells per stat (small temporaries, no transposed copy)
+                ufunc.at(flat, np.add(lin, r, out=idx) if r else lin, vals[r])
+        # counts are >= 0, so a cell holds data after the merge iff it did or the delta brings n > 0
+        has = vals[grid.n_row] > 0
+        pos = g * cells
+        pos += local
+        occ = self.occ.reshape(-1)
+        occ[pos if has.all() else pos[has]] = True
         self._cells = None
         grid.dirty[slot] = True
         grid.touched[slot] = True

@@ -254,6 +254,68 @@ def _known_header(payload: bytes, known: _Known) -> tuple | None:
     return (known.map, known.scout, known.epoch, seq, t, known.res, o + len(known.res_bytes) - 7)
 
 
+_T_MARK = np.frombuffer(b"\xa1t\xcb", dtype=np.uint8)
+_TAIL_ARR = np.frombuffer(_TAIL, dtype=np.uint8)
+_SEQ_DT: dict[int, np.dtype] = {
+    1: np.dtype(">u1"),
+    2: np.dtype(">u2"),
+    4: np.dtype(">u4"),
+    8: np.dtype(">u8"),
+}
+
+
+def _known_rows(
+    arr: np.ndarray, known: _Known
+) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, _Template, np.ndarray]]:
+    """`_known_header` + the template check for rows of equal length at once (numpy over the batch).
+
+    arr: (n, L) uint8, one payload per row, all on one key expression. Returns, per layout found,
+    (row numbers, seq int64, t float64, template, the rows' layers sections (m, template size)).
+    Rows in none of them are left to the per-delta path (which decides them exactly as before).
+    """
+    out: list[tuple[np.ndarray, np.ndarray, np.ndarray, _Template, np.ndarray]] = []
+    n, L = arr.shape
+    pre = np.frombuffer(known.prefix, dtype=np.uint8)
+    p = pre.size
+    if L < p + 1 + 11 + len(known.res_bytes) + 3:
+        return out
+    ok = (arr[:, :p] == pre).all(axis=1) & (arr[:, L - 3 :] == _TAIL_ARR).all(axis=1)
+    seq_type = arr[:, p]
+    kind = np.where(seq_type < 0x80, 0, seq_type)  # positive fixint: the seq is the type byte
+    for b in np.unique(kind[ok]).tolist():
+        rows = np.flatnonzero(ok & (kind == b)) if n > 1 else np.zeros(1, dtype=np.intp)
+        if b < 0x80:
+            w = 0
+        elif b in _INT:
+            w = _INT[b]
+        else:
+            continue
+        o = p + 1 + w  # the "t" key
+        sec0 = o + 11 + len(known.res_bytes)  # the layers section
+        tpl = _TEMPLATES.get(L - sec0 - 3)
+        if tpl is None:
+            continue
+        sub = arr if rows.size == n else arr[rows]
+        if w:
+            seq = np.ascontiguousarray(sub[:, p + 1 : o]).view(_SEQ_DT[w]).reshape(-1)
+            good = seq <= _INT64_MAX if w == 8 else np.ones(rows.size, dtype=bool)
+            seq = seq.astype(np.int64)
+        else:
+            seq = sub[:, p].astype(np.int64)
+            good = np.ones(rows.size, dtype=bool)
+        t = np.ascontiguousarray(sub[:, o + 3 : o + 11]).view(">f8").reshape(-1).astype(np.float64)
+        rb = np.frombuffer(known.res_bytes, dtype=np.uint8)
+        sec = sub[:, sec0 : L - 3]
+        good &= (sub[:, o : o + 3] == _T_MARK).all(axis=1) & np.isfinite(t)
+        good &= (sub[:, o + 11 : sec0] == rb).all(axis=1)
+        good &= (sec[:, tpl.frame_idx] == tpl.frame_vals).all(axis=1)
+        if not good.all():
+            rows, seq, t, sec = rows[good], seq[good], t[good], sec[good]
+        if rows.size:
+            out.append((rows, seq, t, tpl, sec))
+    return out
+
+
 def _learn_header(key: str | None, res: float | None, head: tuple, payload: bytes) -> None:
     known = _Known(head)
     if _known_header(payload, known) is None:
@@ -360,6 +422,16 @@ def _concat(a: LayerColumns, b: LayerColumns) -> LayerColumns:
     )
 
 
+def _concat_all(parts: list[LayerColumns]) -> LayerColumns:
+    return LayerColumns(
+        parts[0].layer,
+        np.concatenate([p.seg for p in parts]),
+        np.concatenate([p.ix for p in parts]),
+        np.concatenate([p.iy for p in parts]),
+        np.concatenate([p.vals for p in parts], axis=1),
+    )
+
+
 def _single(key: str | None, payload: bytes, res: float | None, max_bytes: int) -> CellDelta:
     """The single-delta path (`codec.decode`), the reference for acceptance and errors."""
     d = unpack_envelope(payload, "cell_delta", max_bytes)
@@ -419,7 +491,36 @@ def decode_delta_batch(
     learn: list[int] = []  # deltas whose header went through msgpack: learn their scout's prefix
     tgroups: dict[int, tuple[list[int], list[bytes]]] = {}
     raws: dict[int, dict] = {}  # generic-path deltas: raw layers (to learn templates from)
+    tparts: list[tuple[_Template, np.ndarray, np.ndarray]] = []  # (template, delta indices, sections)
+    done: set[int] = set()
+    if templates and heads_known:
+        # deltas on a key expression whose header layout is known: grouped by (key, length), every
+        # check of `_known_header` and of the template frame is one numpy pass over a group
+        by_len: dict[tuple[str | None, int], list[int]] = {}
+        for i, (key, payload) in enumerate(samples):
+            if type(payload) is bytes and (key, res) in heads_known:
+                lst = by_len.get((key, len(payload)))
+                if lst is None:
+                    by_len[(key, len(payload))] = [i]
+                else:
+                    lst.append(i)
+        for (key, size), idx_list in by_len.items():
+            if size > max_bytes:
+                continue
+            kn = heads_known[(key, res)]
+            arr = np.frombuffer(b"".join([samples[i][1] for i in idx_list]), dtype=np.uint8)
+            rows_of = np.array(idx_list, dtype=np.int64)
+            for rows, seqs, ts, tpl, sec in _known_rows(arr.reshape(len(idx_list), size), kn):
+                idx = rows_of[rows]
+                names = tpl.names
+                m, sc, ep, r_ = kn.map, kn.scout, kn.epoch, kn.res
+                for i, sq, tt in zip(idx.tolist(), seqs.tolist(), ts.tolist(), strict=True):
+                    heads[i] = (m, sc, ep, sq, tt, r_, names)
+                    done.add(i)
+                tparts.append((tpl, idx, sec))
     for i, (key, payload) in enumerate(samples):
+        if i in done:
+            continue
         if len(payload) > max_bytes:
             slow.add(i)
             continue
@@ -478,6 +579,9 @@ def decode_delta_batch(
     for acc in accs.values():
         bad |= _structural_bad(acc)
     tcols: dict[str, list[LayerColumns]] = {}
+    for tpl, idx, arr in tparts:  # already checked, framing included
+        for name, c in tpl.columns(arr, idx).items():
+            tcols.setdefault(name, []).append(c)
     for size, (idx_list, sections) in tgroups.items():
         tpl = templates[size]
         idx = np.array(idx_list, dtype=np.int64)
@@ -495,9 +599,7 @@ def decode_delta_batch(
     for name in dict.fromkeys([*accs, *tcols]):
         parts = [_columns(accs[name], bad)] if name in accs else []
         parts += tcols.get(name, [])
-        c = parts[0]
-        for extra_part in parts[1:]:
-            c = _concat(c, extra_part)
+        c = parts[0] if len(parts) == 1 else _concat_all(parts)
         if c.seg.size:
             flagged = _flag_cells(c.layer, c.ix, c.iy, c.vals, c.seg)
             if flagged.size:

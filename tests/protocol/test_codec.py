@@ -237,3 +237,36 @@ def test_template_path_agrees_with_single_decode_byte_for_byte():
         kinds = [type(r).__name__ for r in batch.results]
         assert kinds[:3] == ["CellDelta"] * 3 and kinds.count("ProtocolError") >= 6
         assert (key, RES) in B._HEADS
+
+
+def test_known_header_rows_agree_with_single_decode_under_byte_flips():
+    """The header checks of a learnt scout run over all deltas of one length at once (numpy): every
+    single-byte change anywhere in a payload, and every seq width, decides as the single path does."""
+    from protocol import batch as B
+
+    key = delta_key(MAP, SCOUT)
+    rng = np.random.default_rng(11)
+    B.decode_delta_batch([(key, encode(make_delta(seq=0, seed=0)))], res=RES)  # learns the layout
+    B.decode_delta_batch([(key, encode(make_delta(seq=1, seed=0)))], res=RES)  # and the header
+    seqs = [2, 127, 128, 255, 256, 65535, 65536, 2**32 - 1, 2**32, 2**63 - 1]
+    samples = [(key, encode(make_delta(seq=s, seed=1))) for s in seqs]
+    base = encode(make_delta(seq=7, seed=2))
+    for _ in range(300):
+        b = bytearray(base)
+        b[int(rng.integers(len(b)))] = int(rng.integers(256))
+        samples.append((key, bytes(b)))
+    batch = B.decode_delta_batch(samples, res=RES)
+    for (k, p), got in zip(samples, batch.results, strict=True):
+        try:
+            want = decode(p, expected_type="cell_delta", key=k, res=RES)
+        except ProtocolError as exc:
+            assert isinstance(got, ProtocolError), (p, got)
+            assert (got.reason, str(got)) == (exc.reason, str(exc))
+            continue
+        assert isinstance(got, CellDelta), (p, got)
+        assert (got.map, got.scout, got.epoch, got.seq, got.t, got.res) == (
+            want.map, want.scout, want.epoch, want.seq, want.t, want.res,
+        )  # fmt: skip
+        for name, cells in want.layers.items():
+            for s, a in cells.items():
+                np.testing.assert_array_equal(got.layers[name][s], a)
