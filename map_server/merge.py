@@ -61,7 +61,7 @@ class MergeBook:
         return out
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Accepted:
     delta: CellDelta
     payload: bytes

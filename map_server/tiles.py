@@ -153,6 +153,16 @@ def trim_heap() -> None:
 _malloc_trim: Any = None
 
 
+class _Cells:
+    """Where a list of cells lies in the map (see `TiledMap._cell_ids`)."""
+
+    __slots__ = ("g", "ix", "iy", "local", "marked", "pos")
+
+    def __init__(self, ix: np.ndarray, iy: np.ndarray, g: np.ndarray, local: np.ndarray, pos: np.ndarray):
+        self.ix, self.iy, self.g, self.local, self.pos = ix, iy, g, local, pos
+        self.marked = False  # occupancy set for every one of these cells
+
+
 class TiledMap:
     """Multi-layer tiled map of merged statistics.
 
@@ -174,7 +184,7 @@ class TiledMap:
         self._dir = np.full((0, 0), -1, dtype=np.int32)  # dense directory: [ty - ty0, tx - tx0] -> number
         self._dir0 = (0, 0)  # (tx0, ty0) of the directory
         self._cells: int | None = 0
-        self._last_cells: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
+        self._last_cells: _Cells | None = None
 
     # ------------------------------------------------------------------ bookkeeping
 
@@ -331,33 +341,37 @@ class TiledMap:
             return 0
         return self._merge_layer(name, grid, ix, iy, vals)
 
-    def _cell_ids(self, ix: np.ndarray, iy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(map-wide tile number, cell within the tile) of each cell, int64. The layers of a batch
-        usually list the same cells: the last answer is reused when ix, iy are equal to its inputs
-        (tile numbers never change once given, so an equal input has the same answer)."""
+    def _cell_ids(self, ix: np.ndarray, iy: np.ndarray) -> _Cells:
+        """Map-wide tile number, cell within the tile and flat occupancy index of each cell (int64).
+        The layers of a batch usually list the same cells: the last answer is reused when ix, iy are
+        equal to its inputs (tile numbers never change once given, so equal inputs, equal answer)."""
         last = self._last_cells
         if (
             last is not None
-            and last[0].shape == ix.shape
-            and last[0].dtype == ix.dtype
-            and last[1].dtype == iy.dtype
-            and np.array_equal(last[0], ix)
-            and np.array_equal(last[1], iy)
+            and last.ix.shape == ix.shape
+            and last.ix.dtype == ix.dtype
+            and last.iy.dtype == iy.dtype
+            and np.array_equal(last.ix, ix)
+            and np.array_equal(last.iy, iy)
         ):
-            return last[2], last[3]
+            return last
         sh, mask = self.shift, self.tile - 1
         x = ix.astype(np.int64, copy=False)
         y = iy.astype(np.int64, copy=False)
         g = self._global_ids(x >> sh, y >> sh)  # arithmetic shift = floor, also for negative indices
         local = ((y & mask) << sh) | (x & mask)
-        self._last_cells = (ix.copy(), iy.copy(), g, local)  # copies: the caller may reuse its arrays
-        return g, local
+        pos = g * (self.tile * self.tile)
+        pos += local
+        # copies of the inputs: the caller may reuse its arrays
+        self._last_cells = _Cells(ix.copy(), iy.copy(), g, local, pos)
+        return self._last_cells
 
     def _merge_layer(
         self, name: str, grid: LayerGrid, ix: np.ndarray, iy: np.ndarray, vals: np.ndarray
     ) -> int:
         cells = self.tile * self.tile
-        g, local = self._cell_ids(ix, iy)
+        c = self._cell_ids(ix, iy)
+        g = c.g
         slot = grid.of_global[g] if g.size and int(g.max()) < grid.of_global.size else None
         if slot is None or (slot < 0).any():
             new = np.unique(g if slot is None else g[slot < 0])
@@ -368,7 +382,7 @@ class TiledMap:
             slot = grid.of_global[g]
         S = len(grid.layer.stats)
         lin = slot * cells
-        lin += local
+        lin += c.local
         lin *= S  # index of a cell's first stat in the flat store
         flat = grid.store.reshape(-1)
         vals = np.ascontiguousarray(vals, dtype=np.float64)
@@ -377,11 +391,15 @@ class TiledMap:
             for r in rows:  # one pass over the cells per stat (small temporaries, no transposed copy)
                 ufunc.at(flat, np.add(lin, r, out=idx) if r else lin, vals[r])
         # counts are >= 0, so a cell holds data after the merge iff it did or the delta brings n > 0
+        # (occupancy never goes back to False, so cells marked once stay marked)
         has = vals[grid.n_row] > 0
-        pos = g * cells
-        pos += local
         occ = self.occ.reshape(-1)
-        occ[pos if has.all() else pos[has]] = True
+        if has.all():
+            if not c.marked:
+                occ[c.pos] = True
+                c.marked = True
+        else:
+            occ[c.pos[has]] = True
         self._cells = None
         grid.dirty[slot] = True
         grid.touched[slot] = True

@@ -165,6 +165,29 @@ class _Template:
         self.frame_idx = np.flatnonzero(frame)
         self.frame_vals = np.frombuffer(section, dtype=np.uint8)[self.frame_idx].copy()
         self.names = dict.fromkeys(raw_layers)
+        self.ncells = {name: spans["ix"][1] // 4 for name, spans in self.spans.items()}
+
+    def fill(
+        self, arr: np.ndarray, idx: np.ndarray, out: dict[str, LayerColumns], at: dict[str, int]
+    ) -> None:
+        """Copy the rows' cells into preallocated columns from `at[name]` on (advanced): one strided
+        byte copy per array, straight from the payload bytes into its place."""
+        m = arr.shape[0]
+        for name, spans in self.spans.items():
+            k = self.ncells[name]
+            o = at[name]
+            e = at[name] = o + m * k
+            if not k:
+                continue
+            c = out[name]
+            c.seg[o:e].reshape(m, k)[:] = idx[:, None]
+            a, n = spans["ix"]
+            c.ix[o:e].view(np.uint8).reshape(m, n)[:] = arr[:, a : a + n]
+            a, n = spans["iy"]
+            c.iy[o:e].view(np.uint8).reshape(m, n)[:] = arr[:, a : a + n]
+            for r, stat in enumerate(c.layer.stats):
+                a, n = spans[stat]
+                c.vals[r, o:e].view(np.uint8).reshape(m, n)[:] = arr[:, a : a + n]
 
     def columns(self, arr: np.ndarray, idx: np.ndarray) -> dict[str, LayerColumns]:
         out = {}
@@ -342,21 +365,24 @@ def _learn_templates(samples: Sequence[tuple[str | None, bytes]], raws: dict[int
             continue
 
 
-def _flag_cells(
-    layer: Layer, ix: np.ndarray, iy: np.ndarray, vals: np.ndarray, seg: np.ndarray
-) -> np.ndarray:
-    """Segments (delta indices) with any bad cell in this layer."""
+def _flag_values(layer: Layer, vals: np.ndarray, seg: np.ndarray) -> set[int]:
+    """Segments (delta indices) with a NaN/inf statistic or a negative count in this layer."""
     bad = ~np.isfinite(vals).all(axis=0)
     for r, s in enumerate(layer.stats):
         if s in layer.counts:
             bad |= vals[r] < 0
-    bad |= (ix < -INDEX_LIMIT) | (ix > INDEX_LIMIT) | (iy < -INDEX_LIMIT) | (iy > INDEX_LIMIT)
+    return set(np.unique(seg[bad]).tolist()) if bad.any() else set()
+
+
+def _flag_index(ix: np.ndarray, iy: np.ndarray, seg: np.ndarray) -> set[int]:
+    """Segments with an index beyond +-2**30 or a cell listed twice (within one delta and layer)."""
+    bad = (ix < -INDEX_LIMIT) | (ix > INDEX_LIMIT) | (iy < -INDEX_LIMIT) | (iy > INDEX_LIMIT)
     flagged = set(np.unique(seg[bad]).tolist()) if bad.any() else set()
     if ix.size > 1:
         # duplicate cell within one delta: sort one int64 key (delta, ix, iy) when it fits
         x0, y0 = int(ix.min()), int(iy.min())
         w, h = int(ix.max()) - x0 + 1, int(iy.max()) - y0 + 1
-        if not bad.any() and (int(seg.max()) + 1) * w * h < 2**62:
+        if not flagged and (int(seg.max()) + 1) * w * h < 2**62:
             key = np.sort((seg * w + (ix.astype(np.int64) - x0)) * h + (iy.astype(np.int64) - y0))
             dup = key[1:] == key[:-1]
             if dup.any():
@@ -367,6 +393,36 @@ def _flag_cells(
             dup = (s_[1:] == s_[:-1]) & (x_[1:] == x_[:-1]) & (y_[1:] == y_[:-1])
             if dup.any():
                 flagged |= set(np.unique(s_[1:][dup]).tolist())
+    return flagged
+
+
+class _IndexFlags:
+    """`_flag_index` with the last answer kept: the layers of a batch usually list the same cells of
+    the same deltas, and equal (seg, ix, iy) have equal flags."""
+
+    def __init__(self) -> None:
+        self.last: tuple[np.ndarray, np.ndarray, np.ndarray, set[int]] | None = None
+
+    def __call__(self, ix: np.ndarray, iy: np.ndarray, seg: np.ndarray) -> set[int]:
+        last = self.last
+        if (
+            last is not None
+            and last[0].shape == seg.shape
+            and np.array_equal(last[0], seg)
+            and np.array_equal(last[1], ix)
+            and np.array_equal(last[2], iy)
+        ):
+            return last[3]
+        flagged = _flag_index(ix, iy, seg)
+        self.last = (seg, ix, iy, flagged)
+        return flagged
+
+
+def _flag_cells(
+    layer: Layer, ix: np.ndarray, iy: np.ndarray, vals: np.ndarray, seg: np.ndarray
+) -> np.ndarray:
+    """Segments (delta indices) with any bad cell in this layer."""
+    flagged = _flag_values(layer, vals, seg) | _flag_index(ix, iy, seg)
     return np.array(sorted(flagged), dtype=np.int64)
 
 
@@ -459,8 +515,81 @@ def _delta(head: tuple, layers: dict) -> CellDelta:
     return obj
 
 
+def _new_delta(
+    map_id: str, scout: str, epoch: int, seq: int, t: float, res: float, layers: dict
+) -> CellDelta:
+    obj = _new(CellDelta)
+    _setattr(
+        obj,
+        "__dict__",
+        {"map": map_id, "scout": scout, "epoch": epoch, "seq": seq, "t": t, "res": res, "layers": layers},
+    )
+    return obj
+
+
 _new = object.__new__
 _setattr = object.__setattr__
+
+
+def _vector_rows(
+    samples: Sequence[tuple[str | None, bytes]],
+    idx_list: list[int],
+    kn: _Known,
+    max_bytes: int,
+    heads: dict[int, tuple | CellDelta],
+    names_of: dict[int, dict],
+    tparts: list[tuple[_Template, np.ndarray, np.ndarray]],
+    done: set[int],
+) -> None:
+    """`_known_rows` over the deltas `idx_list` (one key expression), grouped by length."""
+    by_len: dict[int, list[int]] = {}
+    for i in idx_list:
+        n = len(samples[i][1])
+        lst = by_len.get(n)
+        if lst is None:
+            by_len[n] = [i]
+        else:
+            lst.append(i)
+    for size, group in by_len.items():
+        if size > max_bytes:
+            continue
+        arr = np.frombuffer(b"".join([samples[i][1] for i in group]), dtype=np.uint8)
+        rows_of = np.array(group, dtype=np.int64)
+        for rows, seqs, ts, tpl, sec in _known_rows(arr.reshape(len(group), size), kn):
+            idx = rows_of[rows]
+            names = tpl.names
+            m, sc, ep, r_ = kn.map, kn.scout, kn.epoch, kn.res
+            for i, sq, tt in zip(idx.tolist(), seqs.tolist(), ts.tolist(), strict=True):
+                # the CellDelta itself (its layers filled in later if views are wanted): no header
+                # tuple per delta, which would live through the batch (allocations drive the GC)
+                heads[i] = _new_delta(m, sc, ep, sq, tt, r_, {})
+                names_of[i] = names
+                done.add(i)
+            tparts.append((tpl, idx, sec))
+
+
+def _learn_from(
+    key: str | None, res: float | None, payload: bytes, max_bytes: int, old: _Known | None
+) -> _Known | None:
+    """The header bytes of `payload` as a `_Known`, learnt for `key`, if its header is valid, in
+    `encode`'s canonical form and of a known template; None if not (or if nothing new was learnt)."""
+    if len(payload) > max_bytes:
+        return None
+    j = _split(payload)
+    if j <= 0 or len(payload) - j - 10 not in _TEMPLATES:
+        return None
+    head = _template_header(payload, j, key, res)
+    if head is None:
+        return None
+    known = _Known(head)
+    if _known_header(payload, known) is None:
+        return None
+    if old is not None and (old.prefix, old.res_bytes) == (known.prefix, known.res_bytes):
+        return None
+    if len(_HEADS) >= 65536:
+        _HEADS.clear()
+    _HEADS[(key, res)] = known
+    return known
 
 
 def decode_delta_batch(
@@ -481,7 +610,8 @@ def decode_delta_batch(
     """
     n = len(samples)
     results: list[CellDelta | ProtocolError | None] = [None] * n
-    heads: dict[int, tuple] = {}
+    heads: dict[int, tuple | CellDelta] = {}  # header tuple, or the CellDelta (vectorised path)
+    names_of: dict[int, dict] = {}  # vectorised path: the delta's layer names
     accs: dict[str, _Acc] = {}
     slow: set[int] = set()
     unpackb = msgpack.unpackb
@@ -493,31 +623,31 @@ def decode_delta_batch(
     raws: dict[int, dict] = {}  # generic-path deltas: raw layers (to learn templates from)
     tparts: list[tuple[_Template, np.ndarray, np.ndarray]] = []  # (template, delta indices, sections)
     done: set[int] = set()
-    if templates and heads_known:
-        # deltas on a key expression whose header layout is known: grouped by (key, length), every
-        # check of `_known_header` and of the template frame is one numpy pass over a group
-        by_len: dict[tuple[str | None, int], list[int]] = {}
+    if templates:
+        # deltas of a known payload layout, by key expression: every check of `_known_header` and of
+        # the template frame is one numpy pass over the deltas of one length
+        by_key: dict[str | None, list[int]] = {}
         for i, (key, payload) in enumerate(samples):
-            if type(payload) is bytes and (key, res) in heads_known:
-                lst = by_len.get((key, len(payload)))
+            if type(payload) is bytes:
+                lst = by_key.get(key)
                 if lst is None:
-                    by_len[(key, len(payload))] = [i]
+                    by_key[key] = [i]
                 else:
                     lst.append(i)
-        for (key, size), idx_list in by_len.items():
-            if size > max_bytes:
-                continue
-            kn = heads_known[(key, res)]
-            arr = np.frombuffer(b"".join([samples[i][1] for i in idx_list]), dtype=np.uint8)
-            rows_of = np.array(idx_list, dtype=np.int64)
-            for rows, seqs, ts, tpl, sec in _known_rows(arr.reshape(len(idx_list), size), kn):
-                idx = rows_of[rows]
-                names = tpl.names
-                m, sc, ep, r_ = kn.map, kn.scout, kn.epoch, kn.res
-                for i, sq, tt in zip(idx.tolist(), seqs.tolist(), ts.tolist(), strict=True):
-                    heads[i] = (m, sc, ep, sq, tt, r_, names)
-                    done.add(i)
-                tparts.append((tpl, idx, sec))
+        for key, idx_list in by_key.items():
+            kn = heads_known.get((key, res))
+            pending = idx_list
+            for attempt in range(2):
+                if kn is not None:
+                    _vector_rows(samples, pending, kn, max_bytes, heads, names_of, tparts, done)
+                    pending = [i for i in pending if i not in done]
+                if not pending or attempt:
+                    break
+                # a new scout or epoch: learn its header bytes from its first delta, then the rest
+                new_kn = _learn_from(key, res, samples[pending[0]][1], max_bytes, kn)
+                if new_kn is None:
+                    break
+                kn = new_kn
     for i, (key, payload) in enumerate(samples):
         if i in done:
             continue
@@ -578,10 +708,6 @@ def decode_delta_batch(
     bad: set[int] = set()
     for acc in accs.values():
         bad |= _structural_bad(acc)
-    tcols: dict[str, list[LayerColumns]] = {}
-    for tpl, idx, arr in tparts:  # already checked, framing included
-        for name, c in tpl.columns(arr, idx).items():
-            tcols.setdefault(name, []).append(c)
     for size, (idx_list, sections) in tgroups.items():
         tpl = templates[size]
         idx = np.array(idx_list, dtype=np.int64)
@@ -593,17 +719,37 @@ def decode_delta_batch(
                 heads.pop(i, None)
             idx, arr = idx[ok], arr[ok]
         if idx.size:
-            for name, c in tpl.columns(arr, idx).items():
-                tcols.setdefault(name, []).append(c)
+            tparts.append((tpl, idx, arr))
+    # template deltas (already checked, framing included): each layer's cells copied once into place
+    tcols: dict[str, list[LayerColumns]] = {}
+    if tparts:
+        total: dict[str, int] = {}
+        for tpl, idx, _ in tparts:
+            for name, k in tpl.ncells.items():
+                total[name] = total.get(name, 0) + k * idx.size
+        tout = {
+            name: LayerColumns(
+                LAYERS[name],
+                np.empty(n, np.int64),
+                np.empty(n, _I32),
+                np.empty(n, _I32),
+                np.empty((len(LAYERS[name].stats), n), _F64),
+            )
+            for name, n in total.items()
+        }
+        at = dict.fromkeys(total, 0)
+        for tpl, idx, arr in tparts:
+            tpl.fill(arr, idx, tout, at)
+        tcols = {name: [c] for name, c in tout.items()}
     columns: dict[str, LayerColumns] = {}
+    index_flags = _IndexFlags()
     for name in dict.fromkeys([*accs, *tcols]):
         parts = [_columns(accs[name], bad)] if name in accs else []
         parts += tcols.get(name, [])
         c = parts[0] if len(parts) == 1 else _concat_all(parts)
         if c.seg.size:
-            flagged = _flag_cells(c.layer, c.ix, c.iy, c.vals, c.seg)
-            if flagged.size:
-                bad.update(flagged.tolist())
+            bad |= _flag_values(c.layer, c.vals, c.seg)
+            bad |= index_flags(c.ix, c.iy, c.seg)
         columns[name] = c
     if bad:
         for name, c in list(columns.items()):
@@ -615,9 +761,10 @@ def decode_delta_batch(
     learnt: set[str | None] = set()
     for i in learn:  # the first accepted delta of each key expression in the batch
         key = samples[i][0]
-        if i in heads and key not in learnt:
+        head_i = heads.get(i)
+        if type(head_i) is tuple and key not in learnt:
             learnt.add(key)
-            _learn_header(key, res, heads[i], samples[i][1])
+            _learn_header(key, res, head_i, samples[i][1])
     if len(_TEMPLATES) < _MAX_TEMPLATES and raws:
         _learn_templates(samples, {i: r for i, r in raws.items() if i not in bad and i in heads})
     # the single-delta path decides every delta the fast path did not vouch for
@@ -641,7 +788,9 @@ def decode_delta_batch(
             )
             columns[name] = _concat(columns[name], add) if name in columns else add
     # CellDelta views for callers that want per-delta objects
-    per: dict[int, dict[str, dict[str, np.ndarray]]] = {i: {} for i in heads}
+    per: dict[int, dict[str, dict[str, np.ndarray]]] = {
+        i: h.layers if type(h) is CellDelta else {} for i, h in heads.items()
+    }
     for name, c in columns.items() if views else ():
         if c.seg.size:
             order = np.argsort(c.seg, kind="stable")
@@ -655,10 +804,12 @@ def decode_delta_batch(
                     cells[stat] = c.vals[r, s:e]
                 per[int(c.seg[s])][name] = cells
         for i in per:  # layers present with zero cells
-            if name in heads[i][6] and name not in per[i]:
+            hv = heads[i]
+            names = names_of[i] if isinstance(hv, CellDelta) else hv[6]
+            if name in names and name not in per[i]:
                 per[i][name] = _empty_cells(c.layer)
-    for i, head in heads.items():
-        results[i] = _delta(head, per[i])
+    for i, hv in heads.items():
+        results[i] = hv if type(hv) is CellDelta else _delta(hv, per[i])  # type: ignore[arg-type]
     return DeltaBatch(results, columns)  # type: ignore[arg-type]
 
 
