@@ -129,6 +129,9 @@ class Merger:
         take = [False] * len(samples)
         acked: dict[tuple[str, int], CellDelta] = {}
         accepted = res.accepted
+        touched = res.touched
+        # scout -> (epoch, (scout, epoch), its SeqState): one dict lookup per delta, no key tuple
+        memo: dict[str, tuple[int, tuple[str, int], SeqState]] = {}
         for i, delta in enumerate(batch.results):
             if type(delta) is CellDelta and (delta.map != map_id or i in no_layer):
                 delta = (
@@ -144,10 +147,15 @@ class Merger:
                 res.rejected.append((delta.reason, str(delta)))
                 log.warning("rejected delta on %s: %s", samples[i][0], delta)
                 continue
-            sk = (delta.scout, delta.epoch)
-            st = seqs.get(sk)
-            if st is None:
-                st = seqs[sk] = SeqState()
+            got = memo.get(delta.scout)
+            if got is not None and got[0] == delta.epoch:
+                sk, st = got[1], got[2]
+            else:
+                sk = (delta.scout, delta.epoch)
+                st = seqs.get(sk)  # type: ignore[assignment]
+                if st is None:
+                    st = seqs[sk] = SeqState()
+                memo[delta.scout] = (delta.epoch, sk, st)
             seq = delta.seq
             if seq <= st.hw or seq in st.above:
                 book.duplicates += 1
@@ -159,7 +167,7 @@ class Merger:
                     st.mark(seq)
                 take[i] = True
                 accepted.append(Accepted(delta, samples[i][1]))
-                res.touched.add(sk)
+                touched.add(sk)
             acked[sk] = delta
         for sk, delta in acked.items():
             hw = seqs[sk].hw

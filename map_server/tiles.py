@@ -156,10 +156,18 @@ _malloc_trim: Any = None
 class _Cells:
     """Where a list of cells lies in the map (see `TiledMap._cell_ids`)."""
 
-    __slots__ = ("g", "ix", "iy", "local", "marked", "pos")
+    __slots__ = ("g", "gu", "ix", "iy", "local", "marked", "pos")
 
-    def __init__(self, ix: np.ndarray, iy: np.ndarray, g: np.ndarray, local: np.ndarray, pos: np.ndarray):
-        self.ix, self.iy, self.g, self.local, self.pos = ix, iy, g, local, pos
+    def __init__(
+        self,
+        ix: np.ndarray,
+        iy: np.ndarray,
+        g: np.ndarray,
+        local: np.ndarray,
+        pos: np.ndarray,
+        gu: np.ndarray,
+    ):
+        self.ix, self.iy, self.g, self.local, self.pos, self.gu = ix, iy, g, local, pos, gu
         self.marked = False  # occupancy set for every one of these cells
 
 
@@ -362,8 +370,11 @@ class TiledMap:
         local = ((y & mask) << sh) | (x & mask)
         pos = g * (self.tile * self.tile)
         pos += local
+        seen = np.zeros(len(self.gkeys), dtype=bool)
+        seen[g] = True
+        gu = np.flatnonzero(seen)  # the tiles touched, ascending
         # copies of the inputs: the caller may reuse its arrays
-        self._last_cells = _Cells(ix.copy(), iy.copy(), g, local, pos)
+        self._last_cells = _Cells(ix.copy(), iy.copy(), g, local, pos, gu)
         return self._last_cells
 
     def _merge_layer(
@@ -371,25 +382,25 @@ class TiledMap:
     ) -> int:
         cells = self.tile * self.tile
         c = self._cell_ids(ix, iy)
-        g = c.g
-        slot = grid.of_global[g] if g.size and int(g.max()) < grid.of_global.size else None
-        if slot is None or (slot < 0).any():
-            new = np.unique(g if slot is None else g[slot < 0])
+        g, gu = c.g, c.gu
+        su = grid.of_global[gu] if int(gu[-1]) < grid.of_global.size else None  # the tiles' slots
+        if su is None or (su < 0).any():
+            new = gu if su is None else gu[su < 0]
             keys = [self.gkeys[v] for v in new.tolist()]
             keys_gids = [(k, v) for k, v in zip(keys, new.tolist(), strict=True) if k not in grid.slots]
             if keys_gids:
                 grid.add_tiles([k for k, _ in keys_gids], [v for _, v in keys_gids])
-            slot = grid.of_global[g]
+            su = grid.of_global[gu]
+        slot = grid.of_global[g]
         S = len(grid.layer.stats)
         lin = slot * cells
         lin += c.local
         lin *= S  # index of a cell's first stat in the flat store
         flat = grid.store.reshape(-1)
         vals = np.ascontiguousarray(vals, dtype=np.float64)
-        idx = np.empty_like(lin)
         for ufunc, rows in grid.ops:
-            for r in rows:  # one pass over the cells per stat (small temporaries, no transposed copy)
-                ufunc.at(flat, np.add(lin, r, out=idx) if r else lin, vals[r])
+            for r in rows:  # one pass over the cells per stat (stat r of a cell at flat[r:][lin])
+                ufunc.at(flat[r:], lin, vals[r])
         # counts are >= 0, so a cell holds data after the merge iff it did or the delta brings n > 0
         # (occupancy never goes back to False, so cells marked once stay marked)
         has = vals[grid.n_row] > 0
@@ -401,8 +412,8 @@ class TiledMap:
         else:
             occ[c.pos[has]] = True
         self._cells = None
-        grid.dirty[slot] = True
-        grid.touched[slot] = True
+        grid.dirty[su] = True
+        grid.touched[su] = True
         return int(vals.size)
 
     # ------------------------------------------------------------------ reading

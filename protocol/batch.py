@@ -11,9 +11,10 @@ from __future__ import annotations
 import math
 import operator
 import struct
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from itertools import chain
+from types import MappingProxyType
 
 import msgpack
 import numpy as np
@@ -181,13 +182,14 @@ class _Template:
                 continue
             c = out[name]
             c.seg[o:e].reshape(m, k)[:] = idx[:, None]
+            # (unaligned) views of the payload bytes as their dtype: copied element- not byte-wise
             a, n = spans["ix"]
-            c.ix[o:e].view(np.uint8).reshape(m, n)[:] = arr[:, a : a + n]
+            c.ix[o:e].reshape(m, k)[:] = arr[:, a : a + n].view(_I32)
             a, n = spans["iy"]
-            c.iy[o:e].view(np.uint8).reshape(m, n)[:] = arr[:, a : a + n]
+            c.iy[o:e].reshape(m, k)[:] = arr[:, a : a + n].view(_I32)
             for r, stat in enumerate(c.layer.stats):
                 a, n = spans[stat]
-                c.vals[r, o:e].view(np.uint8).reshape(m, n)[:] = arr[:, a : a + n]
+                c.vals[r, o:e].reshape(m, k)[:] = arr[:, a : a + n].view(_F64)
 
     def columns(self, arr: np.ndarray, idx: np.ndarray) -> dict[str, LayerColumns]:
         out = {}
@@ -367,10 +369,12 @@ def _learn_templates(samples: Sequence[tuple[str | None, bytes]], raws: dict[int
 
 def _flag_values(layer: Layer, vals: np.ndarray, seg: np.ndarray) -> set[int]:
     """Segments (delta indices) with a NaN/inf statistic or a negative count in this layer."""
+    counts = [r for r, s in enumerate(layer.stats) if s in layer.counts]
+    if np.isfinite(vals).all() and all(vals[r].min() >= 0 for r in counts):
+        return set()
     bad = ~np.isfinite(vals).all(axis=0)
-    for r, s in enumerate(layer.stats):
-        if s in layer.counts:
-            bad |= vals[r] < 0
+    for r in counts:
+        bad |= vals[r] < 0
     return set(np.unique(seg[bad]).tolist()) if bad.any() else set()
 
 
@@ -516,7 +520,7 @@ def _delta(head: tuple, layers: dict) -> CellDelta:
 
 
 def _new_delta(
-    map_id: str, scout: str, epoch: int, seq: int, t: float, res: float, layers: dict
+    map_id: str, scout: str, epoch: int, seq: int, t: float, res: float, layers: Mapping
 ) -> CellDelta:
     obj = _new(CellDelta)
     _setattr(
@@ -528,6 +532,9 @@ def _new_delta(
 
 
 _new = object.__new__
+_NO_LAYERS: Mapping[str, dict[str, np.ndarray]] = MappingProxyType(
+    {}
+)  # the layers of every header-only CellDelta (views=False)
 _setattr = object.__setattr__
 
 
@@ -539,17 +546,20 @@ def _vector_rows(
     heads: dict[int, tuple | CellDelta],
     names_of: dict[int, dict],
     tparts: list[tuple[_Template, np.ndarray, np.ndarray]],
-    done: set[int],
+    views: bool,
 ) -> None:
     """`_known_rows` over the deltas `idx_list` (one key expression), grouped by length."""
     by_len: dict[int, list[int]] = {}
-    for i in idx_list:
-        n = len(samples[i][1])
-        lst = by_len.get(n)
-        if lst is None:
-            by_len[n] = [i]
-        else:
-            lst.append(i)
+    lens = list(map(len, [samples[i][1] for i in idx_list]))
+    if lens.count(lens[0]) == len(lens):
+        by_len[lens[0]] = idx_list
+    else:
+        for i, n in zip(idx_list, lens, strict=True):
+            lst = by_len.get(n)
+            if lst is None:
+                by_len[n] = [i]
+            else:
+                lst.append(i)
     for size, group in by_len.items():
         if size > max_bytes:
             continue
@@ -559,12 +569,29 @@ def _vector_rows(
             idx = rows_of[rows]
             names = tpl.names
             m, sc, ep, r_ = kn.map, kn.scout, kn.epoch, kn.res
-            for i, sq, tt in zip(idx.tolist(), seqs.tolist(), ts.tolist(), strict=True):
-                # the CellDelta itself (its layers filled in later if views are wanted): no header
-                # tuple per delta, which would live through the batch (allocations drive the GC)
-                heads[i] = _new_delta(m, sc, ep, sq, tt, r_, {})
-                names_of[i] = names
-                done.add(i)
+            # the CellDeltas themselves (layers filled in later if views are wanted; without views
+            # one shared empty read-only mapping): few objects per delta (allocations drive the GC)
+            new, put = _new, _setattr
+            if views:
+                for i, sq, tt in zip(idx.tolist(), seqs.tolist(), ts.tolist(), strict=True):
+                    heads[i] = _new_delta(m, sc, ep, sq, tt, r_, {})
+                    names_of[i] = names
+            else:  # (_new_delta inlined: this loop is most of the per-delta work left)
+                for i, sq, tt in zip(idx.tolist(), seqs.tolist(), ts.tolist(), strict=True):
+                    heads[i] = obj = new(CellDelta)
+                    put(
+                        obj,
+                        "__dict__",
+                        {
+                            "map": m,
+                            "scout": sc,
+                            "epoch": ep,
+                            "seq": sq,
+                            "t": tt,
+                            "res": r_,
+                            "layers": _NO_LAYERS,
+                        },
+                    )
             tparts.append((tpl, idx, sec))
 
 
@@ -601,12 +628,15 @@ def decode_delta_batch(
 ) -> DeltaBatch:
     """Decode `(key, payload)` samples as cell_deltas; every failure is a ProtocolError in `results`.
 
-    A fast path handles plainly valid deltas with a few C calls each (msgpack -> bytes, one itemgetter
-    per layer); their buffers are joined per layer and checked with one numpy pass per layer. Any delta
-    the fast path does not vouch for goes through the single-delta path (`codec.decode`), which decides
-    acceptance and gives the exact error. views=False skips building per-delta layer arrays: the
-    CellDeltas then carry headers only (`layers` empty) and the cells are in `columns` (what the
-    server merges).
+    Deltas of a learnt layout (a scout's header bytes and a template of its layers) are checked with
+    numpy over all deltas of one key expression and length at once (`_known_rows`), their arrays
+    copied once from the payload bytes into the batch's columns. Others take a fast path of a few C
+    calls each (msgpack -> bytes, one itemgetter per layer); their buffers are joined per layer. The
+    numbers of every layer are checked with one numpy pass per layer. Any delta the fast paths do not
+    vouch for goes through the single-delta path (`codec.decode`), which decides acceptance and gives
+    the exact error. views=False skips building per-delta layer arrays: the CellDeltas then carry
+    headers only (`layers` empty, an immutable mapping on the vectorised path) and the cells are in
+    `columns` (what the server merges).
     """
     n = len(samples)
     results: list[CellDelta | ProtocolError | None] = [None] * n
@@ -622,7 +652,6 @@ def decode_delta_batch(
     tgroups: dict[int, tuple[list[int], list[bytes]]] = {}
     raws: dict[int, dict] = {}  # generic-path deltas: raw layers (to learn templates from)
     tparts: list[tuple[_Template, np.ndarray, np.ndarray]] = []  # (template, delta indices, sections)
-    done: set[int] = set()
     if templates:
         # deltas of a known payload layout, by key expression: every check of `_known_header` and of
         # the template frame is one numpy pass over the deltas of one length
@@ -639,8 +668,8 @@ def decode_delta_batch(
             pending = idx_list
             for attempt in range(2):
                 if kn is not None:
-                    _vector_rows(samples, pending, kn, max_bytes, heads, names_of, tparts, done)
-                    pending = [i for i in pending if i not in done]
+                    _vector_rows(samples, pending, kn, max_bytes, heads, names_of, tparts, views)
+                    pending = [i for i in pending if i not in heads]
                 if not pending or attempt:
                     break
                 # a new scout or epoch: learn its header bytes from its first delta, then the rest
@@ -649,7 +678,7 @@ def decode_delta_batch(
                     break
                 kn = new_kn
     for i, (key, payload) in enumerate(samples):
-        if i in done:
+        if i in heads:  # (only the vectorised path's so far)
             continue
         if len(payload) > max_bytes:
             slow.add(i)
@@ -788,9 +817,9 @@ def decode_delta_batch(
             )
             columns[name] = _concat(columns[name], add) if name in columns else add
     # CellDelta views for callers that want per-delta objects
-    per: dict[int, dict[str, dict[str, np.ndarray]]] = {
-        i: h.layers if type(h) is CellDelta else {} for i, h in heads.items()
-    }
+    per: dict[int, dict[str, dict[str, np.ndarray]]] = (
+        {i: h.layers if type(h) is CellDelta else {} for i, h in heads.items()} if views else {}
+    )
     for name, c in columns.items() if views else ():
         if c.seg.size:
             order = np.argsort(c.seg, kind="stable")
@@ -809,7 +838,7 @@ def decode_delta_batch(
             if name in names and name not in per[i]:
                 per[i][name] = _empty_cells(c.layer)
     for i, hv in heads.items():
-        results[i] = hv if type(hv) is CellDelta else _delta(hv, per[i])  # type: ignore[arg-type]
+        results[i] = hv if type(hv) is CellDelta else _delta(hv, per[i] if views else {})  # type: ignore[arg-type]
     return DeltaBatch(results, columns)  # type: ignore[arg-type]
 
 
