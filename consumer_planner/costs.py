@@ -36,12 +36,22 @@ it does not make a cell `inferred`, and it counts as unknown in a route's `unkno
 `Limits.max_slip_rate` reads the spread rate too. The breakdown's `expected_slip_events` reads the
 same spread rate the slip term charges (so terms["slip"] = weights.slip * expected_slip_events): an
 upper estimate near slip cells; `slip_spread_m=0` gives the raw layer's count.
+
+Speed (2000 x 2000 cells in well under a second; `benchmarks/plan.py`), with results bit for bit those
+of the plain full-grid formulas (tests/consumer_planner/test_build_costs_reference.py keeps them): the
+fill weight (the Gaussian of the finite-mask) is computed once per distinct mask; a fill filters only
+the bounding box of the cells that need a value, widened by the kernel radius; the fills, the slip
+spread and row blocks of the per-cell rules run on a few threads (scipy and numpy release the GIL);
+the per-cell rules work on cache-sized row blocks written straight into the result arrays.
 """
 
 from __future__ import annotations
 
+import contextvars
 import math
+import os
 from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field, fields
 from typing import Literal
 
@@ -155,27 +165,74 @@ class CostMap:
     config: CostConfig
 
 
-def gaussian_fill(values: np.ndarray, sigma_cells: float, weight: np.ndarray | None = None) -> np.ndarray:
-    """Paper eq. 17 normalised over known cells: NaN cells get sum(w * v) / sum(w) of the finite cells
-    within 3 sigma (Gaussian weights w); NaN where none is in reach. Finite cells are kept.
-    `weight`: the filtered finite-mask, when the caller already has it for this exact mask."""
-    mask = np.isfinite(values)
-    if mask.all() or not mask.any():
-        return values.copy()
-    num = _smooth(np.where(mask, values, 0.0), sigma_cells)
-    den = _smooth(mask.astype(np.float64), sigma_cells) if weight is None else weight
-    out = values.copy()
-    reach = ~mask & (den > 1e-12)
-    out[reach] = num[reach] / den[reach]
-    return out
+_MIN_WEIGHT = 1e-12  # a cell is filled only where the known cells' Gaussian weight exceeds this
 
 
-def _smooth(a: np.ndarray, sigma_cells: float) -> np.ndarray:
-    return ndimage.gaussian_filter(a, sigma=sigma_cells, mode="constant", cval=0.0, truncate=3.0)
+def _smooth(a: np.ndarray, sigma_cells: float, in_place: bool = False) -> np.ndarray:
+    """The Gaussian of eq. 17 (cut at 3 sigma, 0 beyond the grid); `in_place`: into `a` (float64),
+    as scipy filters each axis line by line from a buffered copy of the line."""
+    return ndimage.gaussian_filter(
+        a, sigma=sigma_cells, output=a if in_place else None, mode="constant", cval=0.0, truncate=3.0
+    )
+
+
+def _smoothed_mask(mask: np.ndarray, sigma_cells: float) -> np.ndarray:
+    return _smooth(mask.astype(np.float64), sigma_cells, in_place=True)
+
+
+def _kernel_radius(sigma_cells: float) -> int:
+    """Cells `_smooth` reaches from a cell (scipy's kernel radius at truncate=3; 0 where it does not
+    filter: scipy skips sigma <= 1e-15)."""
+    s = float(sigma_cells)
+    return int(3.0 * s + 0.5) if s > 1e-15 else 0
+
+
+@dataclass(frozen=True)
+class _Box:
+    """The bounding box `inner` of the cells to fill, `outer` = it widened by the kernel radius (the
+    cells `_smooth` reads for them), `rel` = `inner` within `outer` (all (rows, cols) slices)."""
+
+    inner: tuple[slice, slice]
+    outer: tuple[slice, slice]
+    rel: tuple[slice, slice]
+
+
+def _fill_box(target: np.ndarray, radius: int) -> _Box | None:
+    rows = np.flatnonzero(target.any(axis=1))
+    if rows.size == 0:
+        return None
+    r0, r1 = int(rows[0]), int(rows[-1]) + 1
+    cols = np.flatnonzero(target[r0:r1].any(axis=0))
+    c0, c1 = int(cols[0]), int(cols[-1]) + 1
+    h, w = target.shape
+    o_r0, o_c0 = max(0, r0 - radius), max(0, c0 - radius)
+    o_r1, o_c1 = min(h, r1 + radius), min(w, c1 + radius)
+    return _Box(
+        inner=(slice(r0, r1), slice(c0, c1)),
+        outer=(slice(o_r0, o_r1), slice(o_c0, o_c1)),
+        rel=(slice(r0 - o_r0, r1 - o_r0), slice(c0 - o_c0, c1 - o_c0)),
+    )
+
+
+def _fill_into(
+    out: np.ndarray, mask: np.ndarray, target: np.ndarray, box: _Box, den: Future, sigma_cells: float
+) -> None:
+    """Eq. 17 into `out` (in place) on the `target` cells of `box` whose known weight is > 0: `mask`
+    (the finite cells, cropped to `box.outer`) weights the values of `out`; `den` = `_smooth(mask)`.
+
+    `_smooth` over `box.outer` gives, on `box.inner`, bit for bit what it gives there over the whole
+    grid: each output cell reads only cells within the kernel radius (in `outer`, or beyond the grid's
+    edge where both see the constant 0), in the same order."""
+    num = _smooth(np.where(mask, out[box.outer], 0.0), sigma_cells, in_place=True)[box.rel]
+    weight = den.result()[box.rel]
+    reach = target[box.inner] & (weight > _MIN_WEIGHT)
+    np.divide(num, weight, out=out[box.inner], where=reach)
 
 
 def read_metrics(grid: LayerGrid) -> tuple[dict[str, np.ndarray], np.ndarray]:
-    """(metrics {name: (h, w), NaN = no estimate}, count (h, w) = most samples of any layer)."""
+    """(metrics {name: (h, w), NaN = no estimate}, count (h, w) = most samples of any layer).
+
+    The arrays may be the grid's own (never write to them)."""
     metrics = {
         "cot": grid.value("cot"),
         "slip_rate": grid.slip_rate(),
@@ -183,38 +240,123 @@ def read_metrics(grid: LayerGrid) -> tuple[dict[str, np.ndarray], np.ndarray]:
         "giam": grid.value("giam"),
         "slope_deg": grid.slope_deg(),
     }
+    # = max over layers of grid.count(layer) (nan_to_num'd n: NaN -> 0, +inf -> the largest float),
+    # without a copy per layer: fmax skips NaN, the clip maps +inf; count >= 0 so -inf never wins.
     count = np.zeros(grid.shape)
-    for layer in grid.layers:
-        count = np.maximum(count, grid.count(layer))
+    seen: set[int] = set()  # layers often share one `n` array
+    for layer, stats in grid.layers.items():
+        n = stats.get("n") if stats else None
+        if n is None:
+            np.maximum(count, grid.count(layer), out=count)
+        elif id(n) not in seen:
+            seen.add(id(n))
+            np.fmax(count, n, out=count)
+    np.minimum(count, np.finfo(np.float64).max, out=count)
     return metrics, count
 
 
 def spread_max(values: np.ndarray, radius_m: float, res: float) -> np.ndarray:
     """Per cell, the largest finite value among the cells whose centres lie within `radius_m` of its
     centre (itself included; a grey dilation over a disc of cells); NaN where none is finite."""
-    r = int(math.floor(radius_m / res + 1e-9))
-    if r < 1:
+    if _spread_cells(radius_m, res) < 1:
         return values.copy()
+    return _spread_finite(values, np.isfinite(values), radius_m, res)
+
+
+def _spread_cells(radius_m: float, res: float) -> int:
+    return int(math.floor(radius_m / res + 1e-9))
+
+
+def _spread_finite(values: np.ndarray, finite: np.ndarray, radius_m: float, res: float) -> np.ndarray:
+    """`spread_max` of `values` where `finite` (a radius of >= 1 cell); a new array."""
+    r = _spread_cells(radius_m, res)
     yy, xx = np.mgrid[-r : r + 1, -r : r + 1]
     disc = (xx**2 + yy**2) * res**2 <= radius_m**2 + 1e-9 * res**2
-    lifted = np.where(np.isfinite(values), values, -np.inf)
+    lifted = np.where(finite, values, -np.inf)
     out = ndimage.maximum_filter(lifted, footprint=disc, mode="constant", cval=-np.inf)
-    return np.where(np.isfinite(out), out, np.nan)
+    out[out == -np.inf] = np.nan  # nothing finite in reach (`lifted` holds no +inf or NaN)
+    return out
 
 
 def _margin_term(x: np.ndarray, ref: float) -> np.ndarray:
-    return np.maximum(0.0, (ref - x) / ref)
+    out = np.subtract(ref, x)  # = np.maximum(0.0, (ref - x) / ref), in one array
+    np.divide(out, ref, out=out)
+    return np.maximum(0.0, out, out=out)
 
 
+# Each returns a new array (never a metric itself) that `_weighted_term` may overwrite.
 _TERM_FUNCS: dict[str, Callable[[dict[str, np.ndarray], np.ndarray, CostConfig], np.ndarray]] = {
     "distance": lambda m, n, c: np.ones_like(n),
-    "cot": lambda m, n, c: m["cot"],
+    "cot": lambda m, n, c: m["cot"].copy(),
     "slip": lambda m, n, c: m["slip_rate"] * c.stances_per_m,
     "giim": lambda m, n, c: _margin_term(m["giim"], c.giim_ref_rad),
     "giam": lambda m, n, c: _margin_term(m["giam"], c.giam_ref),
     "slope": lambda m, n, c: m["slope_deg"] / c.slope_ref_deg,
-    "confidence": lambda m, n, c: c.confidence_n / (c.confidence_n + n),
+    "confidence": lambda m, n, c: np.divide(c.confidence_n, np.add(c.confidence_n, n)),
 }
+
+
+def _weighted_term(values: np.ndarray, weight: float, where: np.ndarray) -> np.ndarray:
+    """where(where, weight * nan_to_num(values, nan=0.0), 0.0), in `values` (overwritten) and without
+    nan_to_num's copies and +-inf scans when `values` hold no infinity (then it only maps NaN to 0)."""
+    if not math.isfinite(weight) or np.isinf(values).any():  # inf * 0 = NaN; +-inf -> +-max float
+        return np.where(where, weight * np.nan_to_num(values, nan=0.0), 0.0)
+    zero = np.isnan(values)
+    zero |= ~where
+    np.multiply(values, weight, out=values)
+    np.copyto(values, 0.0, where=zero)
+    return values
+
+
+# Grids of at least this many cells fill their metrics on a few threads (scipy's filters and numpy's
+# loops release the GIL); smaller ones in the calling thread, where a pool costs more than it saves.
+_PARALLEL_MIN_CELLS = 1 << 18
+
+
+class _Inline:
+    """The executor interface of `ThreadPoolExecutor` for running each job at once."""
+
+    def submit(self, fn: Callable[..., object], /, *args: object) -> Future:
+        f: Future = Future()
+        f.set_result(fn(*args))
+        return f
+
+    def __enter__(self) -> _Inline:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        return None
+
+
+class _Pool:
+    """A thread pool whose jobs run in a copy of the caller's context (so `np.errstate` reaches them)."""
+
+    def __init__(self, workers: int) -> None:
+        self._pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="build_costs")
+
+    def submit(self, fn: Callable[..., object], /, *args: object) -> Future:
+        return self._pool.submit(contextvars.copy_context().run, fn, *args)
+
+    def __enter__(self) -> _Pool:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _executor(cells: int) -> _Pool | _Inline:
+    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    if cells < _PARALLEL_MIN_CELLS or cpus < 2:
+        return _Inline()
+    return _Pool(min(cpus, 4))
+
+
+# The result arrays' allocator (the tests hand out garbage instead, to prove every cell is written).
+_empty = np.empty
+
+# The per-cell part of the build (limits, terms, their sum) runs over blocks of this many cells, so the
+# temporaries of one block stay in cache (and blocks spread over the pool's threads).
+_BLOCK_CELLS = 1 << 16
 
 
 def build_costs(grid: LayerGrid, config: CostConfig | None = None) -> CostMap:
@@ -222,55 +364,135 @@ def build_costs(grid: LayerGrid, config: CostConfig | None = None) -> CostMap:
     config = config or CostConfig()
     raw, count = read_metrics(grid)
     known = count > 0
-    metrics: dict[str, np.ndarray] = {}
-    known_weight: np.ndarray | None = None  # the fill's denominator, shared by metrics known on `known`
-    measured_slip = np.where(known, raw["slip_rate"], np.nan)
-    for name, m in raw.items():
-        keep = np.where(known, m, np.nan)  # only samples of known cells feed the fill
-        weight = None
-        if np.array_equal(np.isfinite(keep), known):
-            if known_weight is None:
-                known_weight = _smooth(known.astype(np.float64), config.infer_sigma_cells)
-            weight = known_weight
-        filled = gaussian_fill(keep, config.infer_sigma_cells, weight)
-        if config.unknown != "infer":
-            filled = np.where(known, filled, np.nan)
-        metrics[name] = filled
-    if config.unknown == "infer":
-        reach = np.zeros(grid.shape, bool)
-        for m in metrics.values():
-            reach |= np.isfinite(m)
-        inferred = ~known & reach
-    else:
-        inferred = np.zeros(grid.shape, bool)
-    costed = known | inferred
-    if config.slip_spread_m > 0:  # after `inferred`: the spread alone never makes a cell inferred
-        metrics["slip_rate"] = np.fmax(
-            metrics["slip_rate"], spread_max(measured_slip, config.slip_spread_m, grid.res)
+    infer = config.unknown == "infer"
+    sigma = config.infer_sigma_cells
+    radius = _kernel_radius(sigma)
+    with _executor(grid.h * grid.w) as pool:
+        spread: Future | None = None
+        if config.slip_spread_m > 0:
+            # the spread reads the measured rates: samples of known cells only, never a filled one
+            slip, r_m = raw["slip_rate"], config.slip_spread_m
+            if _spread_cells(r_m, grid.res) >= 1:
+                spread = pool.submit(_spread_finite, slip, np.isfinite(slip) & known, r_m, grid.res)
+            else:  # a disc of one cell: the measured rates themselves
+                spread = pool.submit(np.where, known, slip, np.nan)
+        jobs: dict[str, Future] = {}
+        dens: list[tuple[tuple[slice, slice], np.ndarray, Future]] = []  # one fill weight per mask
+        for name, m in raw.items():
+            finite = np.isfinite(m)
+            finite &= known  # only samples of known cells feed the fill
+            box = None
+            if finite.any():  # else nothing to fill from
+                target = ~finite  # the cells to fill: all but finite ones under infer, else gaps in known
+                if not infer:
+                    target &= known  # (fills of unknown cells would be dropped)
+                box = _fill_box(target, radius)  # None: all finite where it counts
+            if box is None:
+                jobs[name] = pool.submit(np.where, known, m, np.nan)
+                continue
+            mask = finite[box.outer]
+            den = next((d for o, mk, d in dens if o == box.outer and np.array_equal(mk, mask)), None)
+            if den is None:
+                den = pool.submit(_smoothed_mask, mask, sigma)
+                dens.append((box.outer, mask, den))
+            jobs[name] = pool.submit(_filled_metric, m, known, mask, target, box, den, sigma)
+        metrics = {name: job.result() for name, job in jobs.items()}
+        if infer:
+            reach = np.zeros(grid.shape, bool)
+            for m in metrics.values():
+                reach |= np.isfinite(m)
+            inferred = reach & ~known
+        else:
+            inferred = np.zeros(grid.shape, bool)
+        costed = known | inferred
+        penalized = ~costed if config.unknown == "penalty" else np.zeros(grid.shape, bool)
+        any_penalized = bool(penalized.any())
+        out = _CostArrays(
+            cost=_empty(grid.shape),
+            # (np.zeros maps its pages lazily: a term that is 0 everywhere costs no memory traffic)
+            terms={name: _empty(grid.shape) for name in TERMS}
+            | {"unknown": _empty(grid.shape) if any_penalized else np.zeros(grid.shape)},
+            impassable=_empty(grid.shape, bool),
+            write_unknown=any_penalized,
         )
-    slip_costed = costed | np.isfinite(metrics["slip_rate"])  # + cells reached only by the spread
+        step = max(1, _BLOCK_CELLS // max(1, grid.w))
+        spread_rate = spread.result() if spread is not None else None
+        for f in [
+            pool.submit(
+                _cost_block, slice(r, r + step), metrics, count, costed, penalized, spread_rate, out, config
+            )
+            for r in range(0, grid.h, step)
+        ]:
+            f.result()
+    return CostMap(out.cost, out.terms, metrics, known, inferred, out.impassable, config)
 
+
+def _filled_metric(
+    m: np.ndarray,
+    known: np.ndarray,
+    mask: np.ndarray,
+    target: np.ndarray,
+    box: _Box,
+    den: Future,
+    sigma: float,
+) -> np.ndarray:
+    filled = np.where(known, m, np.nan)
+    _fill_into(filled, mask, target, box, den, sigma)
+    return filled
+
+
+@dataclass(frozen=True)
+class _CostArrays:
+    """The result arrays `_cost_block` writes into (np.empty: every block writes all its cells)."""
+
+    cost: np.ndarray
+    terms: dict[str, np.ndarray]
+    impassable: np.ndarray
+    write_unknown: bool  # False: terms["unknown"] is np.zeros and stays so
+
+
+def _cost_block(
+    rows: slice,
+    metrics: dict[str, np.ndarray],
+    count: np.ndarray,
+    costed: np.ndarray,
+    penalized: np.ndarray,
+    spread: np.ndarray | None,
+    out: _CostArrays,
+    config: CostConfig,
+) -> None:
+    """Rows `rows` of every per-cell rule after the fill: the slip spread, limits, terms and cost."""
+    m = {name: a[rows] for name, a in metrics.items()}
+    costed, penalized = costed[rows], penalized[rows]
+    if spread is not None:  # after `inferred`: the spread alone never makes a cell inferred
+        np.fmax(m["slip_rate"], spread[rows], out=m["slip_rate"])
+    slip_costed = costed | np.isfinite(m["slip_rate"])  # + cells reached only by the spread
     lim = config.limits
     with np.errstate(invalid="ignore"):
         over = (
-            (metrics["slope_deg"] > lim.max_slope_deg)
-            | (metrics["giim"] < lim.min_giim_rad)
-            | (metrics["giam"] < lim.min_giam)
-            | (metrics["slip_rate"] > lim.max_slip_rate)
+            (m["slope_deg"] > lim.max_slope_deg)
+            | (m["giim"] < lim.min_giim_rad)
+            | (m["giam"] < lim.min_giam)
+            | (m["slip_rate"] > lim.max_slip_rate)
         )
-    terms: dict[str, np.ndarray] = {}
+    w = config.weights
+    # its term is 1: the weight on costed (and, under penalty, on the unknown) cells
+    out.terms["distance"][rows] = np.where(costed | penalized, w.distance * 1.0, 0.0)
     for name in TERMS:
-        t = np.nan_to_num(_TERM_FUNCS[name](metrics, count, config), nan=0.0)
-        terms[name] = np.where(
-            slip_costed if name == "slip" else costed, getattr(config.weights, name) * t, 0.0
+        if name == "distance":
+            continue
+        out.terms[name][rows] = _weighted_term(
+            _TERM_FUNCS[name](m, count[rows], config),
+            getattr(w, name),
+            slip_costed if name == "slip" else costed,
         )
-    penalized = ~costed if config.unknown == "penalty" else np.zeros(grid.shape, bool)
-    terms["distance"] = np.where(penalized, config.weights.distance, terms["distance"])
-    terms["unknown"] = np.where(penalized, config.unknown_penalty, 0.0)
+    if out.write_unknown:
+        out.terms["unknown"][rows] = np.where(penalized, config.unknown_penalty, 0.0)
     # metrics are NaN (never over a limit) on uncosted cells, except a spread slip rate there
-    impassable = over | (~costed & ~penalized)
-    cost = np.zeros(grid.shape)
-    for t in terms.values():
-        cost += t
+    impassable = out.impassable[rows]
+    np.logical_or(over, ~costed & ~penalized, out=impassable)
+    cost = out.cost[rows]
+    cost.fill(0.0)
+    for t in out.terms.values():
+        cost += t[rows]
     cost[impassable] = np.inf
-    return CostMap(cost, terms, metrics, known, inferred, impassable, config)
