@@ -357,10 +357,11 @@ class TiledMap:
         if (
             last is not None
             and last.ix.shape == ix.shape
+            and last.iy.shape == iy.shape
             and last.ix.dtype == ix.dtype
             and last.iy.dtype == iy.dtype
-            and np.array_equal(last.ix, ix)
-            and np.array_equal(last.iy, iy)
+            and (last.ix == ix).all()
+            and (last.iy == iy).all()
         ):
             return last
         sh, mask = self.shift, self.tile - 1

@@ -370,7 +370,9 @@ def _learn_templates(samples: Sequence[tuple[str | None, bytes]], raws: dict[int
 def _flag_values(layer: Layer, vals: np.ndarray, seg: np.ndarray) -> set[int]:
     """Segments (delta indices) with a NaN/inf statistic or a negative count in this layer."""
     counts = [r for r, s in enumerate(layer.stats) if s in layer.counts]
-    if np.isfinite(vals).all() and all(vals[r].min() >= 0 for r in counts):
+    # a sum is finite only if every term is (NaN and inf propagate; an overflow only sends the
+    # batch to the exact check below)
+    if np.isfinite(np.add.reduce(vals, axis=None)) and all(vals[r].min() >= 0 for r in counts):
         return set()
     bad = ~np.isfinite(vals).all(axis=0)
     for r in counts:
@@ -412,9 +414,11 @@ class _IndexFlags:
         if (
             last is not None
             and last[0].shape == seg.shape
-            and np.array_equal(last[0], seg)
-            and np.array_equal(last[1], ix)
-            and np.array_equal(last[2], iy)
+            and last[1].shape == ix.shape
+            and last[2].shape == iy.shape
+            and (last[0] == seg).all()
+            and (last[1] == ix).all()
+            and (last[2] == iy).all()
         ):
             return last[3]
         flagged = _flag_index(ix, iy, seg)
@@ -665,6 +669,9 @@ def decode_delta_batch(
                     lst.append(i)
         for key, idx_list in by_key.items():
             kn = heads_known.get((key, res))
+            first = samples[idx_list[0]][1]
+            if kn is None or not first.startswith(kn.prefix):  # a new scout or epoch: learn it first
+                kn = _learn_from(key, res, first, max_bytes, kn) or kn
             pending = idx_list
             for attempt in range(2):
                 if kn is not None:
