@@ -7,9 +7,9 @@ search alone (`search.plan_path`, what route_through_array does); `build_costs_i
 n x n map of all layers (10 % unexplored, unknown=infer) into a cost grid (`build_costs`), and
 `total_plan_s` = build + search, what a user's `psrmap plan --unknown infer` spends after fetching the
 map. Times are medians of `--repeat` runs (`build_costs_first_s`: the first build in the process, which
-also pays for the kernel handing the process fresh memory). Goals: `ratio` <= 0.5 (search vs
-route_through_array) and `total_plan_s` < 1 s on 2000 x 2000 (`goal_total_2000_lt_1s`).
-Prints one JSON object.
+also pays for the kernel handing the process fresh memory; `build_costs_penalty_s`, `_forbid_s`: the
+other unknown policies). Goals: `ratio` <= 0.5 (search vs route_through_array) and `total_plan_s` < 1 s
+on 2000 x 2000 (`goal_total_2000_lt_1s`). Prints one JSON object.
 
     python benchmarks/plan.py [--sizes 1000,2000] [--repeat 3]
 """
@@ -94,6 +94,10 @@ def main() -> None:
         grid = layer_grid(n)
         t_builds, _ = timed(lambda: build_costs(grid, CostConfig(unknown="infer")), args.repeat)  # noqa: B023
         t_costs = float(np.median(t_builds))
+        t_other = {
+            policy: median_of(lambda: build_costs(grid, CostConfig(unknown=policy)), args.repeat)[0]  # noqa: B023
+            for policy in ("penalty", "forbid")
+        }
         results.append({
             "cells": f"{n}x{n}",
             "impassable_fraction": round(float(np.isinf(cost).mean()), 4),
@@ -106,6 +110,8 @@ def main() -> None:
             "method": path.method,
             "build_costs_infer_s": round(t_costs, 4),
             "build_costs_first_s": round(t_builds[0], 4),
+            "build_costs_penalty_s": round(t_other["penalty"], 4),
+            "build_costs_forbid_s": round(t_other["forbid"], 4),
             "total_plan_s": round(t_costs + t_plan, 4),
         })  # fmt: skip
     goals: dict[str, bool] = {"goal_ratio_le_0.5": all(r["ratio"] <= 0.5 for r in results)}

@@ -364,9 +364,6 @@ def build_costs(grid: LayerGrid, config: CostConfig | None = None) -> CostMap:
     config = config or CostConfig()
     raw, count = read_metrics(grid)
     known = count > 0
-    infer = config.unknown == "infer"
-    sigma = config.infer_sigma_cells
-    radius = _kernel_radius(sigma)
     with _executor(grid.h * grid.w) as pool:
         spread: Future | None = None
         if config.slip_spread_m > 0:
@@ -376,28 +373,10 @@ def build_costs(grid: LayerGrid, config: CostConfig | None = None) -> CostMap:
                 spread = pool.submit(_spread_finite, slip, np.isfinite(slip) & known, r_m, grid.res)
             else:  # a disc of one cell: the measured rates themselves
                 spread = pool.submit(np.where, known, slip, np.nan)
-        jobs: dict[str, Future] = {}
-        dens: list[tuple[tuple[slice, slice], np.ndarray, Future]] = []  # one fill weight per mask
-        for name, m in raw.items():
-            finite = np.isfinite(m)
-            finite &= known  # only samples of known cells feed the fill
-            box = None
-            if finite.any():  # else nothing to fill from
-                target = ~finite  # the cells to fill: all but finite ones under infer, else gaps in known
-                if not infer:
-                    target &= known  # (fills of unknown cells would be dropped)
-                box = _fill_box(target, radius)  # None: all finite where it counts
-            if box is None:
-                jobs[name] = pool.submit(np.where, known, m, np.nan)
-                continue
-            mask = finite[box.outer]
-            den = next((d for o, mk, d in dens if o == box.outer and np.array_equal(mk, mask)), None)
-            if den is None:
-                den = pool.submit(_smoothed_mask, mask, sigma)
-                dens.append((box.outer, mask, den))
-            jobs[name] = pool.submit(_filled_metric, m, known, mask, target, box, den, sigma)
-        metrics = {name: job.result() for name, job in jobs.items()}
-        if infer:
+            del slip
+        metrics = _fill_metrics(pool, raw, known, config)
+        del raw  # (arrays read_metrics made, e.g. an all-NaN slope: their memory serves the results)
+        if config.unknown == "infer":
             reach = np.zeros(grid.shape, bool)
             for m in metrics.values():
                 reach |= np.isfinite(m)
@@ -405,6 +384,9 @@ def build_costs(grid: LayerGrid, config: CostConfig | None = None) -> CostMap:
         else:
             inferred = np.zeros(grid.shape, bool)
         costed = known | inferred
+        if spread is not None:  # after `inferred`: the spread alone never makes a cell inferred
+            np.fmax(metrics["slip_rate"], spread.result(), out=metrics["slip_rate"])
+            del spread
         penalized = ~costed if config.unknown == "penalty" else np.zeros(grid.shape, bool)
         any_penalized = bool(penalized.any())
         out = _CostArrays(
@@ -416,15 +398,43 @@ def build_costs(grid: LayerGrid, config: CostConfig | None = None) -> CostMap:
             write_unknown=any_penalized,
         )
         step = max(1, _BLOCK_CELLS // max(1, grid.w))
-        spread_rate = spread.result() if spread is not None else None
         for f in [
-            pool.submit(
-                _cost_block, slice(r, r + step), metrics, count, costed, penalized, spread_rate, out, config
-            )
+            pool.submit(_cost_block, slice(r, r + step), metrics, count, costed, penalized, out, config)
             for r in range(0, grid.h, step)
         ]:
             f.result()
     return CostMap(out.cost, out.terms, metrics, known, inferred, out.impassable, config)
+
+
+def _fill_metrics(
+    pool: _Pool | _Inline, raw: dict[str, np.ndarray], known: np.ndarray, config: CostConfig
+) -> dict[str, np.ndarray]:
+    """The metrics of known cells, eq. 17-filled where the unknown policy needs it (see the module
+    docstring); the jobs run on `pool`."""
+    infer = config.unknown == "infer"
+    sigma = config.infer_sigma_cells
+    radius = _kernel_radius(sigma)
+    jobs: dict[str, Future] = {}
+    dens: list[tuple[tuple[slice, slice], np.ndarray, Future]] = []  # one fill weight per mask
+    for name, m in raw.items():
+        finite = np.isfinite(m)
+        finite &= known  # only samples of known cells feed the fill
+        box = None
+        if finite.any():  # else nothing to fill from
+            target = ~finite  # the cells to fill: all but finite ones under infer, else gaps in known
+            if not infer:
+                target &= known  # (fills of unknown cells would be dropped)
+            box = _fill_box(target, radius)  # None: all finite where it counts
+        if box is None:
+            jobs[name] = pool.submit(np.where, known, m, np.nan)
+            continue
+        mask = finite[box.outer]
+        den = next((d for o, mk, d in dens if o == box.outer and np.array_equal(mk, mask)), None)
+        if den is None:
+            den = pool.submit(_smoothed_mask, mask, sigma)
+            dens.append((box.outer, mask, den))
+        jobs[name] = pool.submit(_filled_metric, m, known, mask, target, box, den, sigma)
+    return {name: job.result() for name, job in jobs.items()}
 
 
 def _filled_metric(
@@ -457,15 +467,12 @@ def _cost_block(
     count: np.ndarray,
     costed: np.ndarray,
     penalized: np.ndarray,
-    spread: np.ndarray | None,
     out: _CostArrays,
     config: CostConfig,
 ) -> None:
-    """Rows `rows` of every per-cell rule after the fill: the slip spread, limits, terms and cost."""
+    """Rows `rows` of every per-cell rule after the fill and the slip spread: limits, terms and cost."""
     m = {name: a[rows] for name, a in metrics.items()}
     costed, penalized = costed[rows], penalized[rows]
-    if spread is not None:  # after `inferred`: the spread alone never makes a cell inferred
-        np.fmax(m["slip_rate"], spread[rows], out=m["slip_rate"])
     slip_costed = costed | np.isfinite(m["slip_rate"])  # + cells reached only by the spread
     lim = config.limits
     with np.errstate(invalid="ignore"):
