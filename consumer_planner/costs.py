@@ -278,34 +278,40 @@ def _spread_finite(values: np.ndarray, finite: np.ndarray, radius_m: float, res:
     return out
 
 
-def _margin_term(x: np.ndarray, ref: float) -> np.ndarray:
-    out = np.subtract(ref, x)  # = np.maximum(0.0, (ref - x) / ref), in one array
+def _copied(out: np.ndarray, values: np.ndarray | float) -> np.ndarray:
+    np.copyto(out, values)
+    return out
+
+
+def _margin_term(x: np.ndarray, ref: float, out: np.ndarray) -> np.ndarray:
+    np.subtract(ref, x, out=out)  # = np.maximum(0.0, (ref - x) / ref)
     np.divide(out, ref, out=out)
     return np.maximum(0.0, out, out=out)
 
 
-# Each returns a new array (never a metric itself) that `_weighted_term` may overwrite.
-_TERM_FUNCS: dict[str, Callable[[dict[str, np.ndarray], np.ndarray, CostConfig], np.ndarray]] = {
-    "distance": lambda m, n, c: np.ones_like(n),
-    "cot": lambda m, n, c: m["cot"].copy(),
-    "slip": lambda m, n, c: m["slip_rate"] * c.stances_per_m,
-    "giim": lambda m, n, c: _margin_term(m["giim"], c.giim_ref_rad),
-    "giam": lambda m, n, c: _margin_term(m["giam"], c.giam_ref),
-    "slope": lambda m, n, c: m["slope_deg"] / c.slope_ref_deg,
-    "confidence": lambda m, n, c: np.divide(c.confidence_n, np.add(c.confidence_n, n)),
+# Each writes a term (unweighted; NaN where its metric is) into `out` (m: metrics, n: counts, c: config).
+_TERM_FUNCS: dict[str, Callable[[dict[str, np.ndarray], np.ndarray, CostConfig, np.ndarray], np.ndarray]] = {
+    "distance": lambda m, n, c, out: _copied(out, 1.0),
+    "cot": lambda m, n, c, out: _copied(out, m["cot"]),
+    "slip": lambda m, n, c, out: np.multiply(m["slip_rate"], c.stances_per_m, out=out),
+    "giim": lambda m, n, c, out: _margin_term(m["giim"], c.giim_ref_rad, out),
+    "giam": lambda m, n, c, out: _margin_term(m["giam"], c.giam_ref, out),
+    "slope": lambda m, n, c, out: np.divide(m["slope_deg"], c.slope_ref_deg, out=out),
+    "confidence": lambda m, n, c, out: np.divide(c.confidence_n, np.add(c.confidence_n, n, out=out), out=out),
 }
 
 
-def _weighted_term(values: np.ndarray, weight: float, where: np.ndarray) -> np.ndarray:
-    """where(where, weight * nan_to_num(values, nan=0.0), 0.0), in `values` (overwritten) and without
-    nan_to_num's copies and +-inf scans when `values` hold no infinity (then it only maps NaN to 0)."""
+def _weight_term(values: np.ndarray, weight: float, where: np.ndarray, outside: np.ndarray) -> None:
+    """values[:] = where(where, weight * nan_to_num(values, nan=0.0), 0.0) (`outside` = ~where), in
+    place and without nan_to_num's copies and +-inf scans when `values` hold no infinity (then it only
+    maps NaN to 0)."""
     if not math.isfinite(weight) or np.isinf(values).any():  # inf * 0 = NaN; +-inf -> +-max float
-        return np.where(where, weight * np.nan_to_num(values, nan=0.0), 0.0)
+        values[...] = np.where(where, weight * np.nan_to_num(values, nan=0.0), 0.0)
+        return
     zero = np.isnan(values)
-    zero |= ~where
+    zero |= outside
     np.multiply(values, weight, out=values)
     np.copyto(values, 0.0, where=zero)
-    return values
 
 
 # Grids of at least this many cells fill their metrics on a few threads (scipy's filters and numpy's
@@ -485,19 +491,21 @@ def _cost_block(
     w = config.weights
     # its term is 1: the weight on costed (and, under penalty, on the unknown) cells
     out.terms["distance"][rows] = np.where(costed | penalized, w.distance * 1.0, 0.0)
+    uncosted, slip_uncosted = ~costed, ~slip_costed
+    n = count[rows]
     for name in TERMS:
         if name == "distance":
             continue
-        out.terms[name][rows] = _weighted_term(
-            _TERM_FUNCS[name](m, count[rows], config),
-            getattr(w, name),
-            slip_costed if name == "slip" else costed,
-        )
+        term = _TERM_FUNCS[name](m, n, config, out.terms[name][rows])
+        if name == "slip":
+            _weight_term(term, w.slip, slip_costed, slip_uncosted)
+        else:
+            _weight_term(term, getattr(w, name), costed, uncosted)
     if out.write_unknown:
         out.terms["unknown"][rows] = np.where(penalized, config.unknown_penalty, 0.0)
     # metrics are NaN (never over a limit) on uncosted cells, except a spread slip rate there
     impassable = out.impassable[rows]
-    np.logical_or(over, ~costed & ~penalized, out=impassable)
+    np.logical_or(over, uncosted & ~penalized, out=impassable)
     cost = out.cost[rows]
     cost.fill(0.0)
     for t in out.terms.values():
