@@ -6,29 +6,18 @@ import threading
 
 import numpy as np
 import pytest
-import zenoh
 
-from map_server.service import MapService, ServerConfig, free_endpoint, wait_for_server
-from protocol import DeltaPublisher, decode, encode, zenoh_config
+from protocol import DeltaPublisher, decode, encode
 from protocol.keys import delta_key, map_key, status_key
 from protocol.messages import MapRegion, RegionQuery, Status
 from protocol.testing import MAP, RES, broken, make_delta
 from protocol.zenoh_transport import ScoutLink, ZenohTransport
 
 
-@pytest.fixture(scope="module")
-def router():
-    ep = free_endpoint()
-    with zenoh.open(zenoh_config(listen=[ep], mode="router")):
-        yield ep
-
-
 @pytest.fixture
-def net(router, tmp_path):
-    cfg = ServerConfig(map_id=MAP, res=RES, db=str(tmp_path / "m.db"), connect=(router,))
-    with MapService(cfg) as service, zenoh.open(zenoh_config(connect=[router], mode="client")) as client:
-        assert wait_for_server(client, MAP)
-        yield service, client
+def net(served_map):
+    with served_map(MAP, RES) as pair:
+        yield pair
 
 
 def get_one(session, selector):

@@ -7,12 +7,9 @@ import json
 
 import numpy as np
 import pytest
-import zenoh
 
-from map_server.service import MapService, ServerConfig, free_endpoint, wait_for_server
 from protocol.keys import alive_key
 from protocol.layers import LAYERS
-from protocol.session import zenoh_config
 from scout_agent.mapping import Mapper, MapperConfig
 from scout_agent.publisher import ScoutPublisher
 from scout_agent.sim.simulator import ScoutSim
@@ -29,19 +26,10 @@ def samples():
     return [sim.step(0.2)[0] for _ in range(int(3.0 / sim.control_dt))]
 
 
-@pytest.fixture(scope="module")
-def router():
-    ep = free_endpoint()
-    with zenoh.open(zenoh_config(listen=[ep], mode="router")):
-        yield ep
-
-
 @pytest.fixture
-def server(router, tmp_path):
-    cfg = ServerConfig(map_id=MAP, res=RES, db=str(tmp_path / "m.db"), connect=(router,))
-    with MapService(cfg) as service, zenoh.open(zenoh_config(connect=[router], mode="client")) as client:
-        assert wait_for_server(client, MAP)
-        yield service, client
+def server(served_map):
+    with served_map(MAP, RES) as pair:
+        yield pair
 
 
 def assert_maps_equal(local, tiled):
@@ -57,7 +45,9 @@ def assert_maps_equal(local, tiled):
         for s in layer.stats:
             exact = s in ("n", "events", "nonfoot") or s in ("min", "max") or s.startswith(("min_", "max_"))
             rtol = 0.0 if exact else 1e-12
-            np.testing.assert_allclose(theirs[name][s], mine[name][s], rtol=rtol, atol=0, err_msg=f"{name}/{s}")
+            np.testing.assert_allclose(
+                theirs[name][s], mine[name][s], rtol=rtol, atol=0, err_msg=f"{name}/{s}"
+            )
         cells += int((mine[name]["n"] > 0).sum())
     return cells
 

@@ -1,0 +1,36 @@
+"""Fixtures shared across the test tree: a real Zenoh router on loopback and a map server behind it."""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+import zenoh
+
+from map_server.service import MapService, ServerConfig, free_endpoint, wait_for_server
+from protocol.session import zenoh_config
+
+
+@pytest.fixture(scope="module")
+def router() -> Iterator[str]:
+    """The endpoint of an embedded Zenoh router on a free loopback port (one per test module)."""
+    ep = free_endpoint()
+    with zenoh.open(zenoh_config(listen=[ep], mode="router")):
+        yield ep
+
+
+@contextlib.contextmanager
+def _served_map(router: str, db: Path, map_id: str, res: float) -> Iterator[tuple[MapService, zenoh.Session]]:
+    cfg = ServerConfig(map_id=map_id, res=res, db=str(db), connect=(router,))
+    with MapService(cfg) as service, zenoh.open(zenoh_config(connect=[router], mode="client")) as client:
+        assert wait_for_server(client, map_id)
+        yield service, client
+
+
+@pytest.fixture
+def served_map(router: str, tmp_path: Path):
+    """`with served_map(map_id, res) as (service, client):` a map server on the module's router, persisting
+    under the test's tmp_path, and a client session that has seen it answer."""
+    return lambda map_id, res: _served_map(router, tmp_path / f"{map_id}.db", map_id, res)
