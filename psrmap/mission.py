@@ -315,7 +315,8 @@ def _read_json(path: Path | None) -> dict[str, Any] | None:
         return None
 
 
-def _rerun_exe() -> list[str]:
+def rerun_exe() -> list[str]:
+    """The `rerun` command line tool: the script on PATH, else the module of the installed rerun-sdk."""
     exe = shutil.which("rerun")
     return [exe] if exe else [sys.executable, "-m", "rerun"]
 
@@ -327,7 +328,7 @@ def merge_recordings(run_dir: Path) -> Path | None:
         return None
     dst = run_dir / "mission.rrd"
     res = subprocess.run(
-        [*_rerun_exe(), "rrd", "merge", *map(str, parts), "-o", str(dst)],
+        [*rerun_exe(), "rrd", "merge", *map(str, parts), "-o", str(dst)],
         capture_output=True,
         text=True,
         check=False,

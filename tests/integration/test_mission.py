@@ -15,7 +15,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from psrmap.mission import MissionError, deltas_sent, load_config, merge_recordings, run_mission, with_scouts
+from psrmap.mission import (
+    MissionError,
+    deltas_sent,
+    load_config,
+    merge_recordings,
+    rerun_exe,
+    run_mission,
+    with_scouts,
+)
 
 pytestmark = pytest.mark.slow
 
@@ -25,7 +33,9 @@ def mission(tmp_path_factory: pytest.TempPathFactory) -> tuple[dict, Path]:
     run_dir = tmp_path_factory.mktemp("mission")
     cfg = with_scouts(load_config(), 2)
     # plan between two points both scouts' first metres explored (scout1 leaves (1.5, 1.5) heading north-east)
-    cfg = dataclasses.replace(cfg, sim_seconds=14.0, timeout_s=400.0, plan_from=(1.6, 1.6), plan_to=(2.8, 2.8))
+    cfg = dataclasses.replace(
+        cfg, sim_seconds=14.0, timeout_s=400.0, plan_from=(1.6, 1.6), plan_to=(2.8, 2.8)
+    )
     summary = run_mission(cfg, run_dir, progress=False)
     return summary, run_dir
 
@@ -98,7 +108,9 @@ def test_recording_verifies_and_holds_entities(mission: tuple[dict, Path]) -> No
     summary, run_dir = mission
     rrd = Path(summary["recording"])
     assert rrd.exists()
-    res = subprocess.run(["rerun", "rrd", "verify", str(rrd)], capture_output=True, text=True, check=False)
+    res = subprocess.run(
+        [*rerun_exe(), "rrd", "verify", str(rrd)], capture_output=True, text=True, check=False
+    )
     assert res.returncode == 0, res.stderr[-2000:]
     from rerun.chunk import RrdReader
 
@@ -121,7 +133,9 @@ def test_bad_config_is_rejected_with_reason(tmp_path: Path) -> None:
     with pytest.raises(MissionError, match=r"\[x, y, yaw\]"):
         load_config(bad)
     bad.write_text("[mission]\nsim_second = 10\n")
-    with pytest.raises(MissionError, match=r"unknown key\(s\) \['sim_second'\] in \[mission\]; keys: .*sim_seconds"):
+    with pytest.raises(
+        MissionError, match=r"unknown key\(s\) \['sim_second'\] in \[mission\]; keys: .*sim_seconds"
+    ):
         load_config(bad)
     with pytest.raises(MissionError, match="at least 1"):
         with_scouts(load_config(), 0)
