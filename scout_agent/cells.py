@@ -176,9 +176,13 @@ class LocalMap:
             out[name] = grid
         return out
 
-    def save_npz(self, path: str | Path) -> Path:
-        """Write the whole map as `map_region` arrays: `<layer>/<stat>` (h, w) and res, ix0, iy0, w, h."""
-        b = self.bounds() or (0, 0, -1, -1)
+    def save_npz(self, path: str | Path, cover: tuple[int, int, int, int] | None = None) -> Path:
+        """Write the whole map as `map_region` arrays: `<layer>/<stat>` (h, w) and res, ix0, iy0, w, h.
+
+        `cover` (ix0, iy0, ix1, iy1, inclusive): a cell box the saved region must include besides the data."""
+        b = self.bounds() or (cover if cover is not None else (0, 0, -1, -1))
+        if cover is not None:
+            b = (min(b[0], cover[0]), min(b[1], cover[1]), max(b[2], cover[2]), max(b[3], cover[3]))
         ix0, iy0, ix1, iy1 = b
         arrays: dict[str, Any] = {
             "res": np.float64(self.res),

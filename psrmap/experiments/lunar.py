@@ -109,23 +109,10 @@ def merged_local_map(runs: list[dict], res: float = MAP_RES):
 
 
 def save_region_npz(local: Any, path: Path, size_m: float = 20.0) -> Path:
-    """Like `LocalMap.save_npz` (map_region layout), over the whole field [0, size]² at least, so that routes
+    """`LocalMap.save_npz` (map_region layout) covering the whole field [0, size]² at least, so that routes
     through unmapped cells can still be looked up."""
     n = int(round(size_m / local.res))
-    b = local.bounds() or (0, 0, n - 1, n - 1)
-    ix0, iy0, ix1, iy1 = min(b[0], 0), min(b[1], 0), max(b[2], n - 1), max(b[3], n - 1)
-    arrays: dict[str, Any] = {
-        "res": np.float64(local.res),
-        "ix0": np.int64(ix0),
-        "iy0": np.int64(iy0),
-        "w": np.int64(ix1 - ix0 + 1),
-        "h": np.int64(iy1 - iy0 + 1),
-    }
-    for name, grid in local.region(ix0, iy0, ix1, iy1).items():
-        for stat, a in grid.items():
-            arrays[f"{name}/{stat}"] = a
-    np.savez_compressed(path, **arrays)
-    return path
+    return local.save_npz(path, cover=(0, 0, n - 1, n - 1))
 
 
 def merged_grid(runs: list[dict], npz_path: Path, map_id: str):
