@@ -1,0 +1,71 @@
+"""Foot contact: Aliengo's 1-D foot pressure sensors, thresholded with hysteresis — or, as an option, contact
+estimated from joint torques (no foot sensor at all).
+
+An Aliengo has one pressure value per foot (Unitree low-level state `footForce`), not a 3-axis force sensor.
+The model reports the normal ground force on the foot sphere scaled by a per-foot gain error, plus an offset and
+white noise, as an uncalibrated resistive/piezo sensor in a rubber foot would: defaults are a ± 10 % gain spread
+(σ `gain_error`), a 0.5 N offset spread and 1.0 N noise per reading (assumed values for such sensors; Unitree
+publishes none). Contact turns on above `on_n` and off below `off_n` (hysteresis keeps noise from flickering).
+
+Contact from joint torques (`source="torques"`): the ground force on each stance foot is estimated as
+f = −J⁻ᵀ (τ − τ_g) (`leg_forces_from_torques`), and its component along the base's −z axis is thresholded with
+the same hysteresis. It ignores the leg's own inertia (small legs, slow trot), so swing accelerations can leave
+a few newtons of phantom force.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+CONTACT_SOURCES = ("pressure", "torques")
+
+
+@dataclass(frozen=True)
+class ContactConfig:
+    source: str = "pressure"  # one of CONTACT_SOURCES
+    gain_error: float = 0.10  # σ of each foot sensor's gain error (fraction)
+    offset_n: float = 0.5  # σ of each foot sensor's offset [N]
+    noise_n: float = 1.0  # σ of the reading's noise [N]
+    on_n: float = 5.0  # contact turns on above this reading [N]
+    off_n: float = 2.5  # ... and off below this one [N]
+
+    def __post_init__(self) -> None:
+        if self.source not in CONTACT_SOURCES:
+            raise ValueError(f"contact source {self.source!r} unknown; sources: {', '.join(CONTACT_SOURCES)}")
+        if not self.off_n < self.on_n:
+            raise ValueError(f"contact thresholds need off_n < on_n (got {self.off_n}, {self.on_n})")
+
+
+def leg_forces_from_torques(jacobians: np.ndarray, tau: np.ndarray, tau_gravity: np.ndarray) -> np.ndarray:
+    """Ground forces on the feet (4, 3), base frame [N], from leg Jacobians (4, 3, 3) (d foot / d leg joints,
+    base frame), joint torques (12,) and the joints' gravity torques (12,): f = −J⁻ᵀ (τ − τ_g).
+    Near-singular legs (a straight knee) give zeros rather than huge forces."""
+    out = np.zeros((4, 3))
+    t = (tau - tau_gravity).reshape(4, 3)
+    for i in range(4):
+        J = jacobians[i]
+        if abs(np.linalg.det(J)) > 1e-5:
+            out[i] = -np.linalg.solve(J.T, t[i])
+    return out
+
+
+class FootContactSensors:
+    """`reading(normal_force_n)` → the 4 pressure readings [N]; `flags(readings)` → contact with hysteresis."""
+
+    def __init__(self, config: ContactConfig, rng: np.random.Generator) -> None:
+        self.config = c = config
+        self.rng = rng
+        self.gain = 1.0 + rng.normal(0.0, c.gain_error, 4)
+        self.offset = rng.normal(0.0, c.offset_n, 4)
+        self.contact = np.zeros(4, bool)
+
+    def reading(self, normal_force_n: np.ndarray) -> np.ndarray:
+        c = self.config
+        return self.gain * np.maximum(normal_force_n, 0.0) + self.offset + self.rng.normal(0.0, c.noise_n, 4)
+
+    def flags(self, force_n: np.ndarray) -> np.ndarray:
+        c = self.config
+        self.contact = np.where(self.contact, force_n > c.off_n, force_n > c.on_n)
+        return self.contact.copy()

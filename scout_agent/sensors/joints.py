@@ -1,0 +1,63 @@
+"""Joint sensors as a motor driver reports them: encoder angle, joint velocity, torque from current, energy.
+
+Defaults (`JointSensorConfig`), and where they come from:
+- Encoders: Unitree's joint motors read a 15-bit magnetic encoder on the rotor, behind a ≈ 9:1 planetary
+  gearbox (Unitree A1/Aliengo motor documentation). Resolution at the joint 2π / (2¹⁵ · 9) ≈ 2.1e-5 rad; the
+  default is a coarser 2π / 2¹⁶ ≈ 9.6e-5 rad, i.e. an output-side 16-bit encoder, so the figures do not lean on
+  the gearbox.
+- Joint velocity: the driver differentiates the encoder at its servo rate (here every physics step, 500 Hz)
+  and low-pass filters it (first order, `velocity_cutoff_hz`); quantisation of the difference is what the
+  filter smooths.
+- Torque: τ = k_t · i · N from the measured motor current. The torque constant varies part to part (± 5 % is a
+  typical tolerance for BLDC motors), so each joint gets a gain error drawn once (σ `torque_gain_error`), plus
+  current-sense noise `torque_noise_nm` per sample.
+- Energy: the driver samples current and velocity at every physics step; the joint work Σ_i |τ_i · θ̇_i| dt is
+  integrated there from the *measured* values (not once per control tick, which missed ≈ 17 % of the work).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class JointSensorConfig:
+    encoder_resolution_rad: float = 2 * math.pi / 2**16  # [rad] per count at the joint
+    velocity_cutoff_hz: float = 100.0  # driver's low-pass on the differentiated encoder [Hz]
+    torque_gain_error: float = 0.03  # σ of the per-joint torque-constant error (fraction)
+    torque_noise_nm: float = 0.1  # σ of current-sense noise per sample [N·m]
+
+
+class JointSensors:
+    """12 joints. `sample(q, tau, dt)` for a block of k physics steps ((k, 12) each) → (q, dq, tau) (k, 12)
+    as the driver reports them, and the block's joint energy [J] from those measured values."""
+
+    def __init__(self, config: JointSensorConfig, rng: np.random.Generator, q0: np.ndarray) -> None:
+        self.config = c = config
+        self.rng = rng
+        self.gain = 1.0 + rng.normal(0.0, c.torque_gain_error, 12)
+        self._q_prev = self.quantise(np.asarray(q0, dtype=float))
+        self._dq = np.zeros(12)
+
+    def quantise(self, q: np.ndarray) -> np.ndarray:
+        r = self.config.encoder_resolution_rad
+        return np.floor(q / r + 0.5) * r
+
+    def sample(self, q_true: np.ndarray, tau_true: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray,
+                                                                                  np.ndarray, float]:
+        c, k = self.config, len(q_true)
+        q = self.quantise(q_true)
+        alpha = 1.0 - math.exp(-2 * math.pi * c.velocity_cutoff_hz * dt)
+        dq = np.empty((k, 12))
+        prev, filt = self._q_prev, self._dq
+        for j in range(k):
+            filt = filt + alpha * ((q[j] - prev) / dt - filt)
+            dq[j] = filt
+            prev = q[j]
+        self._q_prev, self._dq = prev, filt
+        tau = tau_true * self.gain + self.rng.normal(0.0, c.torque_noise_nm, (k, 12))
+        energy = float(np.abs(tau * dq).sum()) * dt
+        return q, dq, tau, energy

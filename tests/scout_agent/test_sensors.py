@@ -1,0 +1,135 @@
+"""Sensor models: their noise is what the config says, and what they report agrees with simulator ground truth."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from scout_agent.robot import kinematics as K
+from scout_agent.robot.constants import HOME_Q
+from scout_agent.sensors import (
+    ContactConfig,
+    FootContactSensors,
+    ImuConfig,
+    ImuModel,
+    JointSensorConfig,
+    JointSensors,
+    leg_forces_from_torques,
+)
+from scout_agent.sim.simulator import ScoutSim
+from scout_agent.sim.terrain import RampConfig, make_ramps
+
+DT = 0.002
+
+
+def test_imu_white_noise_matches_the_datasheet_density():
+    cfg = ImuConfig(acc_bias_walk=0.0, gyro_bias_walk=0.0)
+    imu = ImuModel(cfg, np.random.default_rng(1))
+    true = np.tile([0.0, 0.0, 1.62], (20000, 1))
+    acc, gyro = imu.sample(true, np.zeros((20000, 3)), DT)
+    assert acc.std(axis=0) == pytest.approx(np.full(3, cfg.acc_noise_density / math.sqrt(DT)), rel=0.05)
+    assert gyro.std(axis=0) == pytest.approx(np.full(3, cfg.gyro_noise_density / math.sqrt(DT)), rel=0.05)
+    # the turn-on bias is constant without a walk, and it is the mean error
+    np.testing.assert_allclose(acc.mean(axis=0) - true[0], imu.acc_bias, atol=5e-4)
+
+
+def test_imu_bias_walks_as_configured():
+    cfg = ImuConfig(gyro_bias_walk=1e-3)
+    ends = []
+    for seed in range(200):
+        imu = ImuModel(cfg, np.random.default_rng(seed))
+        b0 = imu.gyro_bias.copy()
+        imu.sample(np.zeros((500, 3)), np.zeros((500, 3)), DT)  # 1 s
+        ends.append(imu.gyro_bias - b0)
+    assert np.std(ends) == pytest.approx(1e-3 * math.sqrt(1.0), rel=0.1)
+
+
+def test_encoders_quantise_and_the_driver_velocity_follows_a_ramp():
+    cfg = JointSensorConfig(torque_gain_error=0.0, torque_noise_nm=0.0)
+    js = JointSensors(cfg, np.random.default_rng(0), np.zeros(12))
+    t = np.arange(1, 501)[:, None] * DT
+    q_true = np.tile(0.5 * t, (1, 12))  # 0.5 rad/s on every joint
+    q, dq, tau, energy = js.sample(q_true, np.ones((500, 12)), DT)
+    steps = q / cfg.encoder_resolution_rad
+    np.testing.assert_allclose(steps, np.round(steps), atol=1e-6)
+    assert np.abs(q - q_true).max() <= cfg.encoder_resolution_rad / 2 + 1e-12
+    assert dq[-100:].mean() == pytest.approx(0.5, rel=0.01)
+    # energy at every step: ∫ |τ q̇| dt ≈ 12 joints × 1 N·m × 0.5 rad/s × 1 s, less the filter's start-up
+    assert energy == pytest.approx(6.0, rel=0.02)
+
+
+def test_torque_from_current_has_a_gain_error_per_joint_and_noise():
+    cfg = JointSensorConfig(torque_gain_error=0.05, torque_noise_nm=0.2)
+    js = JointSensors(cfg, np.random.default_rng(3), np.zeros(12))
+    _, _, tau, _ = js.sample(np.zeros((4000, 12)), np.full((4000, 12), 10.0), DT)
+    np.testing.assert_allclose(tau.mean(axis=0), 10.0 * js.gain, atol=0.02)
+    assert tau.std(axis=0).mean() == pytest.approx(0.2, rel=0.1)
+    assert np.abs(js.gain - 1.0).max() > 0.005
+
+
+def test_foot_pressure_contact_has_hysteresis():
+    feet = FootContactSensors(ContactConfig(on_n=5.0, off_n=2.5), np.random.default_rng(0))
+    assert not feet.flags(np.full(4, 4.0)).any()  # below on: stays off
+    assert feet.flags(np.full(4, 6.0)).all()  # above on
+    assert feet.flags(np.full(4, 3.0)).all()  # between: stays on
+    assert not feet.flags(np.full(4, 2.0)).any()  # below off
+    with pytest.raises(ValueError, match="pressure, torques"):
+        ContactConfig(source="vision")
+
+
+def test_ground_forces_from_joint_torques_invert_the_stance_map():
+    J = K.jacobians(HOME_Q)
+    f = np.array([[1.0, -2.0, 15.0], [0.5, 0.0, 12.0], [0.0, 1.0, 8.0], [-1.0, 0.0, 20.0]])
+    tau = -np.einsum("lji,lj->li", J, f).reshape(12)
+    np.testing.assert_allclose(leg_forces_from_torques(J, tau, np.zeros(12)), f, atol=1e-9)
+
+
+@pytest.fixture(scope="module")
+def walk():
+    sim = ScoutSim(make_ramps(RampConfig(slope_deg=10.0)))
+    rec = []
+    for _ in range(int(8.0 / sim.control_dt)):
+        s, g = sim.step(0.2, 0.0)
+        rec.append((s, g, sim.last_output.stance_forces.copy()))
+    return sim, rec
+
+
+def test_pressure_contact_agrees_with_the_true_contact(walk):
+    _, rec = walk
+    est = np.array([s.contact for s, _, _ in rec[100:]])
+    true = np.array([g.contact for _, g, _ in rec[100:]])
+    tp = (est & true).sum()
+    assert tp / est.sum() > 0.95  # precision
+    assert tp / true.sum() > 0.85  # recall: the sensor needs ≈ 5 N before it says contact
+
+
+def test_driver_energy_is_within_3_percent_of_the_exact_energy_and_tick_sampling_misses_work(walk):
+    sim, rec = walk
+    measured = sum(s.joint_energy_j for s, _, _ in rec)
+    exact = sum(g.joint_energy_j for _, g, _ in rec)
+    assert exact == pytest.approx(sim.energy_true_j)
+    assert measured == pytest.approx(exact, rel=0.03)
+    once_per_tick = sum(float(np.abs(g.dq * s.tau).sum()) * sim.control_dt for s, g, _ in rec)
+    assert once_per_tick < 0.95 * exact  # the old way: last physics step of each tick only
+
+
+def test_torque_estimated_ground_forces_match_the_simulator_in_mid_stance(walk):
+    _, rec = walk
+    errs, norms = [], []
+    for s, g, _ in rec[100:]:
+        R = _quat_to_mat(g.base.quat)
+        f_w = leg_forces_from_torques(K.jacobians(s.q), s.tau, np.zeros(12)) @ R.T
+        for i in range(4):
+            if g.contact[i] and g.foot_force_world[i, 2] > 10.0:
+                errs.append(np.linalg.norm(f_w[i] - g.foot_force_world[i]))
+                norms.append(np.linalg.norm(g.foot_force_world[i]))
+    assert len(errs) > 200
+    assert np.median(errs) / np.median(norms) < 0.25
+
+
+def _quat_to_mat(q: np.ndarray) -> np.ndarray:
+    from scout_agent.estimators.pipeline import quat_to_matrix
+
+    return quat_to_matrix(q)
