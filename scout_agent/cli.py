@@ -18,8 +18,9 @@ from protocol.keys import id_arg
 from scout_agent.evaluate import register_evaluate
 from scout_agent.mapping import add_mapping_arguments, attach_mapping
 from scout_agent.run import SCENES, ScoutRunConfig, build_world, run_scout
+from scout_agent.sensors.foot_pressure import CONTACT_SOURCES
 from scout_agent.sim.friction import Patch
-from scout_agent.sim.simulator import NoiseConfig, SimConfig
+from scout_agent.sim.simulator import STATE_SOURCES, SimConfig
 from scout_agent.sim.terrain import LUNAR_ROUTES, RampConfig
 
 
@@ -62,9 +63,18 @@ def add_scout_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--slippery-patches", type=int, default=0, metavar="N", help="lunar: N seeded slippery patches")
     p.add_argument("--patch", type=_patch, action="append", default=[], metavar="x0,y0,x1,y1,MU",
                    help="friction rectangle (repeatable)")
-    p.add_argument("--vel-noise", type=float, default=0.03, help="white noise on base velocity [m/s]")
-    p.add_argument("--vel-bias", type=float, default=0.02, help="bias on base velocity [m/s]")
+    p.add_argument("--state", choices=STATE_SOURCES, default="estimate",
+                   help="base state the robot runs on: its own estimate (default) or the simulator's exact "
+                        "state (evaluation only)")
+    p.add_argument("--contact", choices=CONTACT_SOURCES, default="pressure",
+                   help="foot contact from the 1-D foot pressure sensors (default) or from joint torques")
     p.add_argument("--scout-id", default="scout1", type=id_arg("scout"), help="scout id ([A-Za-z0-9_-]+)")
+
+
+def _sim_config(state: str, contact: str) -> SimConfig:
+    base = SimConfig()
+    sensors = replace(base.sensors, contact=replace(base.sensors.contact, source=contact))
+    return replace(base, state_source=state, sensors=sensors)
 
 
 def config_from_args(args: argparse.Namespace, parser: argparse.ArgumentParser) -> ScoutRunConfig:
@@ -95,7 +105,7 @@ def config_from_args(args: argparse.Namespace, parser: argparse.ArgumentParser) 
         goal=tuple(args.goal) if args.goal else None, via=tuple(tuple(v) for v in args.via), speed=args.speed,
         sim_seconds=args.sim_seconds, friction_default=args.friction, slippery_mu=args.slippery,
         slippery_patches=args.slippery_patches, patches=tuple(args.patch), scout_id=args.scout_id,
-        sim=replace(SimConfig(), noise=NoiseConfig(vel_white_std=args.vel_noise, vel_bias=args.vel_bias)))
+        sim=_sim_config(args.state, args.contact))
     try:
         build_world(cfg)
     except ValueError as exc:

@@ -4,9 +4,11 @@
     psrmap evaluate --scene lunar --seed N [--slippery-patches N] [--route R] [--res 0.4] --json
 
 The map under test is what the scout itself builds (`scout_agent.mapping.Mapper`: the estimators fed the
-*honest* base state, i.e. the simulator's truth degraded by the configured velocity noise and bias). Beside
-it, on the same run, the same estimators fed the exact base state (`*_exact`) and the paper-form slip detector
-(`slip_paper_*`).
+*honest* base state: the scout's own state estimate from its sensor models, unless `--state exact`). Beside it,
+on the same run, the same estimators and map fed the simulator's exact base state (`*_exact`, e.g.
+`elevation_rmse_exact_m`, `slip_precision_exact`) and the paper-form slip detector (`slip_paper_*`); the state
+estimate's drift at the end (`drift_xy_pct`, `drift_z_m`, `drift_yaw_deg`), and `cot_whole_run_truth` (the
+simulator's exact joint energy at every physics step over the true horizontal path) beside `cot_whole_run`.
 
 Ground truth and scoring:
 - slip: a planned stance (per foot) whose contact point moved > 0.02 m from its first contact
@@ -102,7 +104,8 @@ class Evaluator:
         self.mapper.pipeline = EstimatorPipeline(
             feet, default_pipeline_config(feet, paper_margins=True, stance_margins=True, paper_slip=True)
         )
-        self.exact = EstimatorPipeline(feet, default_pipeline_config(feet))
+        # the same estimators and map fed the simulator's exact base state, for the `*_exact` figures only
+        self.exact = Mapper(MapperConfig(res=res, delta_hz=delta_hz), feet=feet)
         self.res = res
         self.paper_means = {k: _CellMeans(res) for k in ("giim", "giam", "giim_stance", "giam_stance")}
         self.giim_ticks: list[float] = []
@@ -143,7 +146,7 @@ class Evaluator:
         self._prev_planned = planned.copy()
 
         est = self.mapper.update(sample)
-        ex = self.exact.update(replace(sample, base=truth.base))
+        ex = self.exact.update(replace(sample, base=truth.base))  # evaluation only: never fed back
         self._mark(est.slip.event, "honest")
         self._mark(ex.slip.event, "exact")
         if est.slip_paper is not None:
@@ -178,6 +181,7 @@ class Evaluator:
             if self._prev_planned[i] and self._touched[i]:
                 self._close_stance(i)
         self.mapper.close()
+        self.exact.close()
         terrain = world.terrain
         local = self.mapper.local
         res = self.res
@@ -206,6 +210,11 @@ class Evaluator:
         def cells(layer: str) -> dict[str, np.ndarray]:
             return local.cells(layer)
 
+        ex_elev = self.exact.local.cells("elevation")
+        if len(ex_elev["ix"]):
+            cx, cy = cell_center(ex_elev["ix"], ex_elev["iy"], res)
+            err = layer_value("elevation", ex_elev) - terrain.height(cx, cy)
+            out["elevation_rmse_exact_m"] = _r(float(np.sqrt(np.nanmean(err**2))), 5)
         elev = cells("elevation")
         if len(elev["ix"]):
             cx, cy = cell_center(elev["ix"], elev["iy"], res)
@@ -320,7 +329,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         "seed": cfg.seed,
         "slippery_mu": cfg.slippery_mu,
         "slippery_patches": cfg.slippery_patches,
-        "noise": {"vel_white_mps": cfg.sim.noise.vel_white_std, "vel_bias_mps": cfg.sim.noise.vel_bias},
+        "state_source": summary["state_source"],
+        "contact_source": cfg.sim.sensors.contact.source,
         "fell": summary["fell"],
         "fall_xy": summary["fall_xy"],
         "reached_goal": summary["reached_goal"],
@@ -328,9 +338,11 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         "sim_seconds": summary["sim_seconds"],
         "wall_seconds": summary["wall_seconds"],
         "mass_kg": round(ev.mapper.feet.total_mass_kg, 3),
-        "gia_source": "foot contact forces (simulator stands in for foot force sensors)",
+        "gia_source": "imu (accelerometer, estimated orientation)",
+        **{k: summary[k] for k in ("drift_xy_m", "drift_xy_pct", "drift_z_m", "drift_yaw_deg") if k in summary},
     }
     out.update(ev.result(world, cfg.friction_default))
+    out["cot_whole_run_truth"] = summary["cot_whole_run_truth"]
     if args.json:
         print(json.dumps(out))
     else:

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from scout_agent.control.follower import FollowerConfig, PathFollower
+from scout_agent.robot import constants as C
 from scout_agent.signals import GroundTruth, ProprioSample
 from scout_agent.sim.friction import (
     DEFAULT_MU,
@@ -21,7 +22,7 @@ from scout_agent.sim.friction import (
     lunar_slippery_patches,
     ramp_slippery_patch,
 )
-from scout_agent.sim.simulator import NoiseConfig, ScoutSim, SimConfig
+from scout_agent.sim.simulator import ScoutSim, SimConfig
 from scout_agent.sim.terrain import (
     LUNAR_ROUTES,
     LunarConfig,
@@ -118,7 +119,7 @@ def run_scout(cfg: ScoutRunConfig, on_tick: OnTick | None = None, progress: bool
               world: World | None = None) -> dict:
     """Walk the configured path until the goal, a fall or the time limit; return the JSON summary."""
     world = world or build_world(cfg)
-    sim_cfg = replace(cfg.sim, noise=replace(cfg.sim.noise, seed=cfg.seed))
+    sim_cfg = replace(cfg.sim, sensors=replace(cfg.sim.sensors, seed=cfg.seed))
     sim = ScoutSim(world.terrain, world.friction, sim_cfg, start=world.start)
     follower = PathFollower(world.waypoints, FollowerConfig(speed=cfg.speed))
     limit = cfg.sim_seconds or 2.0 * path_length(world.waypoints) / max(cfg.speed, 0.05) + 10.0
@@ -131,10 +132,12 @@ def run_scout(cfg: ScoutRunConfig, on_tick: OnTick | None = None, progress: bool
     wall0 = time.perf_counter()
     prev_xy = np.array(world.start[:2])
     distance = 0.0
+    speed_path = 0.0  # ∫‖v_xy‖dt of the true base, whole run (the CoT distance's ground truth) [m]
     walk_t0 = None
     nonfoot_ticks = 0
+    sample = truth = None
     for k in range(n_ticks):
-        st = sim.robot_state()
+        st = sim.robot_state()  # the robot's own estimate (exact only with state_source "exact")
         yaw = float(np.arctan2(st.R[1, 0], st.R[0, 0]))
         v, w = follower.command(st.pos[:2], yaw, st.vel[:2], sim.control_dt)
         if sim.t < sim.config.settle_s:
@@ -148,6 +151,7 @@ def run_scout(cfg: ScoutRunConfig, on_tick: OnTick | None = None, progress: bool
             distance += float(np.hypot(*(xy - prev_xy)))
             prev_xy = xy.copy()
         nonfoot_ticks += truth.nonfoot_contacts > 0
+        speed_path += float(np.hypot(truth.base.vel[0], truth.base.vel[1])) * sim.control_dt
         if on_tick is not None:
             on_tick(sample, truth, sim)
         if bar is not None and k % 50 == 0:
@@ -168,7 +172,39 @@ def run_scout(cfg: ScoutRunConfig, on_tick: OnTick | None = None, progress: bool
         "sim_seconds": round(sim.t, 3), "wall_seconds": round(wall, 2),
         "real_time_factor": round(sim.t / wall, 2) if wall > 0 else None,
         "nonfoot_contact_ticks": int(nonfoot_ticks), "friction": world.friction.to_dict(),
+        "state_source": sim.config.state_source,
+        **drift(sample, truth, distance),
+        "energy_truth_j": round(sim.energy_true_j, 3),
+        "cot_whole_run_truth": _r4(sim.energy_true_j / (C.TOTAL_MASS * C.LUNAR_G * speed_path))
+        if speed_path > 0.05 else None,
     }
+
+
+def _r4(v: float) -> float:
+    return round(float(v), 4)
+
+
+def drift(sample: ProprioSample | None, truth: GroundTruth | None, distance_m: float) -> dict:
+    """The state estimate's error against ground truth at the end of a run: horizontal [m] and as a share of
+    the horizontal distance walked [%], vertical [m], heading [deg]."""
+    if sample is None or truth is None:
+        return {}
+    e, g = sample.base, truth.base
+    dxy = float(np.hypot(*(e.pos[:2] - g.pos[:2])))
+    yaw_e = _yaw(e.quat)
+    yaw_g = _yaw(g.quat)
+    dyaw = (yaw_e - yaw_g + np.pi) % (2 * np.pi) - np.pi
+    return {
+        "drift_xy_m": _r4(dxy),
+        "drift_xy_pct": _r4(100.0 * dxy / distance_m) if distance_m > 0.05 else None,
+        "drift_z_m": _r4(e.pos[2] - g.pos[2]),
+        "drift_yaw_deg": _r4(np.degrees(dyaw)),
+    }
+
+
+def _yaw(quat: np.ndarray) -> float:
+    w, x, y, z = (float(v) for v in quat)
+    return float(np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z)))
 
 
 def terrain_stats(world: World) -> dict:
@@ -177,4 +213,4 @@ def terrain_stats(world: World) -> dict:
     return world.terrain.slope_stats()
 
 
-__all__ = ["SCENES", "NoiseConfig", "ScoutRunConfig", "World", "build_world", "run_scout", "terrain_stats"]
+__all__ = ["SCENES", "drift", "ScoutRunConfig", "World", "build_world", "run_scout", "terrain_stats"]

@@ -1,8 +1,9 @@
 """What a scout knows each control tick (proprioception) and what only the simulator knows (ground truth).
 
-These two records are the seam between the simulation/controller (`scout_agent.sim`, `scout_agent.control`)
-and the estimators (`scout_agent.estimators`): estimators read `ProprioSample` only; evaluation reads
-`GroundTruth` beside it, never mixed in.
+These two records are the seam between the simulation (`scout_agent.sim`) and the robot's software (state
+estimator, controller, `scout_agent.estimators`): every field of `ProprioSample` is a sensor model's reading
+(`scout_agent.sensors`) or the state estimate (`scout_agent.state_estimation`); evaluation reads `GroundTruth`
+beside it, never mixed in.
 
 Conventions: legs in `LEG_NAMES` order, joints in `JOINT_NAMES` order (hip ab/ad, thigh, calf per leg);
 quaternions are (w, x, y, z) and rotate base-frame vectors into the world (map) frame; the world frame is the
@@ -33,17 +34,18 @@ class BaseState:
 
 @dataclass(frozen=True, slots=True)
 class ProprioSample:
-    """Signals a real Aliengo would have at one control tick."""
+    """What a real Aliengo knows at one control tick: its sensors' readings and its state estimate."""
 
     t: float  # scout clock [s]
-    q: np.ndarray  # (12,) joint positions [rad], JOINT_NAMES order
-    dq: np.ndarray  # (12,) joint velocities [rad/s]
-    tau: np.ndarray  # (12,) joint torques applied by the actuators [N·m]
-    contact: np.ndarray  # (4,) bool, foot contact flags (normal force above a threshold, like a foot sensor)
-    foot_force_world: np.ndarray  # (4, 3) ground reaction force on each foot, world frame [N]
-    imu_acc: np.ndarray  # (3,) accelerometer specific force, base frame [m/s²]
-    imu_gyro: np.ndarray  # (3,) gyroscope angular velocity, base frame [rad/s]
-    base: BaseState  # base state as the robot knows it (truth degraded by noise, or an estimate)
+    q: np.ndarray  # (12,) joint encoder angles [rad], JOINT_NAMES order
+    dq: np.ndarray  # (12,) joint velocities as the motor drivers report them [rad/s]
+    tau: np.ndarray  # (12,) joint torques from motor current [N·m]
+    contact: np.ndarray  # (4,) bool, foot contact flags (foot pressure sensors with hysteresis, or torques)
+    foot_pressure: np.ndarray  # (4,) 1-D foot pressure sensor readings [N]
+    joint_energy_j: float  # Σ|τ·q̇|dt over this tick, integrated by the drivers at every physics step [J]
+    imu_acc: np.ndarray  # (3,) accelerometer specific force, base frame, tick mean [m/s²]
+    imu_gyro: np.ndarray  # (3,) gyroscope angular velocity, base frame, tick mean [rad/s]
+    base: BaseState  # base state as the robot knows it: the state estimate (exact only with state "exact")
     foot_pos_des_base: np.ndarray  # (4, 3) controller's desired foot positions, base frame [m]
     foot_vel_des_base: np.ndarray  # (4, 3) controller's desired foot velocities, base frame [m/s]
     stance_planned: np.ndarray  # (4,) bool, the gait schedule puts the leg in stance
@@ -62,3 +64,8 @@ class GroundTruth:
     terrain_height_at_feet: np.ndarray  # (4,) exact terrain height under each foot [m]
     friction_at_feet: np.ndarray  # (4,) friction coefficient of the ground under each foot
     nonfoot_contacts: int  # number of robot geoms other than feet touching the ground
+    contact: np.ndarray  # (4,) bool, foot normal force above the simulator's contact threshold
+    foot_force_world: np.ndarray  # (4, 3) exact ground reaction force on each foot, world frame [N]
+    joint_energy_j: float  # exact Σ|τ·q̇|dt over this tick at every physics step [J]
+    q: np.ndarray  # (12,) exact joint angles [rad]
+    dq: np.ndarray  # (12,) exact joint velocities [rad/s]

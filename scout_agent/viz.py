@@ -112,6 +112,7 @@ class ScoutLogger:
         self._k = 0
         self._ke = 0
         self._traj: list[np.ndarray] = []
+        self._traj_est: list[np.ndarray] = []  # the scout's own estimate of where it walked
         self._next_trail = 0.0
         self._next_flush = 0.0
         self._slips: list[list[float]] = []
@@ -133,6 +134,7 @@ class ScoutLogger:
         self._t = t
         b = truth.base
         self._traj.append(b.pos.copy())
+        self._traj_est.append(sample.base.pos.copy())
         self._pose_t.append(t)
         self._pose.append(b.pos.copy())
         self._quat.append([b.quat[1], b.quat[2], b.quat[3], b.quat[0]])  # xyzw
@@ -140,8 +142,10 @@ class ScoutLogger:
         self._contact.append(sample.contact.copy())
         sig, add = f"{root}/signals", self.series.add
         add(f"{sig}/speed_mps", t, float(np.hypot(*b.vel[:2])))
-        add(f"{sig}/speed_noisy_mps", t, float(np.hypot(*sample.base.vel[:2])))
-        add(f"{sig}/foot_force_z", t, sample.foot_force_world[:, 2])
+        add(f"{sig}/speed_estimate_mps", t, float(np.hypot(*sample.base.vel[:2])))
+        add(f"{sig}/drift_xy_m", t, float(np.hypot(*(sample.base.pos[:2] - b.pos[:2]))))
+        add(f"{sig}/drift_z_m", t, float(sample.base.pos[2] - b.pos[2]))
+        add(f"{sig}/foot_pressure_n", t, sample.foot_pressure)
         add(f"{sig}/stance_disp_m", t, np.nan_to_num(truth.stance_disp))
         add(f"{sig}/nonfoot_contacts", t, float(truth.nonfoot_contacts))
         add(f"{sig}/tau", t, sample.tau)
@@ -196,8 +200,11 @@ class ScoutLogger:
             add(f"{root}/giam_mps2", t, float(est.giam))
 
     def _log_trail(self) -> None:
+        """The true trajectory (red) and the scout's estimate of it (cyan), side by side."""
         if len(self._traj) > 1:
             self.rec.log(f"{self.root}/trajectory", rr.LineStrips3D([np.array(self._traj)], colors=[255, 60, 60]))
+            self.rec.log(f"{self.root}/trajectory_estimate",
+                         rr.LineStrips3D([np.array(self._traj_est)], colors=[40, 200, 230]))
 
     def finish(self) -> None:
         self.rec.set_time(TIMELINE, duration=self._t)

@@ -2,8 +2,9 @@
 
 Per tick we produce the two additive pieces a cell needs (ratio of sums, DESIGN "cot" layer):
 `work` = E_tick / (m·g) [m] and `dist` = horizontal distance the base travelled during the tick [m].
-The distance comes from the base velocity the robot knows (‖v_xy‖·dt): integrating a velocity is what a
-real robot's state estimate does, and it does not pick up position noise tick to tick.
+E_tick is the joint energy the motor drivers integrated over the tick at every physics step from measured
+current (torque) and velocity (`ProprioSample.joint_energy_j`, `scout_agent.sensors.joints`). The distance is
+‖v_xy‖·dt of the state estimator's velocity (IMU + leg odometry), which is smooth and near zero standing.
 """
 
 from __future__ import annotations
@@ -47,14 +48,11 @@ class CotMeter:
         self.energy_j = 0.0  # E since start [J]
         self.dist_m = 0.0  # d since start [m]
 
-    def update(
-        self, t: float, tau: np.ndarray, dq: np.ndarray, base_vel_world: np.ndarray
-    ) -> tuple[float, float]:
+    def update(self, t: float, energy_j: float, base_vel_world: np.ndarray) -> tuple[float, float]:
+        """One tick: the joint energy since the last tick [J] and the base velocity (world) [m/s]."""
         dt = 0.0 if self._t_prev is None else t - self._t_prev
         self._t_prev = t
-        p = tau * dq
-        np.abs(p, out=p)
-        e = float(p.sum()) * dt
+        e = energy_j if dt > 0 else 0.0
         vx, vy = base_vel_world[0], base_vel_world[1]
         d = math.sqrt(vx * vx + vy * vy) * dt
         self.energy_j += e

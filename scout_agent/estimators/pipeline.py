@@ -7,8 +7,9 @@ stability sample while a stance foot has slipped in its current stance); the fir
 
 Elevation: one foothold per non-slipping stance, the mean of its settled contact-tick foot positions, minus
 the foot radius along the terrain normal fitted to the four most recent footholds; committed when the stance
-ends (only then is it known to have no slip). Stability: GIA from the foot contact forces (the simulator stands
-in for foot force sensors; `gia_source="imu"` uses the accelerometer), support = the four most recent footholds
+ends (only then is it known to have no slip). Stability: GIA from the accelerometer (a = −R·f_imu with the
+estimated orientation; `gia_source="forces"` uses the ground forces estimated from joint torques instead,
+f = −J⁻ᵀτ per stance foot — an Aliengo has no 3-axis foot force sensors), support = the four most recent footholds
 (each foot's current or last stance point) ordered counter-clockwise about their centroid seen from above;
 the paper variant and the two-stance-feet diagnostic are computed beside it on request.
 
@@ -17,7 +18,8 @@ ones (CoT, GIIM, GIAM, non-foot contacts) at the CoM projection. `record(est, ac
 `CellAccumulator` with the layer statistics of DESIGN.md.
 
 Non-foot contacts (calf, thigh or body on the ground) are detected proprioceptively as the force the feet do
-not explain: f_ext = m·(a_GIA,feet − a_GIA,imu) (foot forces vs accelerometer), low-pass filtered; above
+not explain: f_ext = m·(a_GIA,feet − a_GIA,imu) (torque-estimated foot forces vs accelerometer), low-pass
+filtered; above
 `nonfoot_threshold_n` the tick is flagged and counted in the `contacts` layer of the CoM cell.
 """
 
@@ -30,6 +32,8 @@ from typing import Any, NamedTuple, Protocol
 
 import numpy as np
 
+from scout_agent.robot import kinematics as K
+from scout_agent.sensors import leg_forces_from_torques
 from scout_agent.signals import ProprioSample
 
 from .cot import CotConfig, CotMeter
@@ -54,7 +58,7 @@ class PipelineConfig:
     gravity_mps2: float = 1.62
     foot_radius_m: float = 0.0265
     com_offset_base: tuple[float, float, float] = (0.0, 0.0, 0.0)  # CoM in the base frame [m]
-    gia_source: str = "forces"  # "forces" (sim foot forces stand in for force sensors) | "imu"
+    gia_source: str = "imu"  # "imu" (accelerometer) | "forces" (ground forces estimated from joint torques)
     paper_margins: bool = False  # also compute the paper-variant GIIM/GIAM
     stance_margins: bool = False  # also compute the two-stance-feet margins (diagnostic)
     paper_slip: bool = False  # also run the paper-form slip detector beside the default one
@@ -108,6 +112,7 @@ def quat_to_matrix(q: np.ndarray) -> np.ndarray:
     )
 
 
+_ZERO12 = np.zeros(12)  # joint gravity torques: the legs below the joints weigh ≈ 0.2 N at a foot at lunar g
 _EMPTY2 = np.zeros((0, 2))
 _EMPTY3 = np.zeros((0, 3))
 
@@ -196,10 +201,12 @@ class EstimatorPipeline:
             self._order = [self._known[j] for j in order_ccw_xy(pts)] if len(pts) > 2 else list(self._known)
 
         # CoT
-        work, dist = self.cot.update(s.t, s.tau, s.dq, s.base.vel)
+        work, dist = self.cot.update(s.t, s.joint_energy_j, s.base.vel)
 
-        # GIA (world) from the foot forces and from the IMU
-        (f0, f1, f2, f3) = s.foot_force_world.tolist()
+        # GIA (world) from the torque-estimated foot forces and from the IMU
+        f_w = leg_forces_from_torques(K.jacobians(s.q), s.tau, _ZERO12) @ rot.T
+        f_w[~s.contact] = 0.0
+        (f0, f1, f2, f3) = f_w.tolist()
         m = c.mass_kg
         gia_f = (
             -(f0[0] + f1[0] + f2[0] + f3[0]) / m,

@@ -1,26 +1,20 @@
-"""`ScoutSim`: MuJoCo physics + the trot controller, one `(ProprioSample, GroundTruth)` per control tick.
+"""`ScoutSim`: MuJoCo physics, the robot's sensors and its onboard software (state estimator + trot controller),
+one `(ProprioSample, GroundTruth)` per control tick.
 
 Timing: physics at `dt` = 0.002 s; the controller every `decimation` physics steps (default 5 → 100 Hz),
-while the joint PD servos act at every physics step inside MuJoCo. A tick's joint state and base state are
-those after the last physics step; contact forces, contact points and the IMU come from that step's
-dynamics (one physics step, 2 ms, older), as a sensor's latest reading would.
+while the joint PD servos act at every physics step inside MuJoCo. The sensor models
+(`scout_agent.sensors`) sample the IMU, encoders and motor currents at every physics step (driver rate: the
+joint energy is integrated there) and report once per tick; the state estimator
+(`scout_agent.state_estimation`) runs once per tick on those readings only.
 
-Contact flags: the ground reaction on each foot (summed over the foot's contacts with the terrain, world
-frame) has a component along the contact normal above `contact_threshold_n`, as a foot sensor reports.
-
-Base state for the scout (`ProprioSample.base`): the simulator's truth degraded by noise — base velocity
-+ white noise (σ = 0.03 m/s per axis) + a bias drawn once per run (norm 0.02 m/s, random direction); pose
-and angular velocity exact (`NoiseConfig`). `GroundTruth.base` is always exact. The controller balances on
-the exact state (a real robot's state estimator would be good enough for balance; the estimators are what
-the noise is for), but the desired foot velocities it publishes (`foot_vel_des_base`) are recomputed with the
-sample's base velocity, so no exact state leaks into `ProprioSample` (with exact ẋ_des the slip detector
-would be circular).
+The robot's side reads nothing of the simulator's state: the controller balances on the state estimate, and
+every field of `ProprioSample` is a sensor reading or the estimate (`state_source="estimate"`, the default).
+`state_source="exact"` is an evaluation option: the controller and `ProprioSample.base` use the simulator's
+exact base state instead (sensor readings stay modelled). `GroundTruth` is for evaluation only.
 """
 
 from __future__ import annotations
 
-import dataclasses
-from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import mujoco
@@ -29,29 +23,33 @@ import numpy as np
 from scout_agent.control.controller import ControllerConfig, ControlOutput, RobotState, TrotController
 from scout_agent.robot import constants as C
 from scout_agent.robot import kinematics as K
+from scout_agent.sensors import SensorConfig, SensorSuite
+from scout_agent.sensors.suite import TrueBlock
 from scout_agent.signals import BaseState, GroundTruth, ProprioSample
 from scout_agent.sim.friction import FrictionMap
 from scout_agent.sim.scene import TERRAIN_GEOM, PhysicsConfig, build_scene
 from scout_agent.sim.terrain import Terrain
+from scout_agent.state_estimation import EstimatorConfig, LaunchPose, StateEstimator
 
-
-@dataclass(frozen=True)
-class NoiseConfig:
-    vel_white_std: float = 0.03  # [m/s] per axis, per tick
-    vel_bias: float = 0.02  # [m/s] norm of a constant bias, random direction per run
-    seed: int = 0
+STATE_SOURCES = ("estimate", "exact")
 
 
 @dataclass(frozen=True)
 class SimConfig:
     physics: PhysicsConfig = field(default_factory=PhysicsConfig)
     controller: ControllerConfig = field(default_factory=ControllerConfig)
-    noise: NoiseConfig = field(default_factory=NoiseConfig)
+    sensors: SensorConfig = field(default_factory=SensorConfig)
+    estimator: EstimatorConfig = field(default_factory=EstimatorConfig)
+    state_source: str = "estimate"  # one of STATE_SOURCES; "exact" is an evaluation option
     decimation: int = 5  # physics steps per control tick (100 Hz control; PD servos at 500 Hz)
     contact_threshold_n: float = 1.0  # [N]
     fall_tilt_deg: float = 60.0  # trunk tilt from vertical that counts as a fall
     fall_min_height_m: float = 0.12  # trunk origin above the terrain below which it counts as a fall
     settle_s: float = 0.5  # stand still before walking [s]
+
+    def __post_init__(self) -> None:
+        if self.state_source not in STATE_SOURCES:
+            raise ValueError(f"state source {self.state_source!r} unknown; sources: {', '.join(STATE_SOURCES)}")
 
 
 def _quat_to_mat(q: np.ndarray) -> np.ndarray:
@@ -67,12 +65,8 @@ class ScoutSim:
     """One Aliengo on one terrain. `step()` advances one control tick and returns its records."""
 
     def __init__(self, terrain: Terrain, friction: FrictionMap | None = None, config: SimConfig = SimConfig(),
-                 start: tuple[float, float, float] | None = None,
-                 base_estimator: Callable[[ProprioSample], BaseState] | None = None) -> None:
-        """`base_estimator`, if given, replaces the noisy-truth base state of every `ProprioSample` with its
-        own estimate; it receives the sample (whose `base` is the noisy truth) and must not see `GroundTruth`."""
+                 start: tuple[float, float, float] | None = None) -> None:
         self.terrain = terrain
-        self.base_estimator = base_estimator
         self.friction = friction or FrictionMap()
         self.config = config
         self.model = build_scene(terrain, config.physics)
@@ -89,6 +83,11 @@ class ScoutSim:
         self._leg_of_geom[self._foot_geoms] = np.arange(4)
         self._acc_adr = m.sensor_adr[m.sensor("imu_acc").id]
         self._gyro_adr = m.sensor_adr[m.sensor("imu_gyro").id]
+        k = config.decimation
+        self._blk_acc = np.zeros((k, 3))
+        self._blk_gyro = np.zeros((k, 3))
+        self._blk_q = np.zeros((k, 12))
+        self._blk_tau = np.zeros((k, 12))
         self.controller = TrotController(config.controller)
         self.reset(start if start is not None else terrain.spawn)
 
@@ -110,15 +109,19 @@ class ScoutSim:
         self.controller.set_command(0.0, 0.0)
         self.t = 0.0
         self.last_output: ControlOutput | None = None
-        self.contact = np.zeros(4, bool)
         self.fell = False
         self.fall_xy: tuple[float, float] | None = None
-        self._rng = np.random.default_rng(self.config.noise.seed)
-        b = self._rng.normal(size=3)
-        self._vel_bias = self.config.noise.vel_bias * b / np.linalg.norm(b)
+        self.sensors = SensorSuite(self.config.sensors, C.HOME_Q)
+        # the mission's launch pose: x, y, heading and the surveyed ground height under the start
+        self.launch = LaunchPose(float(x), float(y), float(yaw), ground)
+        self.estimator = StateEstimator(self.launch, C.HOME_Q, self.config.estimator)
+        self.energy_true_j = 0.0  # exact joint work since start, every physics step [J]
+        self._state = RobotState(0.0, self.estimator.estimate.pos, self.estimator.estimate.R, np.zeros(3),
+                                 np.zeros(3), C.HOME_Q.copy(), np.zeros(12), np.zeros(4, bool))
+        if self.config.state_source == "exact":
+            self._state = self.exact_state()
         self._cp0 = np.full((4, 3), np.nan)
         self._swung = np.ones(4, bool)
-        self._prev_out = None
         self._apply_friction()
 
     def _apply_friction(self) -> None:
@@ -128,10 +131,15 @@ class ScoutSim:
         self.model.geom_friction[self._foot_geoms, 0] = self._mu_feet
 
     # ----------------------------------------------------------------------------------------- state
-    def robot_state(self) -> RobotState:
+    def exact_state(self) -> RobotState:
+        """The simulator's exact state, for evaluation (and the `exact` state source) only."""
         d = self.data
         return RobotState(self.t, d.qpos[0:3].copy(), _quat_to_mat(d.qpos[3:7]), d.qvel[0:3].copy(),
-                          d.qvel[3:6].copy(), d.qpos[7:].copy(), d.qvel[6:].copy(), self.contact.copy())
+                          d.qvel[3:6].copy(), d.qpos[7:].copy(), d.qvel[6:].copy(), np.zeros(4, bool))
+
+    def robot_state(self) -> RobotState:
+        """The state the robot's software runs on: the estimate (sensor readings), or exact on request."""
+        return self._state
 
     def _contacts(self):
         """Per-foot summed ground force (4, 3) world, force-weighted contact point (4, 3), normal force (4,),
@@ -181,28 +189,45 @@ class ScoutSim:
         if forward_speed is not None:
             walk = self.t >= cfg.settle_s
             self.controller.set_command(forward_speed if walk else 0.0, yaw_rate if walk else 0.0)
-        state = self.robot_state()
-        out = self.controller.step(state, self.control_dt)
+        out = self.controller.step(self._state, self.control_dt)
         d.ctrl[self._tau_ids] = out.tau_ff
         d.ctrl[self._pd_ids] = out.q_des
         m.actuator_gainprm[self._pd_ids, 0] = out.kp
         m.actuator_biasprm[self._pd_ids, 1] = -out.kp
         m.actuator_biasprm[self._pd_ids, 2] = -out.kd
-        mujoco.mj_step(m, d, nstep=cfg.decimation)
+        acc, gyro, q, tau = self._blk_acc, self._blk_gyro, self._blk_q, self._blk_tau
+        ia, ig = self._acc_adr, self._gyro_adr
+        energy = 0.0
+        for k in range(cfg.decimation):
+            mujoco.mj_step(m, d)
+            sd = d.sensordata
+            acc[k] = sd[ia:ia + 3]
+            gyro[k] = sd[ig:ig + 3]
+            q[k] = d.qpos[7:]
+            tau[k] = d.qfrc_actuator[6:]
+            energy += float(np.abs(tau[k] * d.qvel[6:]).sum())
+        self.energy_true_j += energy * self.dt
         self.t += self.control_dt
         self._apply_friction()
-        return self._records(out)
+        return self._records(out, energy * self.dt)
 
-    def _records(self, out: ControlOutput) -> tuple[ProprioSample, GroundTruth]:
+    def _records(self, out: ControlOutput, energy_true_j: float) -> tuple[ProprioSample, GroundTruth]:
         d, cfg = self.data, self.config
         forces, points, fn, n_nonfoot, trunk_touch = self._contacts()
-        contact = fn > cfg.contact_threshold_n
-        self.contact = contact
+        true_contact = fn > cfg.contact_threshold_n
+        tick = self.sensors.read(TrueBlock(self.dt, self._blk_acc, self._blk_gyro, self._blk_q, self._blk_tau, fn))
+        est = self.estimator.update(self.t, tick, self.control_dt)
         pos = d.qpos[0:3].copy()
         quat = d.qpos[3:7].copy()
         R = _quat_to_mat(quat)
-        vel = d.qvel[0:3].copy()
-        omega = d.qvel[3:6].copy()
+        truth_base = BaseState(pos, quat, d.qvel[0:3].copy(), d.qvel[3:6].copy())
+        if cfg.state_source == "exact":
+            st = self.exact_state()
+            self._state = RobotState(self.t, st.pos, st.R, st.vel, st.omega, tick.q, tick.dq, tick.contact)
+            base = BaseState(pos.copy(), quat.copy(), truth_base.vel.copy(), truth_base.omega.copy())
+        else:
+            self._state = RobotState(self.t, est.pos, est.R, est.vel, est.omega, tick.q, tick.dq, tick.contact)
+            base = BaseState(est.pos, est.quat, est.vel, est.omega)
         q = d.qpos[7:].copy()
         feet_w = pos + K.fk(q) @ R.T
         xy = np.empty((2, 5))
@@ -213,31 +238,21 @@ class ScoutSim:
         for i in range(4):
             if not out.stance_planned[i]:
                 self._swung[i] = True
-            if contact[i] and self._swung[i]:
+            if true_contact[i] and self._swung[i]:
                 self._cp0[i] = points[i]
                 self._swung[i] = False
-        disp = np.where(contact, np.linalg.norm(points - self._cp0, axis=1), np.nan)
-        truth_base = BaseState(pos, quat, vel, omega)
-        noisy_vel = vel + self._vel_bias + self._rng.normal(0.0, cfg.noise.vel_white_std, 3)
-        base = BaseState(pos.copy(), quat.copy(), noisy_vel, omega.copy())
+        disp = np.where(true_contact, np.linalg.norm(points - self._cp0, axis=1), np.nan)
         sample = ProprioSample(
-            t=self.t, q=q, dq=d.qvel[6:].copy(), tau=d.qfrc_actuator[6:].copy(), contact=contact,
-            foot_force_world=forces, imu_acc=d.sensordata[self._acc_adr:self._acc_adr + 3].copy(),
-            imu_gyro=d.sensordata[self._gyro_adr:self._gyro_adr + 3].copy(), base=base,
+            t=self.t, q=tick.q, dq=tick.dq, tau=tick.tau, contact=tick.contact, foot_pressure=tick.foot_pressure,
+            joint_energy_j=tick.joint_energy_j, imu_acc=tick.imu_acc, imu_gyro=tick.imu_gyro, base=base,
             foot_pos_des_base=out.foot_pos_des_base, foot_vel_des_base=out.foot_vel_des_base,
             stance_planned=out.stance_planned, phase=out.phase)
-        if self.base_estimator is not None:
-            sample = dataclasses.replace(sample, base=self.base_estimator(sample))
-        # The controller balances on the exact state, but the desired foot velocities it publishes must be
-        # those a controller using the robot's own base estimate would command: every desired foot velocity
-        # relative to the base contains −R^T·v_base, so swap the exact v_base for the sample's.
-        vel_err_b = (sample.base.vel - vel) @ R
-        sample = dataclasses.replace(sample, foot_vel_des_base=out.foot_vel_des_base - vel_err_b)
         truth = GroundTruth(
             t=self.t, base=truth_base, foot_pos_world=feet_w,
-            contact_point_world=np.where(contact[:, None], points, np.nan), stance_disp=disp,
+            contact_point_world=np.where(true_contact[:, None], points, np.nan), stance_disp=disp,
             terrain_height_at_feet=ground[:4],
-            friction_at_feet=self._mu_feet.copy(), nonfoot_contacts=n_nonfoot)
+            friction_at_feet=self._mu_feet.copy(), nonfoot_contacts=n_nonfoot, contact=true_contact,
+            foot_force_world=forces, joint_energy_j=energy_true_j, q=q, dq=d.qvel[6:].copy())
         tilt = np.degrees(np.arccos(np.clip(R[2, 2], -1.0, 1.0)))
         clearance = pos[2] - float(ground[4])
         if not self.fell and (tilt > cfg.fall_tilt_deg or clearance < cfg.fall_min_height_m or trunk_touch):
@@ -245,4 +260,3 @@ class ScoutSim:
             self.fall_xy = (float(pos[0]), float(pos[1]))
         self.last_output = out
         return sample, truth
-

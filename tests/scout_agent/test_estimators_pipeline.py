@@ -10,6 +10,8 @@ import pytest
 
 from scout_agent.cells import CellAccumulator
 from scout_agent.estimators import EstimatorPipeline, PipelineConfig, margins, record
+from scout_agent.robot.constants import HOME_Q
+from scout_agent.robot.kinematics import jacobians
 from scout_agent.signals import BaseState, ProprioSample
 
 DT = 0.01
@@ -18,6 +20,7 @@ MASS = 20.0
 R_FOOT = 0.0265
 GROUND_Z = 0.1
 BASE = np.array([0.5, -0.3, 0.45])
+HOME_J = jacobians(HOME_Q)  # (4, 3, 3) leg Jacobians the pipeline uses to estimate ground forces from torques
 NOMINAL = np.array([[0.24, 0.134], [0.24, -0.134], [-0.24, 0.134], [-0.24, -0.134]])
 
 
@@ -62,13 +65,16 @@ def trot(n_ticks: int, slide_leg: int | None = None, slide_stance: int = 2, slid
         pos_b[swing, 2] += 0.05  # swing feet lifted
         forces = np.zeros((4, 3))
         forces[planned, 2] = MASS * G / planned.sum()
+        # the joint torques that hold those ground forces (base unrotated: world = base frame), τ = −Jᵀf
+        tau = -np.einsum("lji,lj->li", HOME_J, forces).reshape(12)
         sample = ProprioSample(
             t=t,
-            q=np.zeros(12),
+            q=HOME_Q.copy(),
             dq=np.zeros(12),
-            tau=np.zeros(12),
+            tau=tau,
             contact=planned.copy(),
-            foot_force_world=forces,
+            foot_pressure=forces[:, 2].copy(),
+            joint_energy_j=0.0,
             imu_acc=np.array([0.0, 0.0, G]),
             imu_gyro=np.zeros(3),
             base=BaseState(BASE.copy(), np.array([1.0, 0, 0, 0]), np.zeros(3), np.zeros(3)),

@@ -1,0 +1,125 @@
+"""An error-state EKF for a legged robot's base: IMU propagation, base-velocity updates.
+
+Nominal state: world_R_base `R`, velocity `v` and position `p` of the base origin (world frame), gyro bias `bg`
+and accelerometer bias `ba` (base frame). Error state (15,): δθ (rotation error in the base frame,
+R_true = R·Exp(δθ)), δv, δp, δbg, δba.
+
+Propagation with the IMU (ω_m, f_m, base frame; g world):
+    ω = ω_m − bg,  f = f_m − ba,  a = R f + g
+    p += v dt + a dt²/2,  v += a dt,  R ← R Exp(ω dt)
+Error dynamics: δθ̇ = −[ω]× δθ − δbg − n_g,  δv̇ = −R[f]× δθ − R δba − R n_a,  δṗ = δv,  δḃ = n_b.
+
+Measurement: a base velocity seen in the base frame plus a lever-arm bias term, z = Rᵀ v + [r]× bg + n
+(leg odometry of one stance foot with contact point r, see leg_odometry.py), Jacobians
+H_θ = [Rᵀ v]×, H_v = Rᵀ, H_bg = [r]×.
+
+What is observable: roll and pitch (gravity, through the velocity updates: a tilt error makes the
+accelerometer's gravity leak into v, which the legs contradict), velocity, and the gyro bias about axes not
+parallel to gravity; yaw, the gyro bias about gravity and position are not,
+and drift.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+def skew(w: np.ndarray) -> np.ndarray:
+    return np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
+
+
+def so3_exp(w: np.ndarray) -> np.ndarray:
+    th = float(np.sqrt(w @ w))
+    K = skew(w)
+    if th < 1e-8:
+        return np.eye(3) + K + 0.5 * K @ K
+    return np.eye(3) + (np.sin(th) / th) * K + ((1.0 - np.cos(th)) / (th * th)) * K @ K
+
+
+@dataclass(frozen=True)
+class NoiseConfig:
+    """Continuous-time noise densities of the filter (its tuning, see estimator.py for why these values)."""
+
+    gyro: float = 2.44e-4 * 3  # [rad/s/√Hz]
+    acc: float = 1.72e-3 * 3  # [m/s²/√Hz]
+    gyro_bias_walk: float = 1e-5  # [rad/s/√s]
+    acc_bias_walk: float = 1e-3  # [m/s²/√s]
+    position: float = 1e-3  # [m/√s] (unmodelled; keeps P well conditioned)
+    init_tilt: float = 0.02  # σ of the initial roll/pitch [rad]
+    init_yaw: float = 0.002  # σ of the launch yaw [rad]
+    init_vel: float = 0.05  # [m/s]
+    init_pos: float = 0.005  # [m]
+    init_gyro_bias: float = 0.01  # [rad/s]
+    init_acc_bias: float = 0.1  # [m/s²]
+
+
+class ErrorStateEKF:
+    def __init__(self, R: np.ndarray, v: np.ndarray, p: np.ndarray, gravity: np.ndarray,
+                 noise: NoiseConfig = NoiseConfig()) -> None:
+        self.R = np.array(R, dtype=float)
+        self.v = np.array(v, dtype=float)
+        self.p = np.array(p, dtype=float)
+        self.bg = np.zeros(3)
+        self.ba = np.zeros(3)
+        self.g = np.asarray(gravity, dtype=float)
+        self.noise = n = noise
+        # initial covariance: the launch yaw is known (mission frame), roll/pitch come from gravity
+        sd = np.r_[n.init_tilt, n.init_tilt, n.init_yaw, [n.init_vel] * 3, [n.init_pos] * 3,
+                   [n.init_gyro_bias] * 3, [n.init_acc_bias] * 3]
+        self.P = np.diag(sd**2)
+        self._F = np.eye(15)
+        self._I15 = np.eye(15)
+
+    def propagate(self, gyro: np.ndarray, acc: np.ndarray, dt: float) -> np.ndarray:
+        """One IMU step; returns the bias-corrected angular velocity ω (base frame) [rad/s]."""
+        w = gyro - self.bg
+        f = acc - self.ba
+        R = self.R
+        a = R @ f + self.g
+        self.p += self.v * dt + 0.5 * a * dt * dt
+        self.v += a * dt
+        self.R = R @ so3_exp(w * dt)
+        F = self._F
+        F[0:3, 0:3] = np.eye(3) - skew(w) * dt
+        F[0:3, 9:12] = -np.eye(3) * dt
+        F[3:6, 0:3] = -(R @ skew(f)) * dt
+        F[3:6, 12:15] = -R * dt
+        F[6:9, 3:6] = np.eye(3) * dt
+        n = self.noise
+        q = np.r_[[n.gyro**2] * 3, [n.acc**2] * 3, [n.position**2] * 3, [n.gyro_bias_walk**2] * 3,
+                  [n.acc_bias_walk**2] * 3] * dt
+        self.P = F @ self.P @ F.T
+        self.P[np.diag_indices(15)] += q
+        return w
+
+    def velocity_rows(self, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Predicted z = Rᵀv + [r]× bg (3,) and its Jacobian H (3, 15)."""
+        vb = self.R.T @ self.v
+        H = np.zeros((3, 15))
+        H[:, 0:3] = skew(vb)
+        H[:, 3:6] = self.R.T
+        H[:, 9:12] = skew(r)
+        return vb + np.cross(r, self.bg), H
+
+    def update(self, residual: np.ndarray, H: np.ndarray, noise_var: np.ndarray) -> None:
+        """Kalman update with stacked rows; the error is folded into the nominal state."""
+        P = self.P
+        PHt = P @ H.T
+        S = H @ PHt
+        S[np.diag_indices_from(S)] += noise_var
+        K = np.linalg.solve(S, PHt.T).T
+        dx = K @ residual
+        IKH = self._I15 - K @ H
+        self.P = IKH @ P @ IKH.T + (K * noise_var) @ K.T
+        self.R = self.R @ so3_exp(dx[0:3])
+        self.v += dx[3:6]
+        self.p += dx[6:9]
+        self.bg += dx[9:12]
+        self.ba += dx[12:15]
+
+    def mahalanobis2(self, residual: np.ndarray, H: np.ndarray, noise_var: np.ndarray) -> float:
+        S = H @ self.P @ H.T
+        S[np.diag_indices_from(S)] += noise_var
+        return float(residual @ np.linalg.solve(S, residual))

@@ -1,0 +1,147 @@
+"""`StateEstimator`: the scout's base state from its own sensors, every control tick.
+
+Inputs, and where each comes from on a real Aliengo:
+- the IMU's specific force and angular rate (tick means of the 500 Hz samples; `scout_agent.sensors.imu`),
+- the joint encoders and driver velocities (`scout_agent.sensors.joints`) through the leg kinematics
+  (Pinocchio, the same model the simulator runs),
+- the foot contact flags (`scout_agent.sensors.foot_pressure`),
+- the launch pose the mission gives each scout in the shared map frame (x, y, heading, and the surveyed ground
+  height under it; DESIGN.md "Frames and grid").
+Nothing here reads the simulator.
+
+Filter (ekf.py): IMU propagation once per tick with the tick's mean rates; one 3-row base-velocity update per
+stance foot (leg_odometry.py) whose contact flag has been on for `stance_settle_s` (touchdown impact and the
+foot still sinking in excluded: in the first 0.1 s of stance its centre still moves down ≈ 5 cm/s), gated by a
+χ² test so a slipping foot does not drag the estimate. The ground normal of the rolling term is the plane
+through the four latest footholds (on a 20° ramp, taking it vertical biased the climb rate by ≈ 9 mm/s).
+
+Tuning: the process noise is the IMU datasheet's (BMI088) densities ×3 (covers the tick averaging and model
+error), bias walks ×10 the sensor model's (the filter must not be over-confident in its biases); leg velocity
+noise 0.04 m/s per axis (encoder-velocity noise through a 0.5 m leg is ≈ 5 mm/s; the rest is touchdown
+transients and foot rolling off the sphere model); gate at χ²₃ = 16.3 (p = 0.001).
+
+Observable: roll, pitch, velocity, gyro bias about horizontal axes. Not observable, so drifting: yaw (the gyro
+bias about gravity left by the power-on calibration integrates into heading), position (integrated velocity
+error), and the accelerometer's horizontal bias, which the filter cannot tell from a tilt while the robot walks
+straight (a 1 mg bias is a 0.35° tilt error under lunar gravity). `psrmap evaluate` reports the drift.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import NamedTuple
+
+import numpy as np
+
+from scout_agent.estimators.elevation import terrain_normal
+from scout_agent.estimators.feet import PinocchioFeet
+from scout_agent.robot import constants as C
+from scout_agent.sensors import SensorTick
+
+from .ekf import ErrorStateEKF, NoiseConfig
+from .leg_odometry import stance_velocity_measurements
+
+_EZ = np.array([0.0, 0.0, 1.0])
+
+
+@dataclass(frozen=True)
+class EstimatorConfig:
+    noise: NoiseConfig = field(default_factory=NoiseConfig)
+    leg_vel_std: float = 0.04  # [m/s] per axis per stance foot
+    stance_settle_s: float = 0.1  # a contact counts for odometry after this long [s] (foot still sinking in)
+    gate_chi2: float = 16.3  # χ²(3) at p = 0.001
+    gravity_mps2: float = C.LUNAR_G
+    foot_radius_m: float = C.FOOT_RADIUS
+
+
+@dataclass(frozen=True)
+class LaunchPose:
+    """Where the mission launches the scout, in the map frame."""
+
+    x: float  # [m]
+    y: float  # [m]
+    yaw: float  # heading [rad]
+    ground_z: float  # surveyed ground height under the launch point [m]
+
+
+class StateEstimate(NamedTuple):
+    t: float
+    pos: np.ndarray  # (3,) base origin, world [m]
+    R: np.ndarray  # (3, 3) world_R_base
+    quat: np.ndarray  # (4,) wxyz of R
+    vel: np.ndarray  # (3,) world [m/s]
+    omega: np.ndarray  # (3,) bias-corrected angular velocity, base frame [rad/s]
+
+
+def matrix_to_quat(R: np.ndarray) -> np.ndarray:
+    """(w, x, y, z) of a rotation matrix (Shepperd's method)."""
+    tr = R[0, 0] + R[1, 1] + R[2, 2]
+    if tr > 0:
+        s = 2.0 * np.sqrt(tr + 1.0)
+        q = [0.25 * s, (R[2, 1] - R[1, 2]) / s, (R[0, 2] - R[2, 0]) / s, (R[1, 0] - R[0, 1]) / s]
+    elif R[0, 0] > R[1, 1] and R[0, 0] > R[2, 2]:
+        s = 2.0 * np.sqrt(1.0 + R[0, 0] - R[1, 1] - R[2, 2])
+        q = [(R[2, 1] - R[1, 2]) / s, 0.25 * s, (R[0, 1] + R[1, 0]) / s, (R[0, 2] + R[2, 0]) / s]
+    elif R[1, 1] > R[2, 2]:
+        s = 2.0 * np.sqrt(1.0 + R[1, 1] - R[0, 0] - R[2, 2])
+        q = [(R[0, 2] - R[2, 0]) / s, (R[0, 1] + R[1, 0]) / s, 0.25 * s, (R[1, 2] + R[2, 1]) / s]
+    else:
+        s = 2.0 * np.sqrt(1.0 + R[2, 2] - R[0, 0] - R[1, 1])
+        q = [(R[1, 0] - R[0, 1]) / s, (R[0, 2] + R[2, 0]) / s, (R[1, 2] + R[2, 1]) / s, 0.25 * s]
+    out = np.array(q)
+    return out if out[0] >= 0 else -out
+
+
+class StateEstimator:
+    def __init__(self, launch: LaunchPose, q0: np.ndarray, config: EstimatorConfig = EstimatorConfig(),
+                 feet: PinocchioFeet | None = None) -> None:
+        self.config = c = config
+        self.feet = feet or PinocchioFeet()
+        c_, s_ = np.cos(launch.yaw), np.sin(launch.yaw)
+        R0 = np.array([[c_, -s_, 0.0], [s_, c_, 0.0], [0.0, 0.0, 1.0]])
+        fb, _ = self.feet.feet_base_and_vel(q0, np.zeros(12))
+        # feet on the surveyed ground: the lowest foot sphere's bottom at ground_z
+        z0 = launch.ground_z + c.foot_radius_m - float(np.min((fb @ R0.T)[:, 2]))
+        self.ekf = ErrorStateEKF(R0, np.zeros(3), np.array([launch.x, launch.y, z0]),
+                                 np.array([0.0, 0.0, -c.gravity_mps2]), c.noise)
+        self._contact_since = np.full(4, np.inf)
+        self._footholds = fb @ R0.T + self.ekf.p  # (4, 3) each foot's latest stance position, world [m]
+        self._normal_w = _EZ.copy()  # ground normal under the feet, world (plane through the footholds)
+        self.t = 0.0
+        self.rejected = 0  # stance-foot updates refused by the gate (slips, impacts)
+        self.estimate = self._estimate(np.zeros(3))
+
+    def _estimate(self, omega: np.ndarray) -> StateEstimate:
+        e = self.ekf
+        return StateEstimate(self.t, e.p.copy(), e.R.copy(), matrix_to_quat(e.R), e.v.copy(), omega)
+
+    def update(self, t: float, tick: SensorTick, dt: float) -> StateEstimate:
+        c, e = self.config, self.ekf
+        self.t = t
+        e.propagate(tick.imu_gyro, tick.imu_acc, dt)
+        contact = tick.contact
+        self._contact_since = np.where(contact, np.minimum(self._contact_since, t), np.inf)
+        use = contact & (t - self._contact_since >= c.stance_settle_s)
+        if contact.any():
+            fb, fv = self.feet.feet_base_and_vel(tick.q, tick.dq)
+        if use.any():
+            n_b = e.R.T @ self._normal_w
+            z, rc = stance_velocity_measurements(fb, fv, self.feet.foot_omega, tick.imu_gyro, n_b,
+                                                 c.foot_radius_m)
+            var = np.full(3, c.leg_vel_std**2)
+            res_rows, h_rows = [], []
+            for i in np.flatnonzero(use):
+                h, H = e.velocity_rows(rc[i])
+                r = z[i] - h
+                if e.mahalanobis2(r, H, var) > c.gate_chi2:
+                    self.rejected += 1
+                    continue
+                res_rows.append(r)
+                h_rows.append(H)
+            if res_rows:
+                e.update(np.concatenate(res_rows), np.vstack(h_rows), np.full(3 * len(res_rows), var[0]))
+        if contact.any():
+            self._footholds[contact] = fb[contact] @ e.R.T + e.p
+            self._normal_w = terrain_normal(self._footholds)
+        self.estimate = self._estimate(tick.imu_gyro - e.bg)
+        return self.estimate
