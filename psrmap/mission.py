@@ -30,6 +30,10 @@ from typing import Any
 
 import numpy as np
 
+from psrmap.agreement import elevation_agreement
+
+DRIFT_KEYS = ("drift_xy_m", "drift_xy_pct", "drift_z_m", "drift_yaw_deg", "state_source")
+
 __all__ = ["MissionConfig", "ScoutPlan", "load_config", "register", "run_mission"]
 
 SCENES = ("lunar", "ramps")
@@ -432,6 +436,10 @@ def run_mission(cfg: MissionConfig, run_dir: Path | None = None, progress: bool 
                     res if res is not None else {"error": f"exit code {p.proc.exitcode}; see {p.log}"}
                 )
             summary["scouts"] = scouts
+            # each scout's state-estimate drift at its goal, and how its own map agrees with the others'
+            summary["drift"] = {sid: {k: s.get(k) for k in DRIFT_KEYS} for sid, s in scouts.items() if "error" not in s}
+            summary["elevation_agreement"] = elevation_agreement(
+                {s.id: run_dir / f"{s.id}_local.npz" for s in cfg.scouts})
             summary["status"] = _status_json(_await_totals(session, cfg, scouts))
             say(
                 f"[mission] scouts done; server merged {summary['status']['merged']} deltas into {summary['status']['cells']} cells"
@@ -607,8 +615,12 @@ def _print_report(summary: dict[str, Any]) -> None:
         print(
             f"  {sid}: {s.get('distance_m', float('nan')):.1f} m in {s.get('sim_seconds', float('nan')):.0f} s, "
             f"fell={s.get('fell')}, reached_goal={s.get('reached_goal')}, deltas={deltas_sent(s)}, "
-            f"slip events felt={s.get('map', {}).get('slip_events')}"
+            f"slip events felt={s.get('map', {}).get('slip_events')}, "
+            f"drift {s.get('drift_xy_pct')} % / z {s.get('drift_z_m')} m / yaw {s.get('drift_yaw_deg')}°"
         )
+    for pair, a in (summary.get("elevation_agreement") or {}).items():
+        print(f"  own maps {pair}: {a['cells']} shared elevation cells, differ by {a['mean_diff_m']:+.3f} m "
+              f"(RMS {a['rms_diff_m']:.3f} m)")
     plan = summary.get("plan") or {}
     if "error" in plan:
         print(f"  plan: {plan['error']}")

@@ -139,7 +139,10 @@ def cmd_scout(args: argparse.Namespace) -> int:
         state = "FELL at {}".format(summary["fall_xy"]) if summary["fell"] else (
             "reached the goal" if summary["reached_goal"] else "stopped (time limit)")
         print(f"{summary['terrain']}: {state}; {summary['distance_m']:.2f} m at {summary['mean_speed_mps']:.3f} m/s, "
-              f"{summary['sim_seconds']:.1f} s simulated, {summary['real_time_factor']}× real time")
+              f"{summary['sim_seconds']:.1f} s simulated, {summary['real_time_factor']}× real time; "
+              f"state {summary['state_source']}, drift {summary.get('drift_xy_m')} m horizontal "
+              f"({summary.get('drift_xy_pct')} % of distance), {summary.get('drift_z_m')} m vertical, "
+              f"{summary.get('drift_yaw_deg')}° yaw")
     return 1 if summary["fell"] else 0
 
 

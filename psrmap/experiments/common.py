@@ -248,6 +248,8 @@ def run_spec(spec: RunSpec) -> dict[str, Any]:
     elevation = {f"{spec.res:g}": elevation_errors(ev.mapper.local, world.terrain, segments)}
     for r in EXTRA_RES:
         elevation[f"{r:g}"] = elevation_errors(rebin(acc, r), world.terrain, segments)
+    # the same estimators fed the simulator's exact base state: beside the honest figures, never instead
+    elevation_exact = elevation_errors(ev.exact.local, world.terrain, segments)
     summary.pop("friction", None)
     return {
         "key": spec.key(),
@@ -257,6 +259,7 @@ def run_spec(spec: RunSpec) -> dict[str, Any]:
         "slip_counts": _slip_counts(ev),
         "slip_points": _slip_points(ev),
         "elevation": elevation,
+        "elevation_exact": elevation_exact,
         "cells": {name: ev.mapper.local.cells(name) for name in LAYERS},
         "paper_cells": _paper_cells(ev),
         "track": np.array(track, float).reshape(-1, 4),
@@ -356,6 +359,37 @@ def fmean(values: Iterable[Any]) -> float | None:
     """Mean of the finite values, None when there is none (no warning on empty input)."""
     v = [float(x) for x in values if x is not None and math.isfinite(float(x))]
     return float(np.mean(v)) if v else None
+
+
+def estimation_summary(runs: list[dict]) -> dict[str, Any]:
+    """How honest the scouts' state estimate was over a group of runs: drift at the end (horizontal as a share
+    of the distance, vertical, heading), elevation RMSE at 0.4 m on the estimate beside the same estimators on
+    the exact state, and the whole-walk CoT beside the simulator's exact energy over the true path."""
+
+    def cot_err(r: dict) -> float | None:
+        a, b = r["scores"].get("cot_whole_run"), r["summary"].get("cot_whole_run_truth")
+        return 100.0 * abs(a - b) / b if a is not None and b else None
+
+    def vals(fn) -> list[Any]:
+        return [fn(r) for r in runs]
+
+    xy = [v for v in vals(lambda r: r["summary"].get("drift_xy_pct")) if v is not None]
+    return {
+        "runs": len(runs),
+        "falls": sum(bool(r["summary"]["fell"]) for r in runs),
+        "drift_xy_pct_mean": fmean(xy),
+        "drift_xy_pct_max": max(xy) if xy else None,
+        "drift_z_m_mean_abs": fmean(abs(v) for v in vals(lambda r: r["summary"].get("drift_z_m")) if v is not None),
+        "drift_yaw_deg_mean_abs": fmean(
+            abs(v) for v in vals(lambda r: r["summary"].get("drift_yaw_deg")) if v is not None
+        ),
+        "elevation_rmse_m": fmean(vals(lambda r: r["elevation"][f"{MAP_RES:g}"].get("rmse_m"))),
+        "elevation_rmse_exact_m": fmean(vals(lambda r: (r.get("elevation_exact") or {}).get("rmse_m"))),
+        "cot_whole_run": fmean(vals(lambda r: r["scores"].get("cot_whole_run"))),
+        "cot_whole_run_truth": fmean(vals(lambda r: r["summary"].get("cot_whole_run_truth"))),
+        "cot_error_pct_mean": fmean(vals(cot_err)),
+        "cot_error_pct_max": max((v for v in vals(cot_err) if v is not None), default=None),
+    }
 
 
 def fstd(values: Iterable[Any]) -> float | None:

@@ -20,7 +20,16 @@ from typing import Any
 
 import numpy as np
 
-from psrmap.experiments.common import EXTRA_RES, MAP_RES, RunPool, RunSpec, fmean, fstd, jitter_start
+from psrmap.experiments.common import (
+    EXTRA_RES,
+    MAP_RES,
+    RunPool,
+    RunSpec,
+    estimation_summary,
+    fmean,
+    fstd,
+    jitter_start,
+)
 
 __all__ = [
     "ANGLES",
@@ -314,6 +323,7 @@ def analyse(args: argparse.Namespace, runs: list[dict], out_dir: Path) -> dict[s
                 entry[cname]["patch"] = crs[0]["friction"]["patches"]
             profiles[cname] = profile(crs)
             entry[cname]["profile"] = profiles[cname]
+        entry["estimation"] = estimation_summary(mine)
         by_angle[key] = entry
         xs, zs = ramp_profile(RampConfig(slope_deg=a))
         segs = mine[0]["segments"] if mine else None
@@ -342,6 +352,7 @@ def analyse(args: argparse.Namespace, runs: list[dict], out_dir: Path) -> dict[s
             w: _pr([r["slip_counts"][w] for r in slippery]) for w in ("honest", "exact", "paper")
         },
         "slip_plain": {w: _pr([r["slip_counts"][w] for r in plain]) for w in ("honest", "exact", "paper")},
+        "estimation": estimation_summary(runs),
         "false_slips_plain": sum(
             r["slip_counts"]["honest"]["detected"] - r["slip_counts"]["honest"]["tp"] for r in plain
         ),

@@ -35,8 +35,33 @@ def _table(head: list[str], rows: list[list[str]]) -> str:
     return "\n".join(out)
 
 
+_EST_HEAD = ["drift xy % (mean / max)", "drift z [m]", "drift yaw [°]", "elev. RMSE estimate / exact [m]",
+             "CoT estimate / truth", "CoT error % (mean / max)", "falls / runs"]
+
+
+def _est_row(e: dict) -> list[str]:
+    return [
+        f"{_f(e.get('drift_xy_pct_mean'), 2)} / {_f(e.get('drift_xy_pct_max'), 2)}",
+        _f(e.get("drift_z_m_mean_abs"), 3),
+        _f(e.get("drift_yaw_deg_mean_abs"), 2),
+        f"{_f(e.get('elevation_rmse_m'), 4)} / {_f(e.get('elevation_rmse_exact_m'), 4)}",
+        f"{_f(e.get('cot_whole_run'), 3)} / {_f(e.get('cot_whole_run_truth'), 3)}",
+        f"{_f(e.get('cot_error_pct_mean'), 1)} / {_f(e.get('cot_error_pct_max'), 1)}",
+        f"{e.get('falls')} / {e.get('runs')}",
+    ]
+
+
+def estimation_table(groups: dict[str, dict], label: str) -> str:
+    """The state estimate's honesty per group of runs (`common.estimation_summary`)."""
+    rows = [[k] + _est_row(e) for k, e in groups.items() if e]
+    return (
+        "State estimate (IMU + leg odometry EKF) against ground truth, and the figures it changes beside the "
+        "same estimators on the exact state:\n\n" + _table([label] + _EST_HEAD, rows)
+    )
+
+
 def ramps_tables(r: dict) -> str:
-    parts = []
+    parts = [estimation_table({f"{a}°": e.get("estimation") for a, e in r["by_angle"].items()}, "slope")]
     rows = []
     for a, e in r["by_angle"].items():
         for cond in ("plain", "slippery"):
@@ -155,6 +180,7 @@ def slopes_tables(r: dict) -> str:
 def lunar_tables(r: dict) -> str:
     routes = ("direct", "west", "east")
     t, p, m = r["table"], r["paper_table"], r["merged_map_table"]
+    est = {f"seed {sd} {x}": s.get("estimation", {}).get(x) for sd, s in r["per_seed"].items() for x in routes}
     rows = [
         ["total slips (slip-layer events)"]
         + [f"{_ms(t[x]['total_slips'], 1)} ({p['total_slips'][x]})" for x in routes],
@@ -173,8 +199,9 @@ def lunar_tables(r: dict) -> str:
         ["falls / runs"] + [f"{t[x]['fell']} / {t[x]['runs']}" for x in routes],
     ]
     parts = [
+        estimation_table(est, "run"),
         "Per trajectory, from its own map; ours as mean ± std over terrain seeds, the paper's in brackets:\n\n"
-        + _table(["metric", "direct (paper: traj. 1)", "west (traj. 2)", "east (traj. 3)"], rows)
+        + _table(["metric", "direct (paper: traj. 1)", "west (traj. 2)", "east (traj. 3)"], rows),
     ]
     rows = [
         ["expected slips (planner)"] + [_f(m[x]["total_slips"], 1) for x in routes],

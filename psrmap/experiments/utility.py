@@ -32,6 +32,7 @@ __all__ = [
     "experienced",
     "fresh_specs",
     "plan",
+    "predicted_vs_felt",
     "run",
     "scout_specs",
     "simplify",
@@ -227,6 +228,7 @@ def experienced(args: argparse.Namespace, run: dict, waypoints: list) -> dict[st
         "distance_m": s["distance_m"],
         "sim_seconds": s["sim_seconds"],
         "cot_whole_run": cot,
+        "cot_whole_run_truth": s.get("cot_whole_run_truth"),  # simulator energy over the true path
         "cot_mean_cells": sc.get("cot_mean"),
         "energy_m": cot * s["distance_m"] if cot is not None else None,  # Σ E / (m g) [m]
         "gt_slips": sc.get("gt_slips"),
@@ -383,6 +385,9 @@ def run(args: argparse.Namespace, pool: RunPool, out_dir: Path) -> dict[str, Any
             agree[name] = agreement(scouts_local, rs[0], dense_path) if rs else None
         entry["experienced"] = exp
         entry["map_agreement_along_route"] = agree
+        entry["predicted_vs_felt"] = {
+            name: predicted_vs_felt(entry["predicted"].get(name), exp.get(name)) for name in ("planned", "straight")
+        }
         entry["planned_beat_straight"] = (
             _beat(exp["planned"], exp["straight"]) if exp.get("planned") and exp.get("straight") else None
         )
@@ -436,6 +441,25 @@ def run(args: argparse.Namespace, pool: RunPool, out_dir: Path) -> dict[str, Any
     }
 
 
+def predicted_vs_felt(pred: dict | None, felt: dict | None) -> dict[str, Any] | None:
+    """What the shared map predicted for a route (mean CoT of its cells, expected slip events) beside what the
+    fresh robot then felt walking it (its own whole-walk CoT, ground-truth and detected slips)."""
+    if not pred or not felt:
+        return None
+    cot_p, cot_f = pred.get("mean_cot"), felt.get("cot_whole_run")
+    err = 100.0 * (cot_p - cot_f) / cot_f if cot_p is not None and cot_f else None
+    return {
+        "cot_predicted": cot_p,
+        "cot_felt": cot_f,
+        "cot_felt_truth": felt.get("cot_whole_run_truth"),
+        "cot_error_pct": round(err, 2) if err is not None else None,
+        "cot_within_10pct": abs(err) <= 10.0 if err is not None else None,
+        "slips_predicted": pred.get("expected_slip_events"),
+        "slips_felt_truth": felt.get("gt_slips"),
+        "slips_detected": felt.get("detected_slips"),
+    }
+
+
 def _pool_rows(rows: list[dict]) -> dict[str, Any]:
     """Several fresh runs of one route: booleans counted, numbers averaged, text kept from the first."""
     out: dict[str, Any] = {"runs": len(rows)}
@@ -471,6 +495,15 @@ def _summary(per_seed: dict[str, Any]) -> dict[str, Any]:
         },
     }
     for name in ("planned", "straight"):
+        pvf = [e["predicted_vs_felt"][name] for e in done if e.get("predicted_vs_felt", {}).get(name)]
+        errs = [p["cot_error_pct"] for p in pvf if p["cot_error_pct"] is not None]
+        out[f"{name}_predicted_vs_felt"] = {
+            "cot_error_pct_mean_abs": fmean(abs(e) for e in errs),
+            "cot_within_10pct": sum(abs(e) <= 10.0 for e in errs),
+            "seeds": len(errs),
+            "slips_predicted_mean": fmean(p["slips_predicted"] for p in pvf),
+            "slips_felt_truth_mean": fmean(p["slips_felt_truth"] for p in pvf),
+        }
         rows = [e["experienced"][name] for e in done if e["experienced"].get(name)]
         preds = [e["predicted"][name] for e in done if e["predicted"].get(name)]
         out[name] = {
@@ -478,6 +511,7 @@ def _summary(per_seed: dict[str, Any]) -> dict[str, Any]:
                 k: fmean(r.get(k) for r in rows)
                 for k in (
                     "cot_whole_run",
+                    "cot_whole_run_truth",
                     "energy_m",
                     "gt_slips",
                     "detected_slips",

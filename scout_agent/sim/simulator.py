@@ -216,7 +216,6 @@ class ScoutSim:
         forces, points, fn, n_nonfoot, trunk_touch = self._contacts()
         true_contact = fn > cfg.contact_threshold_n
         tick = self.sensors.read(TrueBlock(self.dt, self._blk_acc, self._blk_gyro, self._blk_q, self._blk_tau, fn))
-        est = self.estimator.update(self.t, tick, self.control_dt)
         pos = d.qpos[0:3].copy()
         quat = d.qpos[3:7].copy()
         R = _quat_to_mat(quat)
@@ -226,6 +225,7 @@ class ScoutSim:
             self._state = RobotState(self.t, st.pos, st.R, st.vel, st.omega, tick.q, tick.dq, tick.contact)
             base = BaseState(pos.copy(), quat.copy(), truth_base.vel.copy(), truth_base.omega.copy())
         else:
+            est = self.estimator.update(self.t, tick, self.control_dt)
             self._state = RobotState(self.t, est.pos, est.R, est.vel, est.omega, tick.q, tick.dq, tick.contact)
             base = BaseState(est.pos, est.quat, est.vel, est.omega)
         q = d.qpos[7:].copy()
