@@ -191,6 +191,7 @@ class TiledMap:
         self.occ = np.zeros((0, cells), dtype=bool)  # per map-wide tile: cell holds data in some layer
         self._dir = np.full((0, 0), -1, dtype=np.int32)  # dense directory: [ty - ty0, tx - tx0] -> number
         self._dir0 = (0, 0)  # (tx0, ty0) of the directory
+        self._bbox: tuple[int, int, int, int] | None = None  # (tx0, ty0, tx1, ty1) of every tile, inclusive
         self._cells: int | None = 0
         self._last_cells: _Cells | None = None
 
@@ -246,29 +247,29 @@ class TiledMap:
             occ = np.zeros((max(g0 + len(keys), 2 * self.occ.shape[0], _GROW_MIN), self.occ.shape[1]), bool)
             occ[:g0] = self.occ[:g0]
             self.occ = occ
-        # widen the dense directory to the tiles' bounding box while it stays small
+        # the dense directory covers the bounding box of *all* tiles (with a margin, so a walking fleet does
+        # not rebuild it at every new tile) while that box stays small; beyond, lookups go through the dict
         kx = [k[0] for k in keys]
         ky = [k[1] for k in keys]
-        (tx0, ty0), (h, w) = self._dir0, self._dir.shape
-        if h:
-            nx0, ny0 = min(tx0, *kx), min(ty0, *ky)
-            nx1, ny1 = max(tx0 + w - 1, *kx), max(ty0 + h - 1, *ky)
+        if self._bbox is None:
+            bx0, by0, bx1, by1 = min(kx), min(ky), max(kx), max(ky)
         else:
-            nx0, ny0, nx1, ny1 = min(kx), min(ky), max(kx), max(ky)
-        if (nx0, ny0, nx1, ny1) != (tx0, ty0, tx0 + w - 1, ty0 + h - 1) or not h:
-            # grow with a margin so a walking fleet does not rebuild it at every new tile
-            mx, my = max(4, (nx1 - nx0 + 1) // 2), max(4, (ny1 - ny0 + 1) // 2)
-            nx0, nx1, ny0, ny1 = nx0 - mx, nx1 + mx, ny0 - my, ny1 + my
-            if (nx1 - nx0 + 1) * (ny1 - ny0 + 1) <= _DIR_LIMIT:
-                d = np.full((ny1 - ny0 + 1, nx1 - nx0 + 1), -1, dtype=np.int32)
-                if self.gslots:
-                    allk = np.array(list(self.gslots), dtype=np.int64).reshape(-1, 2)
-                    d[allk[:, 1] - ny0, allk[:, 0] - nx0] = np.fromiter(self.gslots.values(), np.int32)
-                self._dir, self._dir0 = d, (nx0, ny0)
-                return gids
-            self._dir, self._dir0 = np.full((0, 0), -1, dtype=np.int32), (0, 0)
+            bx0, by0, bx1, by1 = self._bbox
+            bx0, by0, bx1, by1 = min(bx0, *kx), min(by0, *ky), max(bx1, *kx), max(by1, *ky)
+        self._bbox = (bx0, by0, bx1, by1)
+        (tx0, ty0), (h, w) = self._dir0, self._dir.shape
+        if h and tx0 <= bx0 and ty0 <= by0 and bx1 < tx0 + w and by1 < ty0 + h:
+            self._dir[np.array(ky) - ty0, np.array(kx) - tx0] = gids
             return gids
-        self._dir[np.array(ky) - ty0, np.array(kx) - tx0] = gids
+        mx, my = max(4, (bx1 - bx0 + 1) // 2), max(4, (by1 - by0 + 1) // 2)
+        nx0, nx1, ny0, ny1 = bx0 - mx, bx1 + mx, by0 - my, by1 + my
+        if (nx1 - nx0 + 1) * (ny1 - ny0 + 1) <= _DIR_LIMIT:
+            d = np.full((ny1 - ny0 + 1, nx1 - nx0 + 1), -1, dtype=np.int32)
+            allk = np.array(list(self.gslots), dtype=np.int64).reshape(-1, 2)
+            d[allk[:, 1] - ny0, allk[:, 0] - nx0] = np.fromiter(self.gslots.values(), np.int32)
+            self._dir, self._dir0 = d, (nx0, ny0)
+        else:
+            self._dir, self._dir0 = np.full((0, 0), -1, dtype=np.int32), (0, 0)
         return gids
 
     def _global_ids(self, tx: np.ndarray, ty: np.ndarray) -> np.ndarray:
