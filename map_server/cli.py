@@ -107,7 +107,13 @@ def cmd_server(args: argparse.Namespace) -> int:
             ),
             flush=True,
         )
-        stop.wait()
+        while not stop.wait(0.2):
+            if service.failed.is_set():
+                log.error("merge worker failed (%s); exiting non-zero so a supervisor restarts the server "
+                          "from its store", service.worker_error)
+                break
+    if service.failed.is_set():
+        return 70  # EX_SOFTWARE
     log.info("stopped cleanly")
     return 0
 

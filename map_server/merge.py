@@ -3,6 +3,10 @@
 `Merger.ingest` takes a batch of raw `(key, payload)` samples, rejects bad ones whole (counted by
 reason), drops duplicates, merges the rest into the `TiledMap` in one vectorised pass and says which
 acks to send. Nothing here knows about Zenoh or SQLite.
+
+A duplicate is a `(scout, epoch, seq)` already merged *with the same content* (a 64-bit xxh3 digest of its
+payload is kept per merged seq); the same seq with other content (e.g. a scout restarted with its old epoch)
+is rejected as `seq_conflict` and named in the ack, never silently dropped as a duplicate.
 """
 
 from __future__ import annotations
@@ -13,6 +17,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 
 import numpy as np
+import xxhash
 
 from map_server.tiles import TiledMap
 from protocol.batch import DeltaBatch, decode_delta_batch
@@ -20,17 +25,47 @@ from protocol.codec import DEFAULT_MAX_BYTES, decode
 from protocol.errors import ProtocolError
 from protocol.messages import Ack, CellDelta
 
-__all__ = ["Accepted", "IngestResult", "MergeBook", "Merger", "SeqState"]
+__all__ = ["Accepted", "IngestResult", "MergeBook", "Merger", "SeqState", "payload_digest"]
 
 log = logging.getLogger(__name__)
 
 
+def payload_digest(payload: bytes) -> int:
+    """64-bit digest of a delta's payload (xxh3), never 0 (0 = unknown)."""
+    return xxhash.xxh3_64_intdigest(payload) or 1
+
+
+_DENSE_AHEAD = 1 << 16  # digests of seqs up to this far above hw live in the dense array
+
+
 @dataclass
 class SeqState:
-    """Merged seqs of one (scout, epoch): all of 0..hw, plus the out-of-order ones in `above`."""
+    """Merged seqs of one (scout, epoch): all of 0..hw, plus the out-of-order ones in `above`; the payload
+    digest of each merged seq (a dense uint64 array by seq, a dict for seqs far ahead of hw)."""
 
     hw: int = -1
     above: set[int] = field(default_factory=set)
+    dense: np.ndarray = field(default_factory=lambda: np.zeros(0, np.uint64))
+    sparse: dict[int, int] = field(default_factory=dict)
+
+    def digest(self, seq: int) -> int:
+        """The digest merged under `seq` (0: not known)."""
+        if seq < self.dense.size:
+            return int(self.dense[seq])
+        return self.sparse.get(seq, 0)
+
+    def set_digest(self, seq: int, digest: int) -> None:
+        if seq < self.dense.size:
+            self.dense[seq] = digest
+        elif seq <= self.hw + _DENSE_AHEAD:
+            grown = np.zeros(max(2 * self.dense.size, seq + 1, 64), np.uint64)
+            grown[: self.dense.size] = self.dense
+            grown[seq] = digest
+            self.dense = grown
+            for k in [k for k in self.sparse if k < grown.size]:
+                grown[k] = self.sparse.pop(k)
+        else:
+            self.sparse[seq] = digest
 
     def seen(self, seq: int) -> bool:
         return seq <= self.hw or seq in self.above
@@ -65,6 +100,7 @@ class MergeBook:
 class Accepted:
     delta: CellDelta
     payload: bytes
+    digest: int = 0  # `payload_digest(payload)`
 
 
 @dataclass
@@ -74,6 +110,7 @@ class IngestResult:
     rejected: list[tuple[str, str]] = field(default_factory=list)  # (reason, message)
     acks: dict[tuple[str, int], Ack] = field(default_factory=dict)
     touched: set[tuple[str, int]] = field(default_factory=set)  # seq states changed
+    conflicts: dict[tuple[str, int], list[int]] = field(default_factory=dict)  # seqs merged with other content
 
 
 class Merger:
@@ -157,22 +194,36 @@ class Merger:
                     st = seqs[sk] = SeqState()
                 memo[delta.scout] = (delta.epoch, sk, st)
             seq = delta.seq
+            payload = samples[i][1]
+            dig = payload_digest(payload)
             if seq <= st.hw or seq in st.above:
-                book.duplicates += 1
-                res.duplicates += 1
+                known = st.digest(seq)
+                if known and known != dig:
+                    book.rejected["seq_conflict"] += 1
+                    msg = (f"seq_conflict: {delta.scout} epoch {delta.epoch} seq {seq} was merged with other "
+                           "content; a restarted scout must use a new epoch")
+                    res.rejected.append(("seq_conflict", msg))
+                    res.conflicts.setdefault(sk, []).append(seq)
+                    touched.add(sk)  # the counters change: persist them with the batch
+                    log.warning("rejected delta on %s: %s", samples[i][0], msg)
+                else:
+                    book.duplicates += 1
+                    res.duplicates += 1
             else:
                 if seq == st.hw + 1 and not st.above:
                     st.hw = seq
                 else:
                     st.mark(seq)
+                st.set_digest(seq, dig)
                 take[i] = True
-                accepted.append(Accepted(delta, samples[i][1]))
+                accepted.append(Accepted(delta, payload, dig))
                 touched.add(sk)
             acked[sk] = delta
         for sk, delta in acked.items():
             hw = seqs[sk].hw
-            if hw >= 0:
-                res.acks[sk] = Ack(map_id, delta.scout, delta.epoch, hw)
+            conflicts = tuple(res.conflicts.get(sk, ()))
+            if hw >= 0 or conflicts:
+                res.acks[sk] = Ack(map_id, delta.scout, delta.epoch, hw, conflicts)
         if accepted:
             self._merge_columns(batch, np.array(take, dtype=bool))
             book.merged += len(accepted)

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import logging
 import queue
+import sqlite3
 import threading
 import time
 from dataclasses import dataclass
@@ -38,6 +39,11 @@ from protocol.session import zenoh_config
 __all__ = ["MapService", "ServerConfig"]
 
 log = logging.getLogger(__name__)
+
+
+class _Stopped(Exception):
+    """The service stopped while the worker waited for the store."""
+
 
 _WAKE = "--wake--"  # scout id of the self-addressed sample that wakes the worker at shutdown
 IDLE_STEP_PAUSE_S = 0.002  # pause after a snapshot slice written in an idle gap
@@ -84,6 +90,9 @@ class MapService:
         self.lock = threading.Lock()  # guards map + book between the worker and the query thread
         self.alive: dict[str, bool] = {}
         self.ready = threading.Event()
+        self.failed = threading.Event()  # the merge worker stopped on an unexpected error
+        self.worker_state = "ok"
+        self.worker_error: str | None = None
         self._stopping = threading.Event()
         self._queries: queue.Queue[Any] = queue.Queue(maxsize=256)
         self._session: Any = None
@@ -191,12 +200,8 @@ class MapService:
                 batch.append(nxt)
             samples = [(str(s.key_expr), s.payload.to_bytes()) for s in batch]
             samples = [x for x in samples if not x[0].endswith("/" + _WAKE)]
-            if samples:
-                try:
-                    self._process(samples)
-                except Exception:
-                    log.exception("merge worker failed; stopping without acking the batch")
-                    raise
+            if samples and not self._process_or_fail(samples):
+                return
         # drain what is left so nothing is merged half-way at shutdown
         rest = []
         while (nxt := sub.try_recv()) is not None:
@@ -206,15 +211,60 @@ class MapService:
         if rest:
             self._process(rest)
 
+    def _process_or_fail(self, samples: list[tuple[str, bytes]]) -> bool:
+        """Process a batch; on an unexpected error (a bug: the map may be half-merged) log it, count it, mark
+        the worker failed in `status` and stop the worker (`failed` is set: the CLI exits non-zero, so a
+        supervisor restarts the server from its store). False when the worker must stop."""
+        try:
+            self._process(samples)
+            return True
+        except Exception as exc:
+            log.exception("merge worker failed on a batch of %d deltas; nothing of it was acked", len(samples))
+            reason = f"internal_{type(exc).__name__}"
+            with self.lock:
+                self.merger.book.rejected[reason] += len(samples)
+            self.worker_state, self.worker_error = "failed", f"{type(exc).__name__}: {exc}"
+            self.failed.set()
+            return False
+
+    def _commit_until_durable(self, res: Any, first_error: Exception) -> None:
+        """The store refused a commit (disk full, I/O error): keep the batch (merged in memory, not acked),
+        report the original error in `status`, retry with backoff until the store takes it, then go on."""
+        assert self.store is not None
+        self.worker_state = "waiting_for_store"
+        log.error("store commit failed: %s; retrying (no acks until it is durable)", first_error)
+        wait = 0.05
+        while not self._stopping.wait(wait):
+            try:
+                with self.lock:
+                    self.store.commit(res.accepted, self.merger.book, res.touched)
+            except sqlite3.Error as exc:
+                wait = min(2.0, wait * 2)
+                log.debug("store still refuses the commit: %s", exc)
+                continue
+            log.info("store accepts writes again; the held batch is durable")
+            self.worker_state = "ok"
+            return
+        raise _Stopped
+
     def _process(self, samples: list[tuple[str, bytes]]) -> None:
         batch = self.merger.decode(samples)  # validation needs no lock: queries go on meanwhile
         # merge + commit under the lock: a query sees a delta only once it is durable
+        store_error: Exception | None = None
         with self.lock:
             res = self.merger.apply(samples, batch)
             if self.store is not None and (res.accepted or res.rejected or res.duplicates):
-                self.store.commit(res.accepted, self.merger.book, res.touched)
+                try:
+                    self.store.commit(res.accepted, self.merger.book, res.touched)
+                except sqlite3.Error as exc:
+                    store_error = exc
             touched = self.map.take_touched() if self._viz is not None else set()
             version = self.merger.book.version
+        if store_error is not None:
+            try:
+                self._commit_until_durable(res, store_error)
+            except _Stopped:
+                return  # stopping with the batch not durable: no acks, the scouts resend it
         for ack in res.acks.values():
             self._session.put(ack_key(ack.map, ack.scout), encode(ack))
         store = self.store
@@ -278,7 +328,17 @@ class MapService:
                     log.exception("query failed")
                     query.reply_err(f"internal: {exc}".encode())
 
+    def health(self) -> dict[str, Any]:
+        """The merge worker's state (`ok`, `waiting_for_store`, `failed`) and error, and the store's health."""
+        out: dict[str, Any] = {"worker": self.worker_state, "worker_error": self.worker_error}
+        if self.store is not None:
+            out.update(self.store.health())
+        else:
+            out["store"] = "none"
+        return out
+
     def status(self) -> Status:
+        health = self.health()
         with self.lock:
             book = self.merger.book
             scouts = {
@@ -296,6 +356,7 @@ class MapService:
                 book.duplicates,
                 dict(book.rejected),
                 scouts,
+                health,
             )
 
     def region(self, rq: RegionQuery) -> MapRegion:

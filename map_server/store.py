@@ -17,12 +17,16 @@ delta up to there is then in every tile it touched).
 from __future__ import annotations
 
 import json
+import logging
 import sqlite3
+import time
 from collections import Counter
 from pathlib import Path
 
 from map_server.merge import Accepted, MergeBook, Merger, SeqState
 from map_server.tiles import TiledMap
+
+log = logging.getLogger(__name__)
 
 __all__ = ["MapStore"]
 
@@ -34,7 +38,14 @@ CREATE TABLE IF NOT EXISTS seqs (scout TEXT, epoch INTEGER, hw INTEGER, above TE
                                  PRIMARY KEY (scout, epoch));
 CREATE TABLE IF NOT EXISTS tiles (layer TEXT, tx INTEGER, ty INTEGER, data BLOB NOT NULL,
                                   upto INTEGER NOT NULL DEFAULT 0, PRIMARY KEY (layer, tx, ty));
+CREATE TABLE IF NOT EXISTS digests (scout TEXT, epoch INTEGER, seq INTEGER, digest INTEGER NOT NULL,
+                                    PRIMARY KEY (scout, epoch, seq)) WITHOUT ROWID;
 """
+
+
+def _signed(d: int) -> int:
+    """uint64 digest as SQLite's signed 64-bit INTEGER."""
+    return d - (1 << 64) if d >= 1 << 63 else d
 SNAPSHOT_SLICE_BYTES = 512 << 10  # tile bytes written per `snapshot_step`
 PAGE_SIZE = 16384
 DELETE_SLICE = 250  # log rows deleted per `snapshot_step` (a delta's blob spans overflow pages)
@@ -83,6 +94,9 @@ class MapStore:
         max_id = self.db.execute("SELECT COALESCE(MAX(id), 0) FROM deltas").fetchone()[0]
         self.last_id = max(int(self._meta("last_id", "0")), int(max_id))
         self.since_snapshot = 0
+        self.last_commit_unix: float | None = None
+        self.last_error: str | None = None  # the original error of the last failed commit (None after a good one)
+        self.last_error_unix: float | None = None
         self._pending: list[tuple[str, int, int]] = []  # tiles of the snapshot round under way
         self._cut = 0  # the round deletes the log up to this id when its tiles are written
 
@@ -100,6 +114,10 @@ class MapStore:
         tiled.clear_dirty()
         for scout, epoch, hw, above in self.db.execute("SELECT scout, epoch, hw, above FROM seqs"):
             book.seqs[(scout, epoch)] = SeqState(hw, set(json.loads(above)))
+        for scout, epoch, seq, digest in self.db.execute("SELECT scout, epoch, seq, digest FROM digests"):
+            st = book.seqs.get((scout, epoch))
+            if st is not None:
+                st.set_digest(int(seq), int(digest) % (1 << 64))
         book.version = int(self._meta("version", "0"))
         book.merged = int(self._meta("merged", "0"))
         book.duplicates = int(self._meta("duplicates", "0"))
@@ -123,6 +141,10 @@ class MapStore:
                 ],
             )
             db.executemany(
+                "INSERT OR REPLACE INTO digests VALUES (?, ?, ?, ?)",
+                [(a.delta.scout, a.delta.epoch, a.delta.seq, _signed(a.digest)) for a in accepted],
+            )
+            db.executemany(
                 "INSERT OR REPLACE INTO seqs VALUES (?, ?, ?, ?)",
                 [
                     (s, e, book.seqs[(s, e)].hw, json.dumps(sorted(book.seqs[(s, e)].above)))
@@ -140,11 +162,29 @@ class MapStore:
                 ],
             )
             db.execute("COMMIT")
-        except BaseException:
-            db.execute("ROLLBACK")
+        except BaseException as exc:
+            self._rollback(exc)
             raise
         self.last_id = first + len(accepted) - 1
         self.since_snapshot += len(accepted)
+        self.last_commit_unix = time.time()
+        self.last_error = None
+
+    def _rollback(self, exc: BaseException) -> None:
+        """Roll back after `exc`, keeping `exc` as the error to report: a failing ROLLBACK (SQLite may have
+        rolled back itself, e.g. on a full disk) is logged, never raised in its place."""
+        self.last_error = f"{type(exc).__name__}: {exc}"
+        self.last_error_unix = time.time()
+        try:
+            if self.db.in_transaction:
+                self.db.execute("ROLLBACK")
+        except sqlite3.Error as rb:
+            log.error("rollback after %s failed too: %s", self.last_error, rb)
+
+    def health(self) -> dict[str, str | float | None]:
+        """`ok` or `error` (the last commit failed: its original error), and when the last commit landed."""
+        return {"store": "error" if self.last_error else "ok", "store_error": self.last_error,
+                "last_commit_unix": self.last_commit_unix}
 
     def snapshot(self, tiled: TiledMap) -> int:
         """Write every changed tile and truncate the whole log, atomically; returns tiles written."""

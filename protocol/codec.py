@@ -58,6 +58,8 @@ def encode(msg: Message) -> bytes:
             "epoch": int(msg.epoch),
             "seq": int(msg.seq),
         }
+        if msg.conflicts:
+            body["conflicts"] = [int(s) for s in msg.conflicts]
     elif isinstance(msg, MapRegion):
         layers = {
             name: {s: _arr(np.asarray(a).reshape(-1), _F64) for s, a in stats.items()}
@@ -88,6 +90,7 @@ def encode(msg: Message) -> bytes:
                 k: {"epoch": int(s.epoch), "last_seq": int(s.last_seq), "alive": bool(s.alive)}
                 for k, s in msg.scouts.items()
             },
+            "health": dict(msg.health),
         }
     else:
         raise TypeError(f"cannot encode {type(msg).__name__}; messages: CellDelta, Ack, MapRegion, Status")
@@ -267,7 +270,10 @@ def _decode_ack(d: dict, key: str | None) -> Ack:
             raise ProtocolError(
                 "key_mismatch", f"{w}.scout={scout!r} but the key expression names scout {kscout!r}"
             )
-    return Ack(map_id, scout, _int(d, "epoch", w), _int(d, "seq", w, lo=-1))
+    conflicts = d.get("conflicts", [])
+    if not isinstance(conflicts, list) or not all(type(c) is int and c >= 0 for c in conflicts):
+        raise ProtocolError("bad_value", f"{w}.conflicts must be a list of seqs (integers >= 0)")
+    return Ack(map_id, scout, _int(d, "epoch", w), _int(d, "seq", w, lo=-1), tuple(conflicts))
 
 
 def _decode_region(d: dict, res: float | None) -> MapRegion:
@@ -308,6 +314,10 @@ def _decode_status(d: dict) -> Status:
         if isinstance(count, bool) or not isinstance(count, int):
             raise ProtocolError("wrong_type", f"{w}.rejected.{reason} must be an int")
         rejected[reason] = count
+    health = _dict(d.get("health", {}), f"{w}.health")
+    for k, v in health.items():
+        if not isinstance(k, str) or not (v is None or isinstance(v, str | float | int)) or isinstance(v, bool):
+            raise ProtocolError("wrong_type", f"{w}.health.{k} must be a string, a number or nil")
     return Status(
         validate_id(_get(d, "map", w), "map"),
         _float(d, "res", w, positive=True),
@@ -317,6 +327,7 @@ def _decode_status(d: dict) -> Status:
         _int(d, "duplicates", w),
         rejected,
         scouts,
+        health,
     )
 
 

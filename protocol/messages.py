@@ -51,12 +51,14 @@ class CellDelta:
 
 @dataclass(frozen=True)
 class Ack:
-    """Server -> scout: every seq <= `seq` of (scout, epoch) is merged and persisted."""
+    """Server -> scout: every seq <= `seq` of (scout, epoch) is merged and persisted — except those listed in
+    `conflicts`: seqs whose new content was rejected because other content was merged under them before."""
 
     map: str
     scout: str
     epoch: int
     seq: int
+    conflicts: tuple[int, ...] = ()
 
 
 @dataclass(frozen=True, eq=False)
@@ -90,6 +92,9 @@ class Status:
     duplicates: int
     rejected: dict[str, int] = field(default_factory=dict)
     scouts: dict[str, ScoutStatus] = field(default_factory=dict)
+    # the merge worker's and the store's health: worker ok | waiting_for_store | failed, worker_error,
+    # store ok | error | none, store_error (the original error of the last failed commit), last_commit_unix
+    health: dict[str, str | float | None] = field(default_factory=dict)
 
     def to_json(self) -> dict:
         """Plain JSON-ready dict (what `psrmap status` prints and a mission's summary.json keeps)."""
@@ -105,6 +110,7 @@ class Status:
                 k: {"epoch": v.epoch, "last_seq": v.last_seq, "alive": v.alive}
                 for k, v in self.scouts.items()
             },
+            "health": dict(self.health),
         }
 
 

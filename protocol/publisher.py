@@ -6,6 +6,7 @@ Zenoh one lives in `protocol.zenoh_transport`. Thread-safe: acks arrive on the n
 
 from __future__ import annotations
 
+import logging
 import threading
 import time
 from collections import OrderedDict
@@ -18,6 +19,8 @@ import numpy as np
 from protocol.codec import encode
 from protocol.keys import delta_key, validate_id
 from protocol.messages import Ack, CellDelta
+
+log = logging.getLogger(__name__)
 
 __all__ = ["DeltaPublisher", "InMemoryTransport", "Transport", "UnackedBufferFull", "new_epoch"]
 
@@ -89,6 +92,8 @@ class DeltaPublisher:
         self.next_seq = 0
         self.acked_seq = -1  # highest seq acknowledged (cumulative)
         self.resent = 0
+        self.acks_ignored = 0  # acks for seqs this publisher never sent (forged or foreign): ignored
+        self.conflicts: list[int] = []  # seqs the server rejected as merged before with other content
         self._pending: OrderedDict[int, _Pending] = OrderedDict()
         self._lock = threading.Lock()
         self._resend_cutoff: float | None = None  # resend all sent at or before this clock time
@@ -127,9 +132,23 @@ class DeltaPublisher:
         return seq
 
     def on_ack(self, ack: Ack) -> int:
-        """Forget every delta up to `ack.seq` of our epoch; returns how many were released."""
+        """Forget every delta up to `ack.seq` of our epoch; returns how many were released.
+
+        An ack beyond the highest seq sent cannot come from the server (it only acks what it merged): it is
+        ignored and counted, so a forged ack cannot make the scout drop unacknowledged deltas. Seqs the
+        server names as conflicts were not merged (other content holds that seq): logged and kept in
+        `conflicts`."""
         if ack.scout != self.scout_id or ack.map != self.map_id or ack.epoch != self.epoch:
             return 0
+        if ack.seq >= self.next_seq or any(c >= self.next_seq for c in ack.conflicts):
+            self.acks_ignored += 1
+            log.warning("ignored an ack for seq %d of epoch %d: only seqs < %d were sent", ack.seq, ack.epoch,
+                        self.next_seq)
+            return 0
+        if ack.conflicts:
+            self.conflicts.extend(ack.conflicts)
+            log.error("server rejected seqs %s of epoch %d as seq_conflict: other content was merged under "
+                      "them (was this epoch reused after a restart?)", list(ack.conflicts), ack.epoch)
         released = 0
         with self._lock:
             self.acked_seq = max(self.acked_seq, ack.seq)
