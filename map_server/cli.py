@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import logging
 import signal
@@ -12,6 +13,7 @@ from collections.abc import Sequence
 from dataclasses import replace
 from typing import Any
 
+from map_server.limits import Limits
 from protocol.keys import id_arg
 
 __all__ = ["main", "register"]
@@ -76,6 +78,16 @@ def cmd_router(args: argparse.Namespace) -> int:
     return 0
 
 
+def _positive_int(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        v = 0
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"{text!r}: need an integer >= 1")
+    return v
+
+
 def cmd_server(args: argparse.Namespace) -> int:
     from map_server.service import MapService, ServerConfig
 
@@ -94,6 +106,7 @@ def cmd_server(args: argparse.Namespace) -> int:
         listen=_endpoints(args.listen),
         mode="router" if args.listen else "peer",
         rrd=args.rrd,
+        limits=Limits(**{f.name: getattr(args, f"limit_{f.name}") for f in dataclasses.fields(Limits)}),
     )
     stop = _stop_on_signals()
     try:
@@ -208,6 +221,10 @@ def register(subparsers: Any) -> None:
     )
     p.add_argument("--listen", action="append", default=None, help="also run as a router listening here")
     p.add_argument("--rrd", default=None, help="log merged layers to this Rerun .rrd file")
+    g = p.add_argument_group("limits (a message or query over one is rejected, naming it)")
+    for f in dataclasses.fields(Limits):
+        g.add_argument(f"--limit-{f.name.replace('_', '-')}", dest=f"limit_{f.name}", type=_positive_int,
+                       default=f.default, metavar="N", help=f"(default {f.default})")
     p.add_argument("-v", "--verbose", action="store_true")
     p.set_defaults(func=cmd_server, parser=p)
 

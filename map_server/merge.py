@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import xxhash
 
+from map_server.limits import Limits
 from map_server.tiles import TiledMap
 from protocol.batch import DeltaBatch, decode_delta_batch
 from protocol.codec import DEFAULT_MAX_BYTES, decode
@@ -33,6 +34,12 @@ log = logging.getLogger(__name__)
 def payload_digest(payload: bytes) -> int:
     """64-bit digest of a delta's payload (xxh3), never 0 (0 = unknown)."""
     return xxhash.xxh3_64_intdigest(payload) or 1
+
+
+def _tile_of(key: int) -> tuple[int, int]:
+    """(tx << 32) | (ty & 0xFFFFFFFF) -> (tx, ty)."""
+    lo = key & 0xFFFFFFFF
+    return key >> 32, lo - (1 << 32) if lo >= 1 << 31 else lo
 
 
 _DENSE_AHEAD = 1 << 16  # digests of seqs up to this far above hw live in the dense array
@@ -123,11 +130,13 @@ class Merger:
         book: MergeBook | None = None,
         *,
         max_bytes: int = DEFAULT_MAX_BYTES,
+        limits: Limits | None = None,
     ) -> None:
         self.map = tiled
         self.map_id = map_id
         self.book = book or MergeBook()
-        self.max_bytes = max_bytes
+        self.limits = limits or Limits(max_message_bytes=max_bytes)
+        self.max_bytes = self.limits.max_message_bytes
 
     def validate(self, key: str, payload: bytes) -> CellDelta:
         """Decode one sample as a delta for this map, or raise ProtocolError."""
@@ -163,6 +172,7 @@ class Merger:
         map_id = self.map_id
         unknown = {name for name in batch.columns if name not in self.map.grids}
         no_layer = self._without_layer(batch, unknown) if unknown else {}
+        no_layer.update(self._over_limits(batch, no_layer))
         take = [False] * len(samples)
         acked: dict[tuple[str, int], CellDelta] = {}
         accepted = res.accepted
@@ -229,6 +239,51 @@ class Merger:
             book.merged += len(accepted)
             book.version += len(accepted)
         return res
+
+    def _over_limits(self, batch: DeltaBatch, already: dict[int, ProtocolError]) -> dict[int, ProtocolError]:
+        """Deltas of the batch over a resource limit: too many cells, too many new tiles, or tiles beyond the
+        map's tile budget (counted in arrival order, so the budget is never exceeded)."""
+        lim, n = self.limits, len(batch.results)
+        out: dict[int, ProtocolError] = {}
+        if not batch.columns:
+            return out
+        cells = np.zeros(n, np.int64)
+        sh = self.map.shift
+        pairs = []
+        for c in batch.columns.values():
+            cells += np.bincount(c.seg, minlength=n)[:n]
+            tk = (c.ix.astype(np.int64) >> sh << 32) | ((c.iy.astype(np.int64) >> sh) & 0xFFFFFFFF)
+            pairs.append(np.stack([c.seg, tk]))
+        for i in np.flatnonzero(cells > lim.max_cells_per_delta).tolist():
+            out[i] = ProtocolError(
+                "limit_cells", f"delta has {cells[i]} cells; limit max_cells_per_delta={lim.max_cells_per_delta}"
+            )
+        seg_tile = np.unique(np.concatenate(pairs, axis=1), axis=1)  # (2, K) distinct (delta, tile)
+        known = self.map.gslots
+        tiles = np.unique(seg_tile[1])
+        fresh_keys = {int(k) for k in tiles.tolist() if _tile_of(int(k)) not in known}
+        if not fresh_keys:
+            return out
+        created: set[int] = set()
+        for i in np.unique(seg_tile[0]).tolist():
+            if i in out or i in already or type(batch.results[i]) is not CellDelta:
+                continue
+            mine = {int(k) for k in seg_tile[1][seg_tile[0] == i].tolist()} & fresh_keys
+            new = mine - created
+            if len(new) > lim.max_new_tiles_per_delta:
+                out[i] = ProtocolError(
+                    "limit_new_tiles",
+                    f"delta would create {len(new)} tiles; limit max_new_tiles_per_delta={lim.max_new_tiles_per_delta}",
+                )
+            elif len(known) + len(created) + len(new) > lim.max_tiles:
+                out[i] = ProtocolError(
+                    "limit_tiles",
+                    f"delta would grow the map to {len(known) + len(created) + len(new)} tiles; limit "
+                    f"max_tiles={lim.max_tiles} (the map's extent budget)",
+                )
+            else:
+                created |= new
+        return out
 
     def _without_layer(self, batch: DeltaBatch, unknown: set[str]) -> dict[int, ProtocolError]:
         """Deltas carrying a layer this map lacks -> their `unknown_layer` error (first such layer)."""

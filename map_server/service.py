@@ -12,15 +12,16 @@ import queue
 import sqlite3
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import zenoh
 
+from map_server.limits import Limits
 from map_server.merge import Merger
 from map_server.store import MapStore
 from map_server.tiles import TiledMap, trim_heap
-from protocol.codec import DEFAULT_MAX_BYTES, encode
+from protocol.codec import INDEX_LIMIT, encode
 from protocol.errors import ProtocolError
 from protocol.keys import (
     ack_key,
@@ -48,7 +49,6 @@ class _Stopped(Exception):
 _WAKE = "--wake--"  # scout id of the self-addressed sample that wakes the worker at shutdown
 IDLE_STEP_PAUSE_S = 0.002  # pause after a snapshot slice written in an idle gap
 FORCED_STEP_S = 0.1  # a snapshot round writes a slice at least this often, even with no idle gap
-MAX_QUERY_CELLS = 4_000_000  # a region query may cover at most this many cells
 
 
 @dataclass(frozen=True)
@@ -65,7 +65,7 @@ class ServerConfig:
     channel_capacity: int = 4096  # deltas buffered between the network and the merge worker
     batch_max: int = 128  # deltas merged and committed together at most (bounds the lock hold)
     snapshot_every: int = 20_000  # deltas logged before tiles are snapshotted and the log truncated
-    max_bytes: int = DEFAULT_MAX_BYTES
+    limits: Limits = field(default_factory=Limits)  # resource limits (map_server/limits.py)
     rrd: str | None = None  # Rerun recording path; None: no visualisation
     # Zenoh shared memory: off, because the server would map a 16 MiB pool of every publisher that
     # ever sent a payload above 3 KiB (a delta is ~5 KiB) and keep it resident; over loopback TCP a
@@ -80,7 +80,7 @@ class MapService:
     def __init__(self, config: ServerConfig) -> None:
         self.config = config
         self.map = TiledMap(config.res, config.tile)
-        self.merger = Merger(self.map, config.map_id, max_bytes=config.max_bytes)
+        self.merger = Merger(self.map, config.map_id, limits=config.limits)
         self.store = (
             MapStore(config.db, config.map_id, config.res, config.tile, auto_checkpoint=False)
             if config.db
@@ -112,6 +112,8 @@ class MapService:
         conf = zenoh_config(c.connect, c.listen, c.mode)
         if not c.shared_memory:
             conf.insert_json5("transport/shared_memory/enabled", "false")
+        # Zenoh itself drops a message far over the delta limit before buffering it (a margin for framing)
+        conf.insert_json5("transport/link/rx/max_message_size", str(c.limits.max_message_bytes + (1 << 20)))
         self._session = zenoh.open(conf)
         s = self._session
         self._sub = s.declare_subscriber(
@@ -198,8 +200,7 @@ class MapService:
                 if nxt is None:
                     break
                 batch.append(nxt)
-            samples = [(str(s.key_expr), s.payload.to_bytes()) for s in batch]
-            samples = [x for x in samples if not x[0].endswith("/" + _WAKE)]
+            samples = self._take(batch)
             if samples and not self._process_or_fail(samples):
                 return
         # drain what is left so nothing is merged half-way at shutdown
@@ -210,6 +211,22 @@ class MapService:
                 rest.append((key, nxt.payload.to_bytes()))
         if rest:
             self._process(rest)
+
+    def _take(self, batch: list[Any]) -> list[tuple[str, bytes]]:
+        """(key, payload) of each sample, the size checked before the payload is copied out of Zenoh."""
+        out, limit = [], self.config.limits.max_message_bytes
+        for s in batch:
+            key = str(s.key_expr)
+            if key.endswith("/" + _WAKE):
+                continue
+            size = len(s.payload)
+            if size > limit:
+                with self.lock:
+                    self.merger.book.rejected["oversize"] += 1
+                log.warning("rejected delta on %s: oversize: %d bytes; limit max_message_bytes=%d", key, size, limit)
+                continue
+            out.append((key, s.payload.to_bytes()))
+        return out
 
     def _process_or_fail(self, samples: list[tuple[str, bytes]]) -> bool:
         """Process a batch; on an unexpected error (a bug: the map may be half-merged) log it, count it, mark
@@ -328,6 +345,17 @@ class MapService:
                     log.exception("query failed")
                     query.reply_err(f"internal: {exc}".encode())
 
+    def _reply_arrays(self, rq: RegionQuery) -> int:
+        """How many (h, w) float64 arrays a reply to `rq` holds (an upper bound)."""
+        total = 0
+        for name in rq.layers if rq.layers is not None else tuple(self.map.grids):
+            grid = self.map.grids.get(name)
+            if grid is None:
+                continue
+            stats = grid.layer.stats
+            total += sum(len(stats) if s == "all" else 1 for s in rq.stats)
+        return total
+
     def health(self) -> dict[str, Any]:
         """The merge worker's state (`ok`, `waiting_for_store`, `failed`) and error, and the store's health."""
         out: dict[str, Any] = {"worker": self.worker_state, "worker_error": self.worker_error}
@@ -360,12 +388,27 @@ class MapService:
             )
 
     def region(self, rq: RegionQuery) -> MapRegion:
-        res = self.map.res
+        res, lim = self.map.res, self.config.limits
+        reach = INDEX_LIMIT * res  # the contract's index range, in metres
+        for name, v in (("x0", rq.x0), ("y0", rq.y0), ("x1", rq.x1), ("y1", rq.y1)):
+            if not -reach <= v <= reach:
+                raise ProtocolError(
+                    "bad_value", f"{name}={v:g} m is outside the map's index range (±2^30 cells = ±{reach:.4g} m)"
+                )
         ix0, iy0 = (int(v) for v in cell_index(rq.x0, rq.y0, res))
         ix1, iy1 = (int(v) for v in cell_index(rq.x1, rq.y1, res))
         cells = (ix1 - ix0 + 1) * (iy1 - iy0 + 1)
-        if cells > MAX_QUERY_CELLS:
-            raise ProtocolError("oversize", f"box covers {cells} cells; at most {MAX_QUERY_CELLS} per query")
+        if cells > lim.max_query_cells:
+            raise ProtocolError(
+                "limit_query_cells", f"box covers {cells} cells; limit max_query_cells={lim.max_query_cells}"
+            )
+        arrays = self._reply_arrays(rq)
+        if cells * arrays * 8 > lim.max_reply_bytes:
+            raise ProtocolError(
+                "limit_reply_bytes",
+                f"reply would hold {cells} cells × {arrays} arrays × 8 B = {cells * arrays * 8} bytes; limit "
+                f"max_reply_bytes={lim.max_reply_bytes} (ask for fewer layers/stats or a smaller box)",
+            )
         with self.lock:
             layers = self.map.region(ix0, iy0, ix1, iy1, rq.layers, rq.stats)
             version = self.merger.book.version

@@ -24,6 +24,13 @@ REASONS: tuple[str, ...] = (
     "negative_count",  # a count-like statistic below zero
     "index_range",  # a cell index beyond +-2**30
     "duplicate_cell",  # a cell appears twice in one layer of one delta
+    "seq_conflict",  # a (scout, epoch, seq) already merged with other content
+    "duplicate_name",  # a query names a layer or stat twice
+    "limit_cells",  # a delta with more cells than the server's max_cells_per_delta
+    "limit_new_tiles",  # a delta that would create more tiles than max_new_tiles_per_delta
+    "limit_tiles",  # a delta that would grow the map beyond max_tiles (its extent budget)
+    "limit_query_cells",  # a query box of more cells than max_query_cells
+    "limit_reply_bytes",  # a reply that would exceed max_reply_bytes
 )
 
 

@@ -114,6 +114,14 @@ class Status:
         }
 
 
+def _no_repeats(names: tuple[str, ...], what: str) -> None:
+    seen: set[str] = set()
+    for n in names:
+        if n in seen:
+            raise ProtocolError("duplicate_name", f"{what} lists {n!r} more than once; name each at most once")
+        seen.add(n)
+
+
 def _split(value: str) -> tuple[str, ...]:
     return tuple(s for s in (p.strip() for p in value.split(",")) if s)
 
@@ -183,7 +191,9 @@ class RegionQuery:
             layers = _split(items["layers"])
             for name in layers:
                 get_layer(name)
+            _no_repeats(layers, "layers")
         stats = _split(items.get("stats", "value,n")) or ("value", "n")
+        _no_repeats(stats, "stats")
         names = {"value", "all"} | {s for la in LAYERS.values() for s in la.stats}
         names |= {d for la in LAYERS for d in derived_names(la)}
         for s in stats:

@@ -8,6 +8,7 @@ from typing import Any
 import msgpack
 import numpy as np
 
+from protocol.errors import REASONS
 from protocol.keys import delta_key
 from protocol.layers import LAYERS
 from protocol.messages import CellDelta
@@ -70,8 +71,18 @@ def _f64(*v: float) -> bytes:
     return np.array(v, dtype="<f8").tobytes()
 
 
+# reasons only a query (not a delta) can be rejected for; the server's limits on deltas (the decoder knows
+# none of them); the reasons the decoder alone gives; and every reason a server rejects one delta for
+# (seq_conflict needs an earlier delta: tested on its own)
+QUERY_REASONS = ("duplicate_name", "limit_query_cells", "limit_reply_bytes")
+LIMIT_REASONS = ("limit_cells", "limit_new_tiles", "limit_tiles")
+DECODE_REASONS = tuple(r for r in REASONS if r not in (*QUERY_REASONS, *LIMIT_REASONS, "seq_conflict"))
+DELTA_REASONS = DECODE_REASONS + LIMIT_REASONS
+
+
 def broken(reason: str) -> tuple[str, bytes, dict[str, Any]]:
-    """(key, payload, decode kwargs) of a cell_delta that must be rejected with `reason`."""
+    """(key, payload, kwargs) of a cell_delta that must be rejected with `reason`; kwargs: decode's, plus
+    `limits` (a server's `Limits` fields) for the limit reasons."""
     key = delta_key(MAP, SCOUT)
     kw: dict[str, Any] = {"key": key, "res": RES}
     d = raw_delta()
@@ -110,6 +121,14 @@ def broken(reason: str) -> tuple[str, bytes, dict[str, Any]]:
         slip["n"] = _f64(1.0, -1.0, 2.0)
     elif reason == "index_range":
         slip["ix"] = np.array([0, 2**30 + 1, 2], dtype="<i4").tobytes()
+    elif reason == "limit_cells":
+        kw["limits"] = {"max_cells_per_delta": 2}  # the delta has 3
+    elif reason == "limit_new_tiles":
+        slip["ix"] = np.array([0, 1000, 2000], dtype="<i4").tobytes()  # three tiles far apart
+        kw["limits"] = {"max_new_tiles_per_delta": 2}
+    elif reason == "limit_tiles":
+        slip["ix"] = np.array([100, 101, 102], dtype="<i4").tobytes()  # one tile the map does not have yet
+        kw["limits"] = {"max_tiles": 1}
     elif reason == "duplicate_cell":
         slip["ix"] = np.array([4, 4, 1], dtype="<i4").tobytes()
         slip["iy"] = np.array([4, 4, 1], dtype="<i4").tobytes()

@@ -5,16 +5,17 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from map_server.limits import Limits
 from map_server.merge import Merger
 from map_server.tiles import TiledMap
-from protocol import REASONS, encode
+from protocol import encode
 from protocol.keys import delta_key
 from protocol.messages import CellDelta
-from protocol.testing import MAP, RES, SCOUT, broken, layer_cells, make_delta
+from protocol.testing import DELTA_REASONS, MAP, RES, SCOUT, broken, layer_cells, make_delta
 
 
-def merger(max_bytes: int = 8 * 1024 * 1024) -> Merger:
-    return Merger(TiledMap(RES, tile=8), MAP, max_bytes=max_bytes)
+def merger(max_bytes: int = 8 * 1024 * 1024, limits: dict | None = None) -> Merger:
+    return Merger(TiledMap(RES, tile=8), MAP, limits=Limits(max_message_bytes=max_bytes, **(limits or {})))
 
 
 def sample(d: CellDelta) -> tuple[str, bytes]:
@@ -84,10 +85,10 @@ def test_out_of_order_acks_are_cumulative_high_water_marks():
     assert r.duplicates == 1 and r.acks[(SCOUT, 7)].seq == 2
 
 
-@pytest.mark.parametrize("reason", REASONS)
+@pytest.mark.parametrize("reason", DELTA_REASONS)
 def test_each_rejection_reason_leaves_the_map_unchanged(reason):
     key, payload, kw = broken(reason)
-    m = merger(max_bytes=kw.get("max_bytes", 8 * 1024 * 1024))
+    m = merger(max_bytes=kw.get("max_bytes", 8 * 1024 * 1024), limits=kw.get("limits"))
     if reason != "oversize":  # a small valid delta first, so "unchanged" is a non-empty map
         m.ingest([sample(make_delta(seq=5, scout="s9", cells=((1, 1),)))])
     snapshot = {n: {k: t.copy() for k, t in g.tiles.items()} for n, g in m.map.grids.items()}

@@ -77,7 +77,13 @@ def test_publish_ack_query_status(net):
         ("x0=0;y0=0;x1=1;y1=1;stats=vlaue", "unknown_stat"),
         ("x0=a;y0=0;x1=1;y1=1", "wrong_type"),
         ("x0=0;y0=0;x1=-1;y1=1", "bad_value"),
-        ("x0=0;y0=0;x1=100000;y1=100000", "oversize"),
+        ("x0=0;y0=0;x1=100000;y1=100000", "limit_query_cells"),
+        # issue 12: a box beyond the index range overflowed int32 and answered one cell
+        ("x0=-1e300;y0=-1e300;x1=1e300;y1=1e300", "bad_value"),
+        # issue 12: repeated layers held the map lock for 30 s
+        ("x0=0;y0=0;x1=1;y1=1;layers=" + ",".join(["slip"] * 1000), "duplicate_name"),
+        # issue 12: the largest allowed box with every stat made an 823 MiB reply
+        ("x0=-390;y0=-390;x1=390;y1=390;stats=all", "limit_reply_bytes"),
     ],
 )
 def test_bad_query_gets_reply_err_with_reason(net, params, reason):

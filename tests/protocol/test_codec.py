@@ -3,10 +3,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from protocol import REASONS, Ack, MapRegion, ProtocolError, ScoutStatus, Status, decode, encode
+from protocol import Ack, MapRegion, ProtocolError, ScoutStatus, Status, decode, encode
 from protocol.keys import ack_key, delta_key
 from protocol.messages import CellDelta
-from protocol.testing import MAP, RES, SCOUT, broken, make_delta, raw_delta
+from protocol.testing import DECODE_REASONS, MAP, RES, SCOUT, broken, make_delta, raw_delta
 
 
 def test_cell_delta_round_trip():
@@ -43,7 +43,7 @@ def test_status_round_trip():
     assert decode(encode(st), expected_type="status") == st
 
 
-@pytest.mark.parametrize("reason", REASONS)
+@pytest.mark.parametrize("reason", DECODE_REASONS)
 def test_every_reason_is_rejected_with_that_reason(reason):
     key, payload, kw = broken(reason)
     with pytest.raises(ProtocolError) as info:
@@ -89,7 +89,7 @@ def test_protocol_error_rejects_unknown_reason():
         ProtocolError("nope", "x")
 
 
-@pytest.mark.parametrize("reason", REASONS)
+@pytest.mark.parametrize("reason", DECODE_REASONS)
 def test_batch_decode_agrees_with_single_decode(reason):
     from protocol.batch import decode_delta_batch
 
