@@ -18,6 +18,7 @@ from protocol.keys import id_arg
 from scout_agent.evaluate import register_evaluate
 from scout_agent.mapping import add_mapping_arguments, attach_mapping
 from scout_agent.run import SCENES, ScoutRunConfig, build_world, run_scout
+from scout_agent.sensors import IMU_PRESETS
 from scout_agent.sensors.foot_pressure import CONTACT_SOURCES
 from scout_agent.sim.friction import Patch
 from scout_agent.sim.simulator import STATE_SOURCES, SimConfig
@@ -66,14 +67,16 @@ def add_scout_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--state", choices=STATE_SOURCES, default="estimate",
                    help="base state the robot runs on: its own estimate (default) or the simulator's exact "
                         "state (evaluation only)")
+    p.add_argument("--imu", choices=tuple(IMU_PRESETS), default="bmi088",
+                   help="IMU the sensor model imitates: consumer MEMS (default) or a tactical-grade part")
     p.add_argument("--contact", choices=CONTACT_SOURCES, default="pressure",
                    help="foot contact from the 1-D foot pressure sensors (default) or from joint torques")
     p.add_argument("--scout-id", default="scout1", type=id_arg("scout"), help="scout id ([A-Za-z0-9_-]+)")
 
 
-def _sim_config(state: str, contact: str) -> SimConfig:
+def _sim_config(state: str, contact: str, imu: str = "bmi088") -> SimConfig:
     base = SimConfig()
-    sensors = replace(base.sensors, contact=replace(base.sensors.contact, source=contact))
+    sensors = replace(base.sensors, contact=replace(base.sensors.contact, source=contact), imu=IMU_PRESETS[imu])
     return replace(base, state_source=state, sensors=sensors)
 
 
@@ -105,7 +108,7 @@ def config_from_args(args: argparse.Namespace, parser: argparse.ArgumentParser) 
         goal=tuple(args.goal) if args.goal else None, via=tuple(tuple(v) for v in args.via), speed=args.speed,
         sim_seconds=args.sim_seconds, friction_default=args.friction, slippery_mu=args.slippery,
         slippery_patches=args.slippery_patches, patches=tuple(args.patch), scout_id=args.scout_id,
-        sim=_sim_config(args.state, args.contact))
+        sim=_sim_config(args.state, args.contact, args.imu))
     try:
         build_world(cfg)
     except ValueError as exc:

@@ -15,13 +15,14 @@ the robot's side. Each model is seeded, and its defaults name the real part they
 from __future__ import annotations
 
 from .foot_pressure import ContactConfig, FootContactSensors, leg_forces_from_torques
-from .imu import ImuConfig, ImuModel
+from .imu import IMU_PRESETS, ImuConfig, ImuModel
 from .joints import JointSensorConfig, JointSensors
 from .suite import SensorConfig, SensorSuite, SensorTick
 
 __all__ = [
     "ContactConfig",
     "FootContactSensors",
+    "IMU_PRESETS",
     "ImuConfig",
     "ImuModel",
     "JointSensorConfig",

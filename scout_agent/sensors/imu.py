@@ -10,7 +10,14 @@ class built into quadruped robots' main boards:
   on the bench). Both stay unknown to the state estimator, which estimates them;
 - bias instability (the datasheet gives none for the gyro's bias; ≈ 2 °/h ≈ 1e-5 rad/s is typical of the class)
   is modelled as a random walk of 1e-6 rad/s/√s (gyro: ≈ 1e-5 rad/s after 100 s) and 1e-4 m/s²/√s
-  (accelerometer: ≈ 1 mg after 100 s).
+  (accelerometer: ≈ 0.1 mg after 100 s).
+
+Under lunar gravity the accelerometer's residual bias matters six times more than on Earth: the state estimator
+cannot tell a horizontal bias b from a tilt b/g while the robot walks straight (1 mg → 0.35°), and that tilt
+turns forward travel into height drift (≈ 0.6 % of the distance). `IMU_PRESETS["adis16495"]` is a tactical-grade
+part (Analog Devices ADIS16495 datasheet, rev. B: angle random walk 0.09 °/√h, in-run gyro bias stability
+0.8 °/h, velocity random walk 0.008 m/s/√h, accelerometer bias stability 3.2 µg; residual accelerometer bias
+after calibration taken as 0.1 mg) for comparison: `psrmap scout|evaluate --imu adis16495`.
 Discrete white noise at sample period dt has σ = density / √dt. The model reads the simulator's exact specific
 force and angular velocity at the IMU site (MuJoCo `accelerometer` / `gyro` sensors), base frame.
 """
@@ -32,6 +39,19 @@ class ImuConfig:
     gyro_turn_on_bias: float = np.radians(0.014) / np.sqrt(5.0)  # σ per axis after calibration [rad/s]
     acc_bias_walk: float = 1e-4  # [m/s²/√s]
     gyro_bias_walk: float = 1e-6  # [rad/s/√s]
+
+
+IMU_PRESETS: dict[str, ImuConfig] = {
+    "bmi088": ImuConfig(),
+    "adis16495": ImuConfig(
+        acc_noise_density=0.008 / 60.0,
+        gyro_noise_density=np.radians(0.09 / 60.0),
+        acc_turn_on_bias=1e-4 * _G0,
+        gyro_turn_on_bias=np.radians(0.09 / 60.0) / np.sqrt(5.0),
+        acc_bias_walk=1e-5,
+        gyro_bias_walk=1e-7,
+    ),
+}
 
 
 class ImuModel:

@@ -211,6 +211,12 @@ class ScoutSim:
         self._apply_friction()
         return self._records(out, energy * self.dt)
 
+    def _mid_stance(self, out: ControlOutput) -> np.ndarray:
+        """Legs the gait schedule has in the middle of their stance (`estimator.odometry_stance`)."""
+        lo, hi = self.config.estimator.odometry_stance
+        prog = self.controller.gait.stance_progress(out.phase)
+        return out.stance_planned & (prog >= lo) & (prog <= hi)
+
     def _records(self, out: ControlOutput, energy_true_j: float) -> tuple[ProprioSample, GroundTruth]:
         d, cfg = self.data, self.config
         forces, points, fn, n_nonfoot, trunk_touch = self._contacts()
@@ -225,7 +231,7 @@ class ScoutSim:
             self._state = RobotState(self.t, st.pos, st.R, st.vel, st.omega, tick.q, tick.dq, tick.contact)
             base = BaseState(pos.copy(), quat.copy(), truth_base.vel.copy(), truth_base.omega.copy())
         else:
-            est = self.estimator.update(self.t, tick, self.control_dt)
+            est = self.estimator.update(self.t, tick, self.control_dt, self._mid_stance(out))
             self._state = RobotState(self.t, est.pos, est.R, est.vel, est.omega, tick.q, tick.dq, tick.contact)
             base = BaseState(est.pos, est.quat, est.vel, est.omega)
         q = d.qpos[7:].copy()

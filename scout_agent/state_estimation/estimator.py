@@ -50,6 +50,9 @@ class EstimatorConfig:
     leg_vel_std: float = 0.04  # [m/s] per axis per stance foot
     stance_settle_s: float = 0.1  # a contact counts for odometry after this long [s] (foot still sinking in)
     gate_chi2: float = 16.3  # χ²(3) at p = 0.001
+    # share of the planned stance whose leg odometry is used: the foot sinks into the ground while it loads
+    # and rises while it unloads; using the loaded middle symmetrically keeps that from biasing the height
+    odometry_stance: tuple[float, float] = (0.3, 0.8)
     gravity_mps2: float = C.LUNAR_G
     foot_radius_m: float = C.FOOT_RADIUS
 
@@ -115,13 +118,17 @@ class StateEstimator:
         e = self.ekf
         return StateEstimate(self.t, e.p.copy(), e.R.copy(), matrix_to_quat(e.R), e.v.copy(), omega)
 
-    def update(self, t: float, tick: SensorTick, dt: float) -> StateEstimate:
+    def update(self, t: float, tick: SensorTick, dt: float, mid_stance: np.ndarray | None = None) -> StateEstimate:
+        """One tick. `mid_stance` (4,) bool, optional: the gait schedule puts the leg in the middle of its stance
+        (the robot's own controller knows its schedule); odometry then uses only those feet."""
         c, e = self.config, self.ekf
         self.t = t
         e.propagate(tick.imu_gyro, tick.imu_acc, dt)
         contact = tick.contact
         self._contact_since = np.where(contact, np.minimum(self._contact_since, t), np.inf)
         use = contact & (t - self._contact_since >= c.stance_settle_s)
+        if mid_stance is not None:
+            use &= mid_stance
         if contact.any():
             fb, fv = self.feet.feet_base_and_vel(tick.q, tick.dq)
         if use.any():
