@@ -22,7 +22,7 @@ from protocol.messages import Ack, CellDelta
 
 log = logging.getLogger(__name__)
 
-__all__ = ["DeltaPublisher", "InMemoryTransport", "Transport", "UnackedBufferFull", "new_epoch"]
+__all__ = ["DeltaPublisher", "InMemoryTransport", "Outbox", "Transport", "UnackedBufferFull", "new_epoch"]
 
 
 class Transport(Protocol):
@@ -40,6 +40,17 @@ class InMemoryTransport:
         self.sent.append((key, payload))
         if self.sink is not None:
             self.sink(key, payload)
+
+
+class Outbox(Protocol):
+    """Where a publisher keeps every delta until it is acknowledged, so a crash loses nothing
+    (`scout_agent.outbox.SQLiteOutbox`). `store` must be durable when it returns."""
+
+    def store(self, epoch: int, seq: int, payload: bytes) -> None: ...
+
+    def release(self, epoch: int, upto_seq: int) -> None: ...
+
+    def pending(self) -> dict[int, list[tuple[int, bytes]]]: ...
 
 
 class UnackedBufferFull(RuntimeError):
@@ -75,7 +86,12 @@ class DeltaPublisher:
         max_unacked: int = 512,
         resend_after_s: float = 1.0,
         clock: Callable[[], float] = time.monotonic,
+        outbox: Outbox | None = None,
+        resume: Mapping[int, list[tuple[int, bytes]]] | None = None,
     ) -> None:
+        """outbox: persists each delta before it is sent, forgets it when acked. resume: unacknowledged
+        deltas of earlier epochs (an outbox's `pending()` after a crash), resent under their original epoch
+        and seq until acked; this publisher's own deltas go under a new epoch."""
         if max_unacked < 1:
             raise ValueError(f"max_unacked={max_unacked}; need >= 1")
         if not res > 0:
@@ -95,13 +111,22 @@ class DeltaPublisher:
         self.acks_ignored = 0  # acks for seqs this publisher never sent (forged or foreign): ignored
         self.conflicts: list[int] = []  # seqs the server rejected as merged before with other content
         self._pending: OrderedDict[int, _Pending] = OrderedDict()
+        self.outbox = outbox
+        now = clock()
+        # earlier epochs' unacked deltas: epoch -> seq -> pending (sent_at in the past: resent at once)
+        self._old: dict[int, OrderedDict[int, _Pending]] = {
+            int(e): OrderedDict((int(q), _Pending(p, now - resend_after_s)) for q, p in sorted(rows))
+            for e, rows in (resume or {}).items() if rows
+        }
+        if self.epoch in self._old:
+            raise ValueError(f"epoch {self.epoch} has unacknowledged deltas to resume; a new epoch is needed")
         self._lock = threading.Lock()
         self._resend_cutoff: float | None = None  # resend all sent at or before this clock time
 
     @property
     def unacked(self) -> int:
-        """Number of deltas sent but not yet acknowledged."""
-        return len(self._pending)
+        """Number of deltas sent but not yet acknowledged (resumed ones of earlier epochs included)."""
+        return len(self._pending) + sum(len(p) for p in self._old.values())
 
     @property
     def full(self) -> bool:
@@ -126,6 +151,8 @@ class DeltaPublisher:
                 )
             seq = self.next_seq
             payload = encode(self.build(layers, t, seq))
+            if self.outbox is not None:
+                self.outbox.store(self.epoch, seq, payload)  # durable before it leaves
             self.next_seq += 1
             self._pending[seq] = _Pending(payload, self.clock())
         self.transport.put(self.key, payload)
@@ -138,8 +165,10 @@ class DeltaPublisher:
         ignored and counted, so a forged ack cannot make the scout drop unacknowledged deltas. Seqs the
         server names as conflicts were not merged (other content holds that seq): logged and kept in
         `conflicts`."""
-        if ack.scout != self.scout_id or ack.map != self.map_id or ack.epoch != self.epoch:
+        if ack.scout != self.scout_id or ack.map != self.map_id:
             return 0
+        if ack.epoch != self.epoch:
+            return self._on_old_ack(ack)
         if ack.seq >= self.next_seq or any(c >= self.next_seq for c in ack.conflicts):
             self.acks_ignored += 1
             log.warning("ignored an ack for seq %d of epoch %d: only seqs < %d were sent", ack.seq, ack.epoch,
@@ -158,19 +187,44 @@ class DeltaPublisher:
                     break
                 del self._pending[seq]
                 released += 1
+        if released and self.outbox is not None:
+            self.outbox.release(self.epoch, ack.seq)
         return released
+
+    def _on_old_ack(self, ack: Ack) -> int:
+        """An ack for a resumed earlier epoch."""
+        with self._lock:
+            old = self._old.get(ack.epoch)
+            if not old:
+                return 0
+            if ack.seq > max(old) or any(c > max(old) for c in ack.conflicts):
+                self.acks_ignored += 1
+                return 0
+            if ack.conflicts:
+                self.conflicts.extend(ack.conflicts)
+                log.error("server rejected resumed seqs %s of epoch %d as seq_conflict", list(ack.conflicts),
+                          ack.epoch)
+            gone = [q for q in old if q <= ack.seq]
+            for q in gone:
+                del old[q]
+            if not old:
+                del self._old[ack.epoch]
+        if gone and self.outbox is not None:
+            self.outbox.release(ack.epoch, ack.seq)
+        return len(gone)
 
     def _due(self, now: float, force: bool, cutoff: float | None = None) -> list[tuple[int, bytes]]:
         with self._lock:
             due = []
-            for seq, p in self._pending.items():
-                if (
-                    force
-                    or now - p.sent_at >= self.resend_after_s
-                    or (cutoff is not None and p.sent_at <= cutoff)
-                ):
-                    p.sent_at = now
-                    due.append((seq, p.payload))
+            for pending in (*self._old.values(), self._pending):  # resumed epochs first, in seq order
+                for seq, p in pending.items():
+                    if (
+                        force
+                        or now - p.sent_at >= self.resend_after_s
+                        or (cutoff is not None and p.sent_at <= cutoff)
+                    ):
+                        p.sent_at = now
+                        due.append((seq, p.payload))
             return due
 
     def request_resend(self) -> None:

@@ -266,6 +266,7 @@ def scout_argv(cfg: MissionConfig, s: ScoutPlan, endpoint: str, run_dir: Path) -
         "--sim-seconds", str(cfg.sim_seconds),
         "--delta-hz", str(cfg.rate_hz),
         "--save-map", str(run_dir / f"{s.id}_local.npz"),
+        "--outbox", str(run_dir / f"{s.id}_outbox.db"),
         "--json",
     ]  # fmt: skip
     if cfg.scene == "lunar":

@@ -138,6 +138,11 @@ def add_mapping_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--delta-hz", type=float, default=5.0, help="cell deltas per second (default 5)")
     g.add_argument("--save-map", metavar="PATH.npz", help="save the scout's local map (map_region layout)")
     g.add_argument("--no-map", action="store_true", help="walk without estimators or map")
+    g.add_argument("--outbox", metavar="PATH.db",
+                   help="SQLite outbox keeping each delta until acked (default "
+                        "$XDG_STATE_HOME/psrmap/outbox-<map>-<scout>.db; 'none': memory only)")
+    g.add_argument("--resume", action="store_true",
+                   help="first resend the deltas an earlier run of this scout left unacknowledged in the outbox")
 
 
 class MappingSession:
@@ -213,11 +218,15 @@ def attach_mapping(
         err(f"--delta-hz {args.delta_hz}: need > 0")
     publisher = None
     if args.connect:
+        from scout_agent.outbox import default_outbox_path
         from scout_agent.publisher import ScoutPublisher
 
+        box = getattr(args, "outbox", None)
+        outbox = None if box == "none" else (box or default_outbox_path(args.map, run_config.scout_id))
         try:
-            publisher = ScoutPublisher(args.map, run_config.scout_id, args.res, args.connect)
-        except ConnectionError as exc:
+            publisher = ScoutPublisher(args.map, run_config.scout_id, args.res, args.connect, outbox=outbox,
+                                       resume=getattr(args, "resume", False))
+        except (ConnectionError, ValueError) as exc:
             err(str(exc))
     mapper = Mapper(MapperConfig(res=args.res, delta_hz=args.delta_hz), publisher=publisher)
     return MappingSession(mapper, publisher, args.save_map, on_tick, on_estimates)

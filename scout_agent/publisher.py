@@ -10,12 +10,14 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Mapping, Sequence
+from pathlib import Path
 
 import numpy as np
 
 from protocol.publisher import DeltaPublisher, UnackedBufferFull
 from protocol.session import zenoh_config
 from protocol.zenoh_transport import ScoutLink, ZenohTransport
+from scout_agent.outbox import SQLiteOutbox
 
 __all__ = ["ScoutPublisher"]
 
@@ -35,11 +37,29 @@ class ScoutPublisher:
         mode: str = "client",
         max_unacked: int = 4096,
         resend_after_s: float = 1.0,
+        outbox: str | Path | None = None,
+        resume: bool = False,
     ) -> None:
+        """outbox: SQLite file where each delta is kept until acknowledged (None: memory only). resume: resend
+        what the outbox holds from an earlier run under its original epoch first; without it, an outbox that
+        still holds deltas is refused (they would be silently abandoned)."""
         import zenoh
 
         if not connect:
             raise ValueError("no endpoint to connect to; give one like tcp/127.0.0.1:7447")
+        box = SQLiteOutbox(outbox) if outbox is not None else None
+        if resume and box is None:
+            raise ValueError("--resume needs an outbox (--outbox PATH) to resume from")
+        old = box.pending() if box is not None else {}
+        if old and not resume:
+            n = sum(len(v) for v in old.values())
+            box.close()  # type: ignore[union-attr]
+            raise ValueError(
+                f"outbox {outbox} holds {n} unacknowledged deltas of epoch(s) {', '.join(map(str, old))} from an "
+                "earlier run; give --resume to send them, or move the file away to discard them"
+            )
+        self.outbox = box
+        self.resumed = sum(len(v) for v in old.values())
         try:
             self._session = zenoh.open(zenoh_config(connect=list(connect), mode=mode))
         except zenoh.ZError as exc:
@@ -49,8 +69,12 @@ class ScoutPublisher:
             ) from None
         self.transport = ZenohTransport(self._session)
         self.publisher = DeltaPublisher(
-            self.transport, map_id, scout_id, res, max_unacked=max_unacked, resend_after_s=resend_after_s
+            self.transport, map_id, scout_id, res, max_unacked=max_unacked, resend_after_s=resend_after_s,
+            outbox=box, resume=old,
         )
+        if old:
+            log.info("resuming %d unacknowledged deltas of epoch(s) %s", self.resumed, list(old))
+            self.publisher.resend_all()
         self.link = ScoutLink(self._session, self.publisher)
         self.deferred = 0  # sends refused because the unacknowledged buffer was full
 
@@ -88,10 +112,16 @@ class ScoutPublisher:
             "resent": p.resent,
             "acks": self.link.acks,
             "deferred": self.deferred,
+            "resumed": self.resumed,
+            "acks_ignored": p.acks_ignored,
+            "seq_conflicts": len(p.conflicts),
         }
 
     def close(self) -> None:
-        for closer in (self.link.close, self.transport.close, self._session.close):
+        closers = [self.link.close, self.transport.close, self._session.close]
+        if self.outbox is not None:
+            closers.append(self.outbox.close)
+        for closer in closers:
             try:
                 closer()
             except Exception as exc:  # closing must not hide the run's result

@@ -13,6 +13,12 @@ from map_server.service import MapService, ServerConfig, free_endpoint, wait_for
 from protocol.session import zenoh_config
 
 
+@pytest.fixture(autouse=True)
+def _private_state_dir(tmp_path_factory: pytest.TempPathFactory, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Scouts keep their outbox under $XDG_STATE_HOME: every test (and its subprocesses) gets its own."""
+    monkeypatch.setenv("XDG_STATE_HOME", str(tmp_path_factory.mktemp("state")))
+
+
 @pytest.fixture(scope="module")
 def router() -> Iterator[str]:
     """The endpoint of an embedded Zenoh router on a free loopback port (one per test module)."""
