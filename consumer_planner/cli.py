@@ -16,6 +16,7 @@ import argparse
 import json
 import math
 from dataclasses import asdict, replace
+from pathlib import Path
 
 from consumer_planner.compare import Route, evaluate_route, plan_route
 from consumer_planner.costs import TERMS, UNKNOWN_POLICIES, CostConfig, build_costs, parse_weights
@@ -71,6 +72,11 @@ def _common(p: argparse.ArgumentParser) -> None:
         "--npz", metavar="FILE", help="a saved map (.npz, map_region layout) instead of a server"
     )
     src.add_argument("--timeout", type=float, default=5.0, help="seconds to wait for map servers (default 5)")
+    src.add_argument("--zenoh-config", metavar="FILE",
+                     help="Zenoh config with this planner's credentials (`psrmap secure init`)")
+    src.add_argument("--trust-servers", metavar="FILE",
+                     help="servers.json from `psrmap secure init`: accept map replies only from those server ids "
+                          "(default: the servers.json beside --zenoh-config, if there is one)")
     src.add_argument(
         "--margin", type=float, default=10.0, help="metres of map fetched around the points (default 10)"
     )
@@ -158,7 +164,17 @@ def _load(args: argparse.Namespace, points: list[Point]) -> LayerGrid:
     xs, ys = [p[0] for p in points], [p[1] for p in points]
     m = args.margin
     box = (min(xs) - m, min(ys) - m, max(xs) + m, max(ys) + m)
-    with MapClient(ClientConfig(connect=tuple(args.connect), timeout_s=args.timeout)) as client:
+    from consumer_planner.client import trusted_servers
+
+    trust = args.trust_servers or (
+        str(Path(args.zenoh_config).with_name("servers.json")) if args.zenoh_config else None)
+    try:
+        ids = trusted_servers(trust, required=bool(args.trust_servers))
+    except ValueError as exc:
+        args._parser.error(str(exc))
+    cfg = ClientConfig(connect=tuple(args.connect), timeout_s=args.timeout, zenoh_config=args.zenoh_config,
+                       trusted_servers=ids)
+    with MapClient(cfg) as client:
         return client.region(args.map, box)
 
 

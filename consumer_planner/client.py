@@ -8,6 +8,7 @@ with `protocol.codec.decode` (validated) and stitched into one `LayerGrid` (`gri
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -21,7 +22,9 @@ from protocol.keys import map_key
 from protocol.messages import MapRegion, RegionQuery
 from protocol.session import zenoh_config
 
-__all__ = ["ClientConfig", "MapClient", "query_region"]
+__all__ = ["ClientConfig", "MapClient", "query_region", "trusted_servers"]
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -32,7 +35,24 @@ class ClientConfig:
     max_bytes: int = 256 * 1024 * 1024  # largest map_region reply accepted
     x0: float = 0.0  # map origin [m]
     y0: float = 0.0
+    zenoh_config: str | None = None  # Zenoh config file with the planner's credentials
+    trusted_servers: tuple[str, ...] = ()  # Zenoh ids of the map servers to believe (empty: any)
 
+
+def trusted_servers(path: str | None, required: bool = False) -> tuple[str, ...]:
+    """Server Zenoh ids from a `servers.json` written by `psrmap secure init` ({name: zid}); () without one."""
+    import json
+    from pathlib import Path
+
+    if path is None or not Path(path).is_file():
+        if required:
+            raise ValueError(f"--trust-servers {path}: no such file (psrmap secure init writes servers.json)")
+        return ()
+    try:
+        ids = json.loads(Path(path).read_text())
+        return tuple(str(v) for v in ids.values())
+    except (ValueError, AttributeError) as exc:
+        raise ValueError(f"{path}: not a servers.json ({{name: zenoh id}}): {exc}") from None
 
 def query_region(
     session: zenoh.Session,
@@ -55,7 +75,15 @@ def query_region(
         consolidation=zenoh.ConsolidationMode.NONE,
         timeout=config.timeout_s,
     )
+    trusted = set(config.trusted_servers)
     for reply in replies:
+        if trusted:
+            rid = reply.replier_id
+            zid = str(rid.zid) if rid is not None else None
+            if zid not in trusted:
+                errors.append(f"ignored a reply from {zid}, not a trusted map server")
+                log.warning("ignored a map reply from %s: not one of the trusted servers %s", zid, sorted(trusted))
+                continue
         if reply.ok is not None:
             try:
                 msg = decode(
@@ -91,8 +119,10 @@ class MapClient:
 
     def __enter__(self) -> MapClient:
         try:
-            self._session = zenoh.open(zenoh_config(connect=self.config.connect, mode=self.config.mode))
-        except zenoh.ZError as exc:
+            c = self.config
+            self._session = zenoh.open(
+                zenoh_config(c.connect, (), None if c.zenoh_config else c.mode, c.zenoh_config))
+        except (zenoh.ZError, ValueError) as exc:
             raise PlannerError(
                 f"cannot open a Zenoh session to {', '.join(self.config.connect)}: {exc}"
             ) from None

@@ -34,6 +34,27 @@ def _stop_on_signals() -> threading.Event:
     return stop
 
 
+def add_security_arguments(p: argparse.ArgumentParser, listens: bool = False) -> None:
+    """`--zenoh-config FILE` (credentials, TLS: `psrmap secure init`) and, for what listens, `--insecure`."""
+    p.add_argument("--zenoh-config", metavar="FILE", help="Zenoh config with this agent's credentials "
+                   "(`psrmap secure init` writes one per agent)")
+    if listens:
+        p.add_argument("--insecure", action="store_true",
+                       help="allow listening on a non-loopback endpoint without credentials")
+
+
+def _conf(args: argparse.Namespace, connect: Sequence[str] = (), listen: Sequence[str] = (),
+          mode: str = "client") -> Any:
+    """The Zenoh config of a command, or a usage error naming what would have been valid."""
+    from protocol.session import zenoh_config
+
+    file = getattr(args, "zenoh_config", None)
+    try:
+        return zenoh_config(connect, listen, None if file else mode, file, getattr(args, "insecure", False))
+    except ValueError as exc:
+        args.parser.error(str(exc))
+
+
 def _endpoints(values: Sequence[str] | None) -> tuple[str, ...]:
     out: list[str] = []
     for v in values or ():
@@ -66,13 +87,10 @@ def _open(conf: Any, args: argparse.Namespace) -> Any:
 
 
 def cmd_router(args: argparse.Namespace) -> int:
-
-    from protocol.session import zenoh_config
-
     _logging(args)
     listen = _endpoints(args.listen)
     stop = _stop_on_signals()
-    with _open(zenoh_config(connect=_endpoints(args.connect), listen=listen, mode="router"), args):
+    with _open(_conf(args, _endpoints(args.connect), listen, "router"), args):
         print(json.dumps({"router": "up", "listen": list(listen)}), flush=True)
         stop.wait()
     return 0
@@ -106,12 +124,17 @@ def cmd_server(args: argparse.Namespace) -> int:
         listen=_endpoints(args.listen),
         mode="router" if args.listen else "peer",
         rrd=args.rrd,
+        zenoh_config=args.zenoh_config,
+        insecure=args.insecure,
         limits=Limits(**{f.name: getattr(args, f"limit_{f.name}") for f in dataclasses.fields(Limits)}),
     )
     stop = _stop_on_signals()
+    import zenoh
+
     try:
         service = MapService(cfg)
-    except ValueError as exc:
+        service.start()
+    except (ValueError, zenoh.ZError) as exc:
         args.parser.error(str(exc))
     with service:
         print(
@@ -132,10 +155,7 @@ def cmd_server(args: argparse.Namespace) -> int:
 
 
 def _get_one(args: argparse.Namespace, selector: str) -> bytes:
-
-    from protocol.session import zenoh_config
-
-    with _open(zenoh_config(connect=_endpoints(args.connect), mode="client"), args) as s:
+    with _open(_conf(args, _endpoints(args.connect)), args) as s:
         for reply in s.get(selector, timeout=args.timeout):
             if reply.ok is not None:
                 return reply.ok.payload.to_bytes()
@@ -209,6 +229,7 @@ def register(subparsers: Any) -> None:
     p = subparsers.add_parser("router", help="run an embedded Zenoh router")
     p.add_argument("--listen", action="append", default=None, help="endpoint, e.g. tcp/127.0.0.1:7447")
     p.add_argument("--connect", action="append", default=None, help="other routers to mesh with")
+    add_security_arguments(p, listens=True)
     p.set_defaults(func=cmd_router, parser=p)
 
     p = subparsers.add_parser("server", help="run the map server of one map")
@@ -221,6 +242,7 @@ def register(subparsers: Any) -> None:
     )
     p.add_argument("--listen", action="append", default=None, help="also run as a router listening here")
     p.add_argument("--rrd", default=None, help="log merged layers to this Rerun .rrd file")
+    add_security_arguments(p, listens=True)
     g = p.add_argument_group("limits (a message or query over one is rejected, naming it)")
     for f in dataclasses.fields(Limits):
         g.add_argument(f"--limit-{f.name.replace('_', '-')}", dest=f"limit_{f.name}", type=_positive_int,
@@ -236,6 +258,7 @@ def register(subparsers: Any) -> None:
         p.add_argument("--map", required=True, type=id_arg("map"), help="map id ([A-Za-z0-9_-]+)")
         p.add_argument("--connect", action="append", required=True, help="router endpoint")
         p.add_argument("--timeout", type=float, default=5.0, help="reply timeout [s]")
+        add_security_arguments(p)
         if name == "query":
             p.add_argument("--box", required=True, help="x0,y0,x1,y1 [m], inclusive")
             p.add_argument("--layers", default=None, help="comma-separated layers (default: all)")

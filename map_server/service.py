@@ -66,6 +66,8 @@ class ServerConfig:
     batch_max: int = 128  # deltas merged and committed together at most (bounds the lock hold)
     snapshot_every: int = 20_000  # deltas logged before tiles are snapshotted and the log truncated
     limits: Limits = field(default_factory=Limits)  # resource limits (map_server/limits.py)
+    zenoh_config: str | None = None  # Zenoh config file with the server's credentials (psrmap secure init)
+    insecure: bool = False  # allow listening on a non-loopback endpoint without credentials
     rrd: str | None = None  # Rerun recording path; None: no visualisation
     # Zenoh shared memory: off, because the server would map a 16 MiB pool of every publisher that
     # ever sent a payload above 3 KiB (a delta is ~5 KiB) and keep it resident; over loopback TCP a
@@ -108,8 +110,11 @@ class MapService:
     # ------------------------------------------------------------------ lifecycle
 
     def start(self) -> MapService:
+        """Open the session, declare the subscriber and queryables, start the workers (once)."""
+        if self._session is not None:
+            return self
         c = self.config
-        conf = zenoh_config(c.connect, c.listen, c.mode)
+        conf = zenoh_config(c.connect, c.listen, None if c.zenoh_config else c.mode, c.zenoh_config, c.insecure)
         if not c.shared_memory:
             conf.insert_json5("transport/shared_memory/enabled", "false")
         # Zenoh itself drops a message far over the delta limit before buffering it (a margin for framing)

@@ -19,6 +19,7 @@ _COMMAND_MODULES = (
     "scout_agent.cli",  # scout, evaluate
     "consumer_planner.cli",  # plan, compare
     "psrmap.mission",  # mission
+    "psrmap.secure",  # secure init
     "psrmap.experiments",  # experiment
 )
 

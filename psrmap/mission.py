@@ -78,6 +78,7 @@ class MissionConfig:
     unknown: str = "penalty"
     weights: dict[str, float] = field(default_factory=dict)
     rrd: bool = True  # write Rerun recordings
+    secure: bool = True  # per-run credentials + router ACL (psrmap secure init) for every component
     timeout_s: float = 900.0  # the whole mission gives up after this long [s wall clock]
 
 
@@ -107,7 +108,7 @@ def _scout(d: dict[str, Any], i: int) -> ScoutPlan:
     return ScoutPlan(sid, (start[0], start[1], start[2]), goal, via)
 
 
-_MISSION_KEYS = ("map", "res", "sim_seconds", "speed", "rate_hz", "out")
+_MISSION_KEYS = ("map", "res", "sim_seconds", "speed", "rate_hz", "out", "secure")
 _TERRAIN_KEYS = ("scene", "seed", "slope", "slippery_patches")
 _PLANNER_KEYS = ("from", "to", "unknown", "weights")
 _SCOUT_KEYS = ("id", "start", "goal", "via")
@@ -155,6 +156,7 @@ def load_config(path: str | Path | None = None) -> MissionConfig:
         speed=float(m.get("speed", base.speed)),
         rate_hz=float(m.get("rate_hz", base.rate_hz)),
         out=str(m.get("out", base.out)),
+        secure=bool(m.get("secure", base.secure)),
         scene=str(t.get("scene", base.scene)),
         seed=int(t.get("seed", base.seed)),
         slope=float(t.get("slope", base.slope)),
@@ -376,8 +378,18 @@ def run_mission(cfg: MissionConfig, run_dir: Path | None = None, progress: bool 
     say = print if progress else (lambda *a, **k: None)
     procs: list[_Proc] = []
     server: _Proc | None = None
-    with zenoh.open(zenoh_config(listen=[endpoint], mode="router")) as session:
-        say(f"[mission] router listening on {endpoint}; run folder {run_dir}")
+    creds: dict[str, list[str]] = {}  # component -> its --zenoh-config argv
+    router_file = None
+    if cfg.secure:
+        from psrmap.secure import secure_init
+
+        lay = secure_init(run_dir / "secure", cfg.map, [s.id for s in cfg.scouts], ["planner"], ["server"],
+                          endpoint)
+        creds = {name: ["--zenoh-config", str(path)] for name, path in lay.agents.items()}
+        router_file = lay.router
+    with zenoh.open(zenoh_config(listen=[endpoint], mode="router", config_file=router_file)) as session:
+        say(f"[mission] router listening on {endpoint}"
+            + (" (credentials + ACL: secure/)" if cfg.secure else " (no credentials)") + f"; run folder {run_dir}")
         try:
             server_argv = [
                 "server",
@@ -390,6 +402,7 @@ def run_mission(cfg: MissionConfig, run_dir: Path | None = None, progress: bool 
                 "--connect",
                 endpoint,
             ]
+            server_argv += creds.get("server", [])
             if cfg.rrd:
                 server_argv += ["--rrd", str(run_dir / "recordings" / "server.rrd")]
             server = _spawn(ctx, "server", server_argv, run_dir, env, json_out=False)
@@ -398,7 +411,8 @@ def run_mission(cfg: MissionConfig, run_dir: Path | None = None, progress: bool 
             _log_context(cfg, run_dir, recording_id)
             for s in cfg.scouts:
                 procs.append(
-                    _spawn(ctx, s.id, scout_argv(cfg, s, endpoint, run_dir), run_dir, env, json_out=True)
+                    _spawn(ctx, s.id, scout_argv(cfg, s, endpoint, run_dir) + creds.get(s.id, []), run_dir, env,
+                           json_out=True)
                 )
             say(
                 f"[mission] {len(procs)} scouts walking (≤ {cfg.sim_seconds:g} s each): "
@@ -445,7 +459,8 @@ def run_mission(cfg: MissionConfig, run_dir: Path | None = None, progress: bool 
             say(
                 f"[mission] scouts done; server merged {summary['status']['merged']} deltas into {summary['status']['cells']} cells"
             )
-            summary["plan"], summary["comparison"] = _plan_and_compare(ctx, cfg, endpoint, run_dir, env)
+            summary["plan"], summary["comparison"] = _plan_and_compare(
+                ctx, cfg, endpoint, run_dir, env, creds.get("planner", []))
             summary["map_png"] = _plot(session, cfg, run_dir, summary)
         finally:
             for p in procs:
@@ -494,9 +509,9 @@ def _status_json(st: Any) -> dict[str, Any]:
 
 
 def _plan_and_compare(
-    ctx: Any, cfg: MissionConfig, endpoint: str, run_dir: Path, env: dict[str, str]
+    ctx: Any, cfg: MissionConfig, endpoint: str, run_dir: Path, env: dict[str, str], creds: list[str]
 ) -> tuple[Any, Any]:
-    common = ["--map", cfg.map, "--connect", endpoint, "--json"]
+    common = ["--map", cfg.map, "--connect", endpoint, "--json", *creds]
     weights = ",".join(f"{k}={v:g}" for k, v in cfg.weights.items())
     plan_argv = [
         "plan",
@@ -664,6 +679,8 @@ def register(sub: Any) -> None:
     p.add_argument("--out", help="parent folder of the run folder (default runs/)")
     p.add_argument("--run-dir", help="exact run folder (default <out>/<timestamp>)")
     p.add_argument("--no-rrd", action="store_true", help="do not write Rerun recordings")
+    p.add_argument("--no-secure", action="store_true",
+                   help="no per-run credentials and router ACL (every component talks to an open loopback router)")
     p.add_argument("--quiet", action="store_true", help="no progress output, only the final JSON path")
     p.set_defaults(func=_cmd_mission, parser=p)
 
@@ -682,6 +699,8 @@ def _cmd_mission(args: argparse.Namespace) -> int:
             changes["out"] = args.out
         if args.no_rrd:
             changes["rrd"] = False
+        if args.no_secure:
+            changes["secure"] = False
         cfg = dataclasses.replace(cfg, **changes)
         validate(cfg)
     except MissionError as exc:

@@ -141,6 +141,8 @@ def add_mapping_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--outbox", metavar="PATH.db",
                    help="SQLite outbox keeping each delta until acked (default "
                         "$XDG_STATE_HOME/psrmap/outbox-<map>-<scout>.db; 'none': memory only)")
+    g.add_argument("--zenoh-config", metavar="FILE",
+                   help="Zenoh config with this scout's credentials (`psrmap secure init`)")
     g.add_argument("--resume", action="store_true",
                    help="first resend the deltas an earlier run of this scout left unacknowledged in the outbox")
 
@@ -225,7 +227,8 @@ def attach_mapping(
         outbox = None if box == "none" else (box or default_outbox_path(args.map, run_config.scout_id))
         try:
             publisher = ScoutPublisher(args.map, run_config.scout_id, args.res, args.connect, outbox=outbox,
-                                       resume=getattr(args, "resume", False))
+                                       resume=getattr(args, "resume", False),
+                                       zenoh_config_file=getattr(args, "zenoh_config", None))
         except (ConnectionError, ValueError) as exc:
             err(str(exc))
     mapper = Mapper(MapperConfig(res=args.res, delta_hz=args.delta_hz), publisher=publisher)

@@ -39,6 +39,7 @@ class ScoutPublisher:
         resend_after_s: float = 1.0,
         outbox: str | Path | None = None,
         resume: bool = False,
+        zenoh_config_file: str | None = None,
     ) -> None:
         """outbox: SQLite file where each delta is kept until acknowledged (None: memory only). resume: resend
         what the outbox holds from an earlier run under its original epoch first; without it, an outbox that
@@ -61,7 +62,8 @@ class ScoutPublisher:
         self.outbox = box
         self.resumed = sum(len(v) for v in old.values())
         try:
-            self._session = zenoh.open(zenoh_config(connect=list(connect), mode=mode))
+            conf = zenoh_config(list(connect), (), None if zenoh_config_file else mode, zenoh_config_file)
+            self._session = zenoh.open(conf)
         except zenoh.ZError as exc:
             raise ConnectionError(
                 f"cannot reach the map service's router at {', '.join(connect)} ({exc}); "

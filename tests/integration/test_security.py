@@ -1,0 +1,137 @@
+"""Issue 12: only known agents write, ack and answer — with Zenoh's own credentials and a router ACL written by
+`psrmap secure init`; a planner believes only the map servers it was told about."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import threading
+
+import numpy as np
+import pytest
+import zenoh
+
+from consumer_planner.client import ClientConfig, query_region, trusted_servers
+from consumer_planner.errors import PlannerError
+from map_server.service import MapService, ServerConfig, free_endpoint, wait_for_server
+from protocol import encode
+from protocol.keys import ack_key, delta_key, map_key
+from protocol.messages import Ack, RegionQuery
+from protocol.session import zenoh_config
+from protocol.testing import MAP, RES, make_delta
+from psrmap.secure import secure_init
+from scout_agent.publisher import ScoutPublisher
+
+
+@pytest.fixture
+def secured(tmp_path):
+    """A router with credentials + ACL, and a map server logged in as `server`."""
+    ep = free_endpoint()
+    lay = secure_init(tmp_path / "sec", MAP, ["s1", "s2"], ["p1"], endpoint=ep)
+    with zenoh.open(zenoh_config(config_file=lay.router)):
+        cfg = ServerConfig(map_id=MAP, res=RES, db=str(tmp_path / "m.db"), connect=(ep,),
+                           zenoh_config=str(lay.agents["server"]))
+        with MapService(cfg) as service:
+            yield ep, lay, service
+
+
+def _open(lay, who: str):
+    return zenoh.open(zenoh_config(config_file=lay.agents[who]))
+
+
+def _wait(pred, timeout_s: float = 10.0) -> bool:
+    ev = threading.Event()
+    for _ in range(int(timeout_s / 0.05)):
+        if pred():
+            return True
+        ev.wait(0.05)
+    return pred()
+
+
+def test_anonymous_and_wrong_password_are_refused(secured):
+    ep, lay, _ = secured
+    with pytest.raises(zenoh.ZError):
+        zenoh.open(zenoh_config(connect=[ep], mode="client"))
+    conf = zenoh_config(config_file=lay.agents["s1"])
+    conf.insert_json5("transport/auth/usrpwd/password", json.dumps("not-the-password"))
+    with pytest.raises(zenoh.ZError):
+        zenoh.open(conf)
+
+
+def test_a_scout_writes_only_its_own_key_and_cannot_ack_for_another(secured):
+    ep, lay, service = secured
+    with _open(lay, "s2") as s2, _open(lay, "p1") as p1, \
+            ScoutPublisher(MAP, "s1", RES, [ep], outbox=None, zenoh_config_file=str(lay.agents["s1"])) as pub:
+        assert pub.link.server_up.wait(10)
+        acks_seen_by_s2: list[bytes] = []
+        s2.declare_subscriber(ack_key(MAP, "s2"), lambda s: acks_seen_by_s2.append(s.payload.to_bytes()))
+        d = make_delta(seq=0, scout="s1", layers=("slip",))
+        pub.send(d.layers, d.t)
+        assert pub.wait_acked(10)  # its own key: merged and acked
+        forged = encode(make_delta(seq=0, scout="s2", layers=("slip",)))
+        # s1 publishing as s2 (on s2's key), the planner publishing a delta, s1 forging an ack for s2
+        pub._session.put(delta_key(MAP, "s2"), forged)
+        p1.put(delta_key(MAP, "s2"), forged)
+        pub._session.put(ack_key(MAP, "s2"), encode(Ack(MAP, "s2", 7, 10**12)))
+        d = make_delta(seq=1, scout="s1", layers=("slip",), cells=((9, 9),))
+        pub.send(d.layers, d.t)  # a marker: once it is merged, the blocked puts had their chance
+        assert pub.wait_acked(10)
+        st = service.status()
+        assert st.merged == 2 and set(st.scouts) <= {"s1", "s2"} and "s2" not in service.merger.book.latest()
+        assert acks_seen_by_s2 == []
+
+
+def test_the_planner_queries_and_a_rogue_queryable_is_not_heard(secured):
+    ep, lay, service = secured
+    with ScoutPublisher(MAP, "s1", RES, [ep], outbox=None, zenoh_config_file=str(lay.agents["s1"])) as pub:
+        assert pub.link.server_up.wait(10)
+        d = make_delta(seq=0, scout="s1", layers=("slip",), cells=((0, 0),))
+        pub.send(d.layers, d.t)
+        assert pub.wait_acked(10)
+    fake = service.region(RegionQuery(0, 0, 0.3, 0.3, ("slip",), ("all",)))
+    fake.layers["slip"]["n"][:] = 1e9  # the largest count used to win the planner's stitching
+    with _open(lay, "s2") as rogue, _open(lay, "p1") as p1:
+        def lie(query):
+            with query:
+                query.reply(map_key(MAP), encode(fake))
+
+        rogue.declare_queryable(map_key(MAP), lie)
+        grid = query_region(p1, MAP, (0, 0, 0.3, 0.3), ClientConfig(connect=(ep,)), layers=("slip",))
+        assert float(np.nansum(grid.layers["slip"]["n"])) == float(d.layers["slip"]["n"].sum())
+
+
+def test_a_planner_believes_only_its_trusted_servers(tmp_path):
+    """Without the router's ACL (say, a misconfigured router), the planner still ignores other repliers."""
+    ep = free_endpoint()
+    with zenoh.open(zenoh_config(listen=[ep], mode="router")):
+        cfg = ServerConfig(map_id=MAP, res=RES, connect=(ep,))
+        with MapService(cfg) as service, zenoh.open(zenoh_config(connect=[ep], mode="client")) as rogue, \
+                zenoh.open(zenoh_config(connect=[ep], mode="client")) as client:
+            assert wait_for_server(client, MAP)
+            region = service.region(RegionQuery(0, 0, 0.3, 0.3, ("slip",), ("all",)))
+            region.layers["slip"]["n"][:] = 1e9  # "the largest count wins" made this win the stitching
+            rogue.declare_queryable(map_key(MAP), lambda q: q.reply(map_key(MAP), encode(region)))
+            server_zid = str(service._session.info.zid())
+            grid = query_region(client, MAP, (0, 0, 0.3, 0.3), ClientConfig(trusted_servers=(server_zid,)),
+                                layers=("slip",))
+            assert float(np.nanmax(grid.layers["slip"]["n"])) < 1e9
+            with pytest.raises(PlannerError, match="not a trusted map server"):
+                query_region(client, MAP, (0, 0, 0.3, 0.3), ClientConfig(trusted_servers=("0" * 32,)),
+                             layers=("slip",))
+
+
+def test_secure_init_pins_server_ids_for_planners(tmp_path):
+    lay = secure_init(tmp_path / "s", MAP, ["s1"], ["p1"])
+    ids = trusted_servers(str(lay.servers))
+    assert len(ids) == 1 and json.loads(lay.agents["server"].read_text())["id"] == ids[0]
+    assert (lay.credentials.stat().st_mode & 0o077) == 0  # owner-only
+    with pytest.raises(ValueError, match="distinct"):
+        secure_init(tmp_path / "t", MAP, ["s1"], ["s1"])
+
+
+def test_listening_beyond_loopback_needs_credentials_or_insecure():
+    port = free_endpoint().rsplit(":", 1)[1]
+    res = subprocess.run([sys.executable, "-m", "psrmap", "router", "--listen", f"tcp/0.0.0.0:{port}"],
+                         check=False, capture_output=True, text=True, timeout=60)
+    assert res.returncode == 2 and "without credentials" in res.stderr and "--insecure" in res.stderr
