@@ -42,13 +42,10 @@ def leg_forces_from_torques(jacobians: np.ndarray, tau: np.ndarray, tau_gravity:
     """Ground forces on the feet (4, 3), base frame [N], from leg Jacobians (4, 3, 3) (d foot / d leg joints,
     base frame), joint torques (12,) and the joints' gravity torques (12,): f = −J⁻ᵀ (τ − τ_g).
     Near-singular legs (a straight knee) give zeros rather than huge forces."""
-    out = np.zeros((4, 3))
-    t = (tau - tau_gravity).reshape(4, 3)
-    for i in range(4):
-        J = jacobians[i]
-        if abs(np.linalg.det(J)) > 1e-5:
-            out[i] = -np.linalg.solve(J.T, t[i])
-    return out
+    t = (tau - tau_gravity).reshape(4, 3, 1)
+    ok = np.abs(np.linalg.det(jacobians)) > 1e-5
+    Jt = np.where(ok[:, None, None], np.swapaxes(jacobians, 1, 2), np.eye(3))
+    return np.where(ok[:, None], -np.linalg.solve(Jt, t)[..., 0], 0.0)
 
 
 class FootContactSensors:

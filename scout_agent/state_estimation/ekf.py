@@ -26,6 +26,15 @@ from dataclasses import dataclass
 import numpy as np
 
 
+def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a × b for (..., 3) arrays, without np.cross's axis bookkeeping (≈ 10× faster at this size)."""
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    out[..., 0] = a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1]
+    out[..., 1] = a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2]
+    out[..., 2] = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+    return out
+
+
 def skew(w: np.ndarray) -> np.ndarray:
     return np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
 
@@ -71,6 +80,10 @@ class ErrorStateEKF:
         self.P = np.diag(sd**2)
         self._F = np.eye(15)
         self._I15 = np.eye(15)
+        self._I3 = np.eye(3)
+        self._q = np.r_[[n.gyro**2] * 3, [n.acc**2] * 3, [n.position**2] * 3, [n.gyro_bias_walk**2] * 3,
+                        [n.acc_bias_walk**2] * 3]  # process noise densities², per unit time
+        self._diag = np.diag_indices(15)
 
     def propagate(self, gyro: np.ndarray, acc: np.ndarray, dt: float) -> np.ndarray:
         """One IMU step; returns the bias-corrected angular velocity ω (base frame) [rad/s]."""
@@ -81,17 +94,14 @@ class ErrorStateEKF:
         self.p += self.v * dt + 0.5 * a * dt * dt
         self.v += a * dt
         self.R = R @ so3_exp(w * dt)
-        F = self._F
-        F[0:3, 0:3] = np.eye(3) - skew(w) * dt
-        F[0:3, 9:12] = -np.eye(3) * dt
+        F, eye = self._F, self._I3
+        F[0:3, 0:3] = eye - skew(w) * dt
+        F[0:3, 9:12] = -eye * dt
         F[3:6, 0:3] = -(R @ skew(f)) * dt
         F[3:6, 12:15] = -R * dt
-        F[6:9, 3:6] = np.eye(3) * dt
-        n = self.noise
-        q = np.r_[[n.gyro**2] * 3, [n.acc**2] * 3, [n.position**2] * 3, [n.gyro_bias_walk**2] * 3,
-                  [n.acc_bias_walk**2] * 3] * dt
+        F[6:9, 3:6] = eye * dt
         self.P = F @ self.P @ F.T
-        self.P[np.diag_indices(15)] += q
+        self.P[self._diag] += self._q * dt
         return w
 
     def velocity_rows(self, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -101,14 +111,43 @@ class ErrorStateEKF:
         H[:, 0:3] = skew(vb)
         H[:, 3:6] = self.R.T
         H[:, 9:12] = skew(r)
-        return vb + np.cross(r, self.bg), H
+        return vb + cross(r, self.bg), H
 
-    def update(self, residual: np.ndarray, H: np.ndarray, noise_var: np.ndarray) -> None:
-        """Kalman update with stacked rows; the error is folded into the nominal state."""
+    def velocity_rows_many(self, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """`velocity_rows` for k lever arms r (k, 3) at once: predictions (k, 3), stacked Jacobian (3k, 15)."""
+        k = len(r)
+        vb = self.R.T @ self.v
+        H = np.zeros((k, 3, 15))
+        H[:, :, 0:3] = skew(vb)
+        H[:, :, 3:6] = self.R.T
+        H[:, 0, 10], H[:, 0, 11] = -r[:, 2], r[:, 1]
+        H[:, 1, 9], H[:, 1, 11] = r[:, 2], -r[:, 0]
+        H[:, 2, 9], H[:, 2, 10] = -r[:, 1], r[:, 0]
+        return vb + cross(r, self.bg), H.reshape(3 * k, 15)
+
+    def update(self, residual: np.ndarray, H: np.ndarray, noise_var: np.ndarray,
+               gate_chi2: float | None = None) -> np.ndarray:
+        """Kalman update with stacked 3-row measurements; the error is folded into the nominal state. With
+        `gate_chi2`, each 3-row block whose Mahalanobis distance² exceeds it is dropped first (an outlier, e.g.
+        a slipping foot). Returns the kept blocks' mask."""
         P = self.P
         PHt = P @ H.T
         S = H @ PHt
         S[np.diag_indices_from(S)] += noise_var
+        keep = np.ones(len(residual) // 3, bool)
+        if gate_chi2 is not None:
+            n = len(keep)
+            idx = np.arange(n)
+            blocks = S.reshape(n, 3, n, 3)[idx, :, idx, :]  # (n, 3, 3) diagonal blocks
+            r3 = residual.reshape(n, 3)
+            d2 = np.einsum("ki,ki->k", r3, np.linalg.solve(blocks, r3[..., None])[..., 0])
+            keep = d2 <= gate_chi2
+            if not keep.all():
+                if not keep.any():
+                    return keep
+                rows = np.repeat(keep, 3)
+                residual, H, noise_var, PHt = residual[rows], H[rows], noise_var[rows], PHt[:, rows]
+                S = S[np.ix_(rows, rows)]
         K = np.linalg.solve(S, PHt.T).T
         dx = K @ residual
         IKH = self._I15 - K @ H
@@ -118,8 +157,4 @@ class ErrorStateEKF:
         self.p += dx[6:9]
         self.bg += dx[9:12]
         self.ba += dx[12:15]
-
-    def mahalanobis2(self, residual: np.ndarray, H: np.ndarray, noise_var: np.ndarray) -> float:
-        S = H @ self.P @ H.T
-        S[np.diag_indices_from(S)] += noise_var
-        return float(residual @ np.linalg.solve(S, residual))
+        return keep

@@ -109,6 +109,7 @@ class StateEstimator:
                                  np.array([0.0, 0.0, -c.gravity_mps2]), c.noise)
         self._contact_since = np.full(4, np.inf)
         self._footholds = fb @ R0.T + self.ekf.p  # (4, 3) each foot's latest stance position, world [m]
+        self._was_contact = np.zeros(4, bool)
         self._normal_w = _EZ.copy()  # ground normal under the feet, world (plane through the footholds)
         self.t = 0.0
         self.rejected = 0  # stance-foot updates refused by the gate (slips, impacts)
@@ -135,20 +136,14 @@ class StateEstimator:
             n_b = e.R.T @ self._normal_w
             z, rc = stance_velocity_measurements(fb, fv, self.feet.foot_omega, tick.imu_gyro, n_b,
                                                  c.foot_radius_m)
-            var = np.full(3, c.leg_vel_std**2)
-            res_rows, h_rows = [], []
-            for i in np.flatnonzero(use):
-                h, H = e.velocity_rows(rc[i])
-                r = z[i] - h
-                if e.mahalanobis2(r, H, var) > c.gate_chi2:
-                    self.rejected += 1
-                    continue
-                res_rows.append(r)
-                h_rows.append(H)
-            if res_rows:
-                e.update(np.concatenate(res_rows), np.vstack(h_rows), np.full(3 * len(res_rows), var[0]))
+            h, H = e.velocity_rows_many(rc[use])
+            keep = e.update((z[use] - h).reshape(-1), H, np.full(H.shape[0], c.leg_vel_std**2),
+                            gate_chi2=c.gate_chi2)
+            self.rejected += int((~keep).sum())
         if contact.any():
             self._footholds[contact] = fb[contact] @ e.R.T + e.p
-            self._normal_w = terrain_normal(self._footholds)
+            if (contact & ~self._was_contact).any():  # a new foothold: refit the ground plane
+                self._normal_w = terrain_normal(self._footholds)
+        self._was_contact = contact
         self.estimate = self._estimate(tick.imu_gyro - e.bg)
         return self.estimate

@@ -15,6 +15,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .ekf import cross
+
 
 def stance_velocity_measurements(feet_b: np.ndarray, feet_vel_b: np.ndarray, foot_omega_b: np.ndarray,
                                  gyro: np.ndarray, normal_b: np.ndarray, foot_radius: float
@@ -24,5 +26,5 @@ def stance_velocity_measurements(feet_b: np.ndarray, feet_vel_b: np.ndarray, foo
     angular velocities relative to the base; gyro: (3,) measured angular velocity; normal_b: (3,) unit ground
     normal; all in the base frame."""
     rc = feet_b - foot_radius * normal_b
-    z = -np.cross(gyro, rc) - feet_vel_b + foot_radius * np.cross(foot_omega_b, normal_b)
+    z = -cross(gyro, rc) - feet_vel_b + foot_radius * cross(foot_omega_b, normal_b)
     return z, rc

@@ -134,3 +134,15 @@ def test_exact_state_is_an_evaluation_option_with_zero_drift():
     s = run_scout(replace(ScoutRunConfig(scene="ramps", slope_deg=5.0, sim_seconds=6.0),
                           sim=replace(ScoutRunConfig().sim, state_source="exact")), progress=False)
     assert s["state_source"] == "exact" and s["drift_xy_m"] == 0.0
+
+
+def test_stacked_velocity_rows_equal_the_single_ones():
+    rng = np.random.default_rng(2)
+    ekf = ErrorStateEKF(so3_exp(rng.normal(size=3)), rng.normal(size=3), np.zeros(3), np.array([0, 0, -1.62]))
+    ekf.bg = rng.normal(size=3) * 0.01
+    r = rng.normal(size=(3, 3))
+    h, H = ekf.velocity_rows_many(r)
+    for i in range(3):
+        hi, Hi = ekf.velocity_rows(r[i])
+        np.testing.assert_allclose(h[i], hi, atol=1e-15)
+        np.testing.assert_allclose(H[3 * i:3 * i + 3], Hi, atol=1e-15)
