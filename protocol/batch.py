@@ -260,6 +260,8 @@ def _known_header(payload: bytes, known: _Known) -> tuple | None:
     if not payload.startswith(known.prefix):
         return None
     o = len(known.prefix)
+    if len(payload) < o + 12:  # a truncated message: the exact path names what is wrong
+        return None
     b = payload[o]
     if b < 0x80:
         seq, o = b, o + 1
@@ -270,7 +272,7 @@ def _known_header(payload: bytes, known: _Known) -> tuple | None:
         seq, o = int.from_bytes(payload[o + 1 : o + 1 + w], "big"), o + 1 + w
         if seq > _INT64_MAX:
             return None
-    if payload[o : o + 3] != b"\xa1t\xcb":
+    if payload[o : o + 3] != b"\xa1t\xcb" or len(payload) < o + 11:
         return None
     (t,) = _D.unpack_from(payload, o + 3)
     o += 11
