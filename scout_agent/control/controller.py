@@ -18,6 +18,7 @@ from scout_agent.control.stance import StanceQP, StanceQPConfig
 from scout_agent.control.swing import swing_point
 from scout_agent.robot import constants as C
 from scout_agent.robot import kinematics as K
+from scout_agent.robot.vectors import cross
 
 _NOMINAL_FEET = K.fk(C.HOME_Q)  # (4, 3) base frame
 _NOMINAL_FEET[:, 2] = 0.0
@@ -75,15 +76,6 @@ class ControlOutput:
     stance_planned: np.ndarray  # (4,) bool
     phase: np.ndarray  # (4,)
     stance_forces: np.ndarray  # (4, 3) QP forces on the feet, world frame [N]
-
-
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Cross product of (..., 3) arrays without np.cross's axis bookkeeping (hot path)."""
-    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
-    out[..., 0] = a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1]
-    out[..., 1] = a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2]
-    out[..., 2] = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
-    return out
 
 
 def _fit_plane(P: np.ndarray) -> tuple[np.ndarray, float]:
@@ -204,7 +196,7 @@ class TrotController:
         hx = np.array([np.cos(self.yaw_ref), np.sin(self.yaw_ref), 0.0])
         x_axis = hx - (hx @ up) * up
         x_axis /= np.linalg.norm(x_axis)
-        R_des = np.column_stack([x_axis, _cross(up, x_axis), up])
+        R_des = np.column_stack([x_axis, cross(up, x_axis), up])
         e_rot_w = _rotvec(R_des @ R.T)
         omega_w = R @ s.omega
         w_des = np.array([0.0, 0.0, self.yaw_rate_cmd])
@@ -229,7 +221,7 @@ class TrotController:
         f_b = forces @ R  # rows: R^T f
         # stance feet: touchdown point held still in the world
         p_hold_b = (self.footholds - s.pos) @ R
-        v_hold_b = -(s.vel @ R + _cross(s.omega, p_hold_b))
+        v_hold_b = -(s.vel @ R + cross(s.omega, p_hold_b))
         tau_st = -np.einsum("lji,lj->li", J, f_b) + c.stance_kd * np.linalg.solve(J + _EPS3, v_hold_b[..., None])[..., 0]
         for i in idx.tolist():
             tau[3 * i : 3 * i + 3] = tau_st[i]
@@ -256,7 +248,7 @@ class TrotController:
             prog = np.where(late, 1.0, sw[sw_idx])
             p_w, v_w = swing_point(self.liftoff[sw_idx], target, prog, c.swing_height, T_sw)
             p_b = (p_w - s.pos) @ R
-            v_b = (v_w - s.vel) @ R - _cross(s.omega, p_b)
+            v_b = (v_w - s.vel) @ R - cross(s.omega, p_b)
             pos_des_b[sw_idx] = p_b
             vel_des_b[sw_idx] = v_b
             q_ik = K.ik(pos_des_b).reshape(4, 3)

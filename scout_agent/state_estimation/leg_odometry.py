@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .ekf import cross
+from scout_agent.robot.vectors import cross
 
 
 def stance_velocity_measurements(feet_b: np.ndarray, feet_vel_b: np.ndarray, foot_omega_b: np.ndarray,
