@@ -135,3 +135,18 @@ def test_listening_beyond_loopback_needs_credentials_or_insecure():
     res = subprocess.run([sys.executable, "-m", "psrmap", "router", "--listen", f"tcp/0.0.0.0:{port}"],
                          check=False, capture_output=True, text=True, timeout=60)
     assert res.returncode == 2 and "without credentials" in res.stderr and "--insecure" in res.stderr
+
+
+def test_mutual_tls_admits_only_clients_with_a_certificate_from_the_ca(tmp_path):
+    ep = free_endpoint().replace("tcp/127.0.0.1", "tcp/localhost")
+    lay = secure_init(tmp_path / "sec", MAP, ["s1"], ["p1"], endpoint=ep, tls=True)
+    router = json.loads(lay.router.read_text())
+    assert router["listen"]["endpoints"][0].startswith("tls/") and router["transport"]["link"]["tls"]["enable_mtls"]
+    with zenoh.open(zenoh_config(config_file=lay.router)):
+        with zenoh.open(zenoh_config(config_file=lay.agents["s1"])) as s1:  # certificate + password
+            assert str(s1.info.zid())
+        conf = zenoh_config(config_file=lay.agents["s1"])
+        conf.insert_json5("transport/link/tls/connect_certificate", json.dumps(""))
+        conf.insert_json5("transport/link/tls/connect_private_key", json.dumps(""))
+        with pytest.raises(zenoh.ZError):  # the right password, but no client certificate
+            zenoh.open(conf)
