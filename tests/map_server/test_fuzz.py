@@ -41,3 +41,46 @@ def test_a_truncated_message_on_the_fast_path_is_rejected_not_a_crash():
         assert len(res.accepted) == 3 and [r for r, _ in res.rejected] == ["decode"]
         seq += 4
     assert m.book.merged == 300
+
+
+def _msgpack_values():
+    from hypothesis import strategies as st
+
+    scalars = st.one_of(st.none(), st.booleans(), st.integers(-(2**64), 2**64), st.floats(allow_nan=True),
+                        st.text(max_size=12), st.binary(max_size=64))
+    return st.recursive(scalars, lambda kids: st.one_of(st.lists(kids, max_size=4),
+                                                        st.dictionaries(st.text(max_size=8), kids, max_size=5)),
+                        max_leaves=20)
+
+
+def test_hypothesis_arbitrary_msgpack_and_field_swaps_never_crash_the_merge():
+    import msgpack
+    from hypothesis import HealthCheck, given, settings
+    from hypothesis import strategies as st
+
+    from map_server.merge import Merger
+    from map_server.tiles import TiledMap
+    from protocol import encode
+    from protocol.keys import delta_key
+    from protocol.testing import MAP, RES, make_delta
+
+    valid = msgpack.unpackb(encode(make_delta(seq=0, scout="s1")), raw=False)
+    fields = sorted(valid)
+
+    @settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+    @given(field=st.sampled_from(fields), value=_msgpack_values(), raw=st.binary(max_size=256))
+    def check(field, value, raw):
+        m = Merger(TiledMap(RES), MAP)
+        d = dict(valid)
+        d[field] = value
+        key = delta_key(MAP, "s1")
+        try:
+            swapped = msgpack.packb(d, use_bin_type=True)
+        except (TypeError, ValueError, OverflowError):
+            swapped = raw
+        res = m.ingest([(key, swapped), (key, raw)])
+        assert len(res.accepted) + res.duplicates + len(res.rejected) == 2
+        if not res.accepted:
+            assert m.map.cells == 0 and m.book.merged == 0  # nothing half-merged
+
+    check()
