@@ -181,7 +181,7 @@ def secure_init(folder: str | Path, map_id: str, scouts: Sequence[str], planners
     files = {"router": out / "router.json5"}
     files["router"].write_text(json.dumps(router_conf, indent=2))
     agents = {}
-    zids = {s: secrets.token_hex(16) for s in servers}
+    zids = {s: _zid() for s in servers}
     for n in names:
         agents[n] = out / f"{n}.json5"
         conf = _agent_config(n, passwords[n], "client", endpoint)
@@ -197,6 +197,13 @@ def secure_init(folder: str | Path, map_id: str, scouts: Sequence[str], planners
     for p in [cred, *files.values(), *agents.values()]:
         p.chmod(0o600)
     return SecureLayout(out, files["router"], agents, cred, trust)
+
+
+def _zid() -> str:
+    """A random Zenoh id: 16 bytes in hex, without a leading 0 (Zenoh refuses those)."""
+    while (z := secrets.token_hex(16)).startswith("0"):
+        pass
+    return z
 
 
 def _ids(text: str) -> list[str]:

@@ -125,6 +125,9 @@ def test_secure_init_pins_server_ids_for_planners(tmp_path):
     lay = secure_init(tmp_path / "s", MAP, ["s1"], ["p1"])
     ids = trusted_servers(str(lay.servers))
     assert len(ids) == 1 and json.loads(lay.agents["server"].read_text())["id"] == ids[0]
+    from psrmap.secure import _zid
+
+    assert not any(_zid().startswith("0") for _ in range(200))  # Zenoh refuses ids with a leading 0
     assert (lay.credentials.stat().st_mode & 0o077) == 0  # owner-only
     with pytest.raises(ValueError, match="distinct"):
         secure_init(tmp_path / "t", MAP, ["s1"], ["s1"])
