@@ -249,26 +249,27 @@ class Merger:
             return out
         cells = np.zeros(n, np.int64)
         sh = self.map.shift
-        pairs = []
+        segs, tks = [], []
         for c in batch.columns.values():
             cells += np.bincount(c.seg, minlength=n)[:n]
-            tk = (c.ix.astype(np.int64) >> sh << 32) | ((c.iy.astype(np.int64) >> sh) & 0xFFFFFFFF)
-            pairs.append(np.stack([c.seg, tk]))
+            segs.append(c.seg)
+            tks.append((c.ix.astype(np.int64) >> sh << 32) | ((c.iy.astype(np.int64) >> sh) & 0xFFFFFFFF))
         for i in np.flatnonzero(cells > lim.max_cells_per_delta).tolist():
             out[i] = ProtocolError(
                 "limit_cells", f"delta has {cells[i]} cells; limit max_cells_per_delta={lim.max_cells_per_delta}"
             )
-        seg_tile = np.unique(np.concatenate(pairs, axis=1), axis=1)  # (2, K) distinct (delta, tile)
+        tk = np.concatenate(tks)
         known = self.map.gslots
-        tiles = np.unique(seg_tile[1])
-        fresh_keys = {int(k) for k in tiles.tolist() if _tile_of(int(k)) not in known}
-        if not fresh_keys:
+        fresh_keys = {int(k) for k in np.unique(tk).tolist() if _tile_of(int(k)) not in known}
+        if not fresh_keys:  # the common case: every cell lands in a tile the map has
             return out
+        fresh = np.isin(tk, np.fromiter(fresh_keys, np.int64, len(fresh_keys)))
+        seg_tile = np.unique(np.stack([np.concatenate(segs)[fresh], tk[fresh]]), axis=1)  # (2, K) (delta, new tile)
         created: set[int] = set()
         for i in np.unique(seg_tile[0]).tolist():
             if i in out or i in already or type(batch.results[i]) is not CellDelta:
                 continue
-            mine = {int(k) for k in seg_tile[1][seg_tile[0] == i].tolist()} & fresh_keys
+            mine = {int(k) for k in seg_tile[1][seg_tile[0] == i].tolist()}
             new = mine - created
             if len(new) > lim.max_new_tiles_per_delta:
                 out[i] = ProtocolError(
