@@ -135,3 +135,30 @@ def test_status_health_round_trips_and_rejects_garbage():
     body["health"] = {"worker": [1, 2]}
     with pytest.raises(ProtocolError, match="health"):
         decode(msgpack.packb(body))
+
+
+def test_cells_spread_over_far_tiles_cannot_blow_up_memory():
+    """Issue 12: 200 small deltas with cells spread over ±10⁶ cells allocated +609 MiB (a 64×64 tile per cell)."""
+    from map_server.limits import Limits
+
+    rng = np.random.default_rng(0)
+    m = Merger(TiledMap(RES), MAP, limits=Limits(max_new_tiles_per_delta=4, max_tiles=64))
+    for seq in range(200):
+        ix, iy = rng.integers(-10**6, 10**6, 12), rng.integers(-10**6, 10**6, 12)
+        d = make_delta(seq=seq, cells=tuple(zip(ix.tolist(), iy.tolist(), strict=True)), layers=("slip",))
+        m.ingest([(KEY, encode(d))])
+    assert m.book.rejected["limit_new_tiles"] == 200 and len(m.map.gslots) == 0
+    few = make_delta(seq=200, cells=((5_000, 5_000), (-9_000, 3)), layers=("slip",))  # 2 new tiles: allowed
+    assert len(m.ingest([(KEY, encode(few))]).accepted) == 1 and len(m.map.gslots) == 2
+
+
+def test_a_burst_of_huge_messages_is_dropped_before_the_server_copies_it(served_map):
+    """Issue 12: 50 queued 50 MB messages cost 2.6 GiB because they were copied before the size check. Now Zenoh
+    drops a message far over the limit itself, and the worker checks the size before copying the rest."""
+    with served_map(MAP, RES) as (service, client):
+        big = b"\x00" * (20 << 20)
+        for _ in range(5):
+            client.put(KEY, big)
+        client.put(KEY, encode(make_delta(seq=0)))
+        assert _wait(lambda: service.merger.book.merged == 1, timeout_s=60)
+        assert _status(client).health["worker"] == "ok"
