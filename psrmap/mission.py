@@ -79,6 +79,7 @@ class MissionConfig:
     weights: dict[str, float] = field(default_factory=dict)
     rrd: bool = True  # write Rerun recordings
     secure: bool = True  # per-run credentials + router ACL (psrmap secure init) for every component
+    zenoh_config: str | None = None  # an existing secure folder's router.json5 (agents' files beside it)
     timeout_s: float = 900.0  # the whole mission gives up after this long [s wall clock]
 
 
@@ -190,6 +191,20 @@ def validate(cfg: MissionConfig) -> None:
     ):
         if not v > 0:
             raise MissionError(f"{name} = {v}: must be > 0")
+    if cfg.zenoh_config:
+        _credential_files(cfg)
+
+
+def _credential_files(cfg: MissionConfig) -> dict[str, Path]:
+    """The secure folder's file of every component, beside `cfg.zenoh_config` (the router's)."""
+    router = Path(cfg.zenoh_config or "")
+    needed = {n: router.with_name(f"{n}.json5") for n in ["server", "planner", *(s.id for s in cfg.scouts)]}
+    missing = [str(p) for p in [router, *needed.values()] if not p.is_file()]
+    if missing:
+        raise MissionError(f"--zenoh-config {router}: need the router's file and, beside it, one per component "
+                           f"(psrmap secure init --scouts <the mission's scout ids> --planners planner); missing: "
+                           f"{', '.join(missing)}")
+    return needed
 
 
 def with_scouts(cfg: MissionConfig, n: int) -> MissionConfig:
@@ -380,7 +395,10 @@ def run_mission(cfg: MissionConfig, run_dir: Path | None = None, progress: bool 
     server: _Proc | None = None
     creds: dict[str, list[str]] = {}  # component -> its --zenoh-config argv
     router_file = None
-    if cfg.secure:
+    if cfg.zenoh_config:
+        router_file = Path(cfg.zenoh_config)
+        creds = {n: ["--zenoh-config", str(p)] for n, p in _credential_files(cfg).items()}
+    elif cfg.secure:
         from psrmap.secure import secure_init
 
         lay = secure_init(run_dir / "secure", cfg.map, [s.id for s in cfg.scouts], ["planner"], ["server"],
@@ -389,7 +407,7 @@ def run_mission(cfg: MissionConfig, run_dir: Path | None = None, progress: bool 
         router_file = lay.router
     with zenoh.open(zenoh_config(listen=[endpoint], mode="router", config_file=router_file)) as session:
         say(f"[mission] router listening on {endpoint}"
-            + (" (credentials + ACL: secure/)" if cfg.secure else " (no credentials)") + f"; run folder {run_dir}")
+            + (" (credentials + ACL)" if creds else " (no credentials)") + f"; run folder {run_dir}")
         try:
             server_argv = [
                 "server",
@@ -679,6 +697,9 @@ def register(sub: Any) -> None:
     p.add_argument("--out", help="parent folder of the run folder (default runs/)")
     p.add_argument("--run-dir", help="exact run folder (default <out>/<timestamp>)")
     p.add_argument("--no-rrd", action="store_true", help="do not write Rerun recordings")
+    p.add_argument("--zenoh-config", metavar="ROUTER.json5",
+                   help="use an existing `psrmap secure init` folder: its router.json5 (the agents' files beside "
+                        "it: server, planner and one per scout id) instead of fresh per-run credentials")
     p.add_argument("--no-secure", action="store_true",
                    help="no per-run credentials and router ACL (every component talks to an open loopback router)")
     p.add_argument("--quiet", action="store_true", help="no progress output, only the final JSON path")
@@ -701,6 +722,8 @@ def _cmd_mission(args: argparse.Namespace) -> int:
             changes["rrd"] = False
         if args.no_secure:
             changes["secure"] = False
+        if args.zenoh_config:
+            changes["zenoh_config"] = args.zenoh_config
         cfg = dataclasses.replace(cfg, **changes)
         validate(cfg)
     except MissionError as exc:

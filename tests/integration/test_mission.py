@@ -144,3 +144,24 @@ def test_bad_config_is_rejected_with_reason(tmp_path: Path) -> None:
 def test_merge_recordings_without_parts_returns_none(tmp_path: Path) -> None:
     (tmp_path / "recordings").mkdir()
     assert merge_recordings(tmp_path) is None
+
+
+def test_the_mission_runs_secured_by_default(mission: tuple[dict, Path]) -> None:
+    _, run_dir = mission
+    router = json.loads((run_dir / "secure" / "router.json5").read_text())
+    assert router["access_control"]["default_permission"] == "deny"
+    assert (run_dir / "secure" / "scout1.json5").is_file() and (run_dir / "secure" / "server.json5").is_file()
+
+
+def test_a_mission_on_an_existing_secure_folder(tmp_path: Path) -> None:
+    from psrmap.secure import secure_init
+
+    cfg = dataclasses.replace(with_scouts(load_config(), 1), sim_seconds=6.0, rrd=False, timeout_s=300.0,
+                              plan_from=(1.6, 1.6), plan_to=(2.0, 2.0))
+    lay = secure_init(tmp_path / "sec", cfg.map, [s.id for s in cfg.scouts], ["planner"])
+    bad = dataclasses.replace(cfg, zenoh_config=str(tmp_path / "nowhere" / "router.json5"))
+    with pytest.raises(MissionError, match="missing"):
+        run_mission(bad, tmp_path / "bad", progress=False)
+    summary = run_mission(dataclasses.replace(cfg, zenoh_config=str(lay.router)), tmp_path / "run", progress=False)
+    assert summary["status"]["merged"] == deltas_sent(summary["scouts"]["scout1"]) > 0
+    assert not (tmp_path / "run" / "secure").exists()  # no fresh credentials: the given ones were used
