@@ -114,6 +114,12 @@ class ErrorStateEKF:
         H[:, 2, 9], H[:, 2, 10] = -r[:, 1], r[:, 0]
         return vb + cross(r, self.bg), H.reshape(3 * k, 15)
 
+    def position_z_rows(self) -> np.ndarray:
+        """Jacobian (1, 15) of a measurement of the base height p_z."""
+        H = np.zeros((1, 15))
+        H[0, 8] = 1.0
+        return H
+
     def update(self, residual: np.ndarray, H: np.ndarray, noise_var: np.ndarray,
                gate_chi2: float | None = None) -> np.ndarray:
         """Kalman update with stacked 3-row measurements; the error is folded into the nominal state. With

@@ -6,7 +6,9 @@ Inputs, and where each comes from on a real Aliengo:
   (Pinocchio, the same model the simulator runs),
 - the foot contact flags (`scout_agent.sensors.foot_pressure`),
 - the launch pose the mission gives each scout in the shared map frame (x, y, heading, and the surveyed ground
-  height under it; DESIGN.md "Frames and grid").
+  height under it; DESIGN.md "Frames and grid"): the height is anchored once, when two feet first stand
+  settled on that ground (the robot is dropped from a few mm and its feet sink in, so anchoring at power-on left
+  a 1 cm offset in every elevation it mapped).
 Nothing here reads the simulator.
 
 Filter (ekf.py): IMU propagation once per tick with the tick's mean rates; one 3-row base-velocity update per
@@ -51,6 +53,7 @@ class EstimatorConfig:
     leg_vel_std: float = 0.04  # [m/s] per axis per stance foot
     stance_settle_s: float = 0.1  # a contact counts for odometry after this long [s] (foot still sinking in)
     gate_chi2: float = 7.8  # χ²(3) at p = 0.05
+    anchor_std_m: float = 0.003  # how well the feet stand on the surveyed launch ground height [m]
     # share of the planned stance whose leg odometry is used: the foot sinks into the ground while it loads
     # and rises while it unloads; using the loaded middle symmetrically keeps that from biasing the height
     odometry_stance: tuple[float, float] = (0.3, 0.8)
@@ -114,6 +117,8 @@ class StateEstimator:
         self._normal_w = _EZ.copy()  # ground normal under the feet, world (plane through the footholds)
         self.t = 0.0
         self.rejected = 0  # stance-foot updates refused by the gate (slips, impacts)
+        self.launch = launch
+        self.anchored = False  # the height has been anchored to the launch ground once all feet stood on it
         self.estimate = self._estimate(np.zeros(3))
 
     def _estimate(self, omega: np.ndarray) -> StateEstimate:
@@ -141,6 +146,13 @@ class StateEstimator:
             keep = e.update((z[use] - h).reshape(-1), H, np.full(H.shape[0], c.leg_vel_std**2),
                             gate_chi2=c.gate_chi2)
             self.rejected += int((~keep).sum())
+        settled = contact & (t - self._contact_since >= c.stance_settle_s)
+        if not self.anchored and settled.sum() >= 2:
+            # settled feet stand on the launch ground: the one height the mission knows (its survey)
+            feet_z = float(np.mean((fb[settled] @ e.R.T)[:, 2]))
+            z_meas = self.launch.ground_z + c.foot_radius_m - feet_z
+            e.update(np.array([z_meas - e.p[2]]), e.position_z_rows(), np.array([c.anchor_std_m**2]))
+            self.anchored = True
         if contact.any():
             self._footholds[contact] = fb[contact] @ e.R.T + e.p
             if (contact & ~self._was_contact).any():  # a new foothold: refit the ground plane

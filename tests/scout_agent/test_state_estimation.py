@@ -146,3 +146,13 @@ def test_stacked_velocity_rows_equal_the_single_ones():
         hi, Hi = ekf.velocity_rows(r[i])
         np.testing.assert_allclose(h[i], hi, atol=1e-15)
         np.testing.assert_allclose(H[3 * i:3 * i + 3], Hi, atol=1e-15)
+
+
+def test_the_height_is_anchored_to_the_launch_ground_once_the_feet_stand_on_it():
+    sim = ScoutSim(make_ramps(RampConfig(slope_deg=0.0)))  # dropped from 1 cm above the ground at t = 0
+    first = sim.step(0.0, 0.0)
+    for _ in range(100):
+        s, g = sim.step(0.0, 0.0)
+    assert sim.estimator.anchored
+    assert abs(first[0].base.pos[2] - first[1].base.pos[2]) > 0.008  # before: the launch prior, 1 cm off
+    assert abs(s.base.pos[2] - g.base.pos[2]) < 0.005  # after: on the ground it stands on
