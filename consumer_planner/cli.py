@@ -118,6 +118,9 @@ def register(subparsers) -> None:
         help="start [m]; write --from=-1,2 when x is negative",
     )
     p.add_argument("--to", dest="goal", type=_point, required=True, metavar="X,Y")
+    p.add_argument("--goal-tolerance", type=float, default=1.0, metavar="M",
+                   help="a goal on an impassable cell moves to the nearest passable cell within M metres "
+                        "(default 1; 0: fail instead)")
     p.set_defaults(func=_run_plan, _parser=p)
     c = subparsers.add_parser(
         "compare",
@@ -225,6 +228,10 @@ def _finish(args: argparse.Namespace, grid: LayerGrid, costs, routes: list[Route
         "slip_spread_m": costs.config.slip_spread_m,
         "weights": asdict(costs.config.weights),
     }
+    if single and getattr(args, "goal", None) is not None:
+        end = routes[0].path[-1]
+        moved = math.hypot(end[0] - args.goal[0], end[1] - args.goal[1])
+        head["goal_moved_m"] = round(moved, 3) if moved > grid.res else 0.0
     if args.json:
         body = routes[0].as_dict() if single else {"routes": [r.as_dict() for r in routes]}
         print(json.dumps({**head, **body}))
@@ -243,7 +250,9 @@ def _run_plan(args: argparse.Namespace) -> int:
     try:
         grid = _load(args, [args.start, args.goal])
         costs = build_costs(grid, cfg)
-        route = plan_route(grid, costs, args.start, args.goal)
+        if args.goal_tolerance < 0:
+            args._parser.error(f"--goal-tolerance {args.goal_tolerance}: need >= 0 metres")
+        route = plan_route(grid, costs, args.start, args.goal, goal_tolerance_m=args.goal_tolerance)
     except PlannerError as exc:
         raise SystemExit(f"psrmap plan: {exc}") from None
     if route is None:

@@ -26,7 +26,7 @@ from skimage.draw import line
 from consumer_planner.costs import CostMap
 from consumer_planner.errors import PlannerError
 from consumer_planner.grid import LayerGrid
-from consumer_planner.search import Method, plan_path, step_lengths
+from consumer_planner.search import Method, nearest_passable, plan_path, step_lengths
 
 __all__ = ["Breakdown", "Route", "breakdown", "cell_weights", "evaluate_route", "plan_route", "route_cells"]
 
@@ -158,9 +158,14 @@ def plan_route(
     goal: Sequence[float],
     name: str = "plan",
     method: Method = "auto",
+    goal_tolerance_m: float = 0.0,
 ) -> Route | None:
-    """The cheapest route from `start` to `goal` (map-frame [m]); None if the goal cannot be reached."""
+    """The cheapest route from `start` to `goal` (map-frame [m]); None if the goal cannot be reached. With
+    `goal_tolerance_m`, a goal on an impassable cell is moved to the nearest passable cell within that distance
+    (the route then ends there: compare its last point with `goal`)."""
     s, g = _cell(grid, start, "start"), _cell(grid, goal, "goal")
+    if goal_tolerance_m > 0:
+        g = nearest_passable(costs.cost, g, goal_tolerance_m / grid.res) or g
     found = plan_path(costs.cost, s, g, grid.res, method)
     if found is None:
         return None

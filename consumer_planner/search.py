@@ -28,7 +28,7 @@ import numpy as np
 from consumer_planner import _native
 from consumer_planner.errors import PlannerError
 
-__all__ = ["GridPath", "METHODS", "plan_path", "step_lengths"]
+__all__ = ["GridPath", "METHODS", "nearest_passable", "plan_path", "step_lengths"]
 
 METHODS = ("auto", "native", "skimage")
 _MAX_BUCKETS = 1 << 20  # above this cost range (max/min cell cost) the heap search is used
@@ -58,6 +58,24 @@ def _check_cell(cost: np.ndarray, cell: tuple[int, int], name: str) -> int:
     if not np.isfinite(cost[r, c]):
         raise PlannerError(f"{name} cell (row {r}, col {c}) is impassable (cost {cost[r, c]})")
     return r * w + c
+
+
+def nearest_passable(cost: np.ndarray, cell: tuple[int, int], radius_cells: float) -> tuple[int, int] | None:
+    """The passable cell (finite cost) nearest to `cell` (row, col) within `radius_cells`, or None; `cell`
+    itself when it is passable. Like a navigation stack's goal tolerance: a goal on a cell the map forbids
+    (a robot fell there) is replaced by the closest cell a robot may stand on."""
+    h, w = cost.shape
+    r0, c0 = int(cell[0]), int(cell[1])
+    if 0 <= r0 < h and 0 <= c0 < w and np.isfinite(cost[r0, c0]):
+        return r0, c0
+    k = int(np.floor(radius_cells))
+    rr, cc = np.mgrid[max(0, r0 - k):min(h, r0 + k + 1), max(0, c0 - k):min(w, c0 + k + 1)]
+    d2 = (rr - r0) ** 2 + (cc - c0) ** 2
+    ok = np.isfinite(cost[rr, cc]) & (d2 <= radius_cells**2)
+    if not ok.any():
+        return None
+    i = int(np.argmin(np.where(ok, d2, np.iinfo(np.int64).max)))
+    return int(rr.ravel()[i]), int(cc.ravel()[i])
 
 
 def plan_path(

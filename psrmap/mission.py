@@ -659,8 +659,10 @@ def _print_report(summary: dict[str, Any]) -> None:
     if "error" in plan:
         print(f"  plan: {plan['error']}")
     else:
+        moved = plan.get("goal_moved_m") or 0.0
         print(
             f"  plan: {plan.get('length_m', float('nan')):.1f} m, cost {plan.get('cost', float('nan')):.2f}"
+            + (f" (goal cell forbidden by the map: moved {moved:.2f} m to the nearest passable cell)" if moved else "")
         )
     comparison = summary.get("comparison") or {}
     if comparison.get("routes"):

@@ -97,3 +97,14 @@ def test_wide_cost_range_matches_reference():
     ref, _ = reference_dijkstra(cost, (0, 0), (14, 14), 0.3)
     got = plan_path(cost, (0, 0), (14, 14), 0.3)
     assert got is not None and got.cost == pytest.approx(ref, rel=1e-9)
+
+
+def test_a_goal_on_an_impassable_cell_moves_to_the_nearest_passable_one_within_tolerance():
+    from consumer_planner.search import nearest_passable
+
+    cost = np.ones((9, 9))
+    cost[3:6, 3:6] = np.inf  # a robot fell here: the map forbids these cells
+    assert nearest_passable(cost, (4, 4), 1.0) is None  # nothing passable within one cell
+    r, c = nearest_passable(cost, (4, 4), 2.0)
+    assert np.isfinite(cost[r, c]) and (r - 4) ** 2 + (c - 4) ** 2 == 4
+    assert nearest_passable(cost, (0, 0), 3.0) == (0, 0)  # a passable goal stays put
