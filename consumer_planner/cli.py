@@ -18,6 +18,8 @@ import math
 from dataclasses import asdict, replace
 from pathlib import Path
 
+import numpy as np
+
 from consumer_planner.compare import Route, evaluate_route, plan_route
 from consumer_planner.costs import TERMS, UNKNOWN_POLICIES, CostConfig, build_costs, parse_weights
 from consumer_planner.errors import PlannerError
@@ -230,8 +232,9 @@ def _finish(args: argparse.Namespace, grid: LayerGrid, costs, routes: list[Route
     }
     if single and getattr(args, "goal", None) is not None:
         end = routes[0].path[-1]
-        moved = math.hypot(end[0] - args.goal[0], end[1] - args.goal[1])
-        head["goal_moved_m"] = round(moved, 3) if moved > grid.res else 0.0
+        goal_cell = grid.cell_of(float(args.goal[0]), float(args.goal[1]))
+        gx, gy = grid.centers(np.array([goal_cell]))[0] if goal_cell is not None else args.goal
+        head["goal_moved_m"] = round(math.hypot(end[0] - gx, end[1] - gy), 3)  # cell centre to cell centre
     if args.json:
         body = routes[0].as_dict() if single else {"routes": [r.as_dict() for r in routes]}
         print(json.dumps({**head, **body}))
