@@ -74,11 +74,17 @@ def _common(p: argparse.ArgumentParser) -> None:
         "--npz", metavar="FILE", help="a saved map (.npz, map_region layout) instead of a server"
     )
     src.add_argument("--timeout", type=float, default=5.0, help="seconds to wait for map servers (default 5)")
-    src.add_argument("--zenoh-config", metavar="FILE",
-                     help="Zenoh config with this planner's credentials (`psrmap secure init`)")
-    src.add_argument("--trust-servers", metavar="FILE",
-                     help="servers.json from `psrmap secure init`: accept map replies only from those server ids "
-                          "(default: the servers.json beside --zenoh-config, if there is one)")
+    src.add_argument(
+        "--zenoh-config",
+        metavar="FILE",
+        help="Zenoh config with this planner's credentials (`psrmap secure init`)",
+    )
+    src.add_argument(
+        "--trust-servers",
+        metavar="FILE",
+        help="servers.json from `psrmap secure init`: accept map replies only from those server ids "
+        "(default: the servers.json beside --zenoh-config, if there is one)",
+    )
     src.add_argument(
         "--margin", type=float, default=10.0, help="metres of map fetched around the points (default 10)"
     )
@@ -101,6 +107,13 @@ def _common(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
     p.add_argument("--rrd", metavar="PATH", help="also save a Rerun recording of the cost grid and routes")
+    p.add_argument(
+        "--sim-time",
+        type=float,
+        metavar="S",
+        help="log the plan at S seconds on the recording's sim_time (mission time; default: the newest "
+        "sample the map servers merged, or 0 for --npz)",
+    )
 
 
 def register(subparsers) -> None:
@@ -120,9 +133,14 @@ def register(subparsers) -> None:
         help="start [m]; write --from=-1,2 when x is negative",
     )
     p.add_argument("--to", dest="goal", type=_point, required=True, metavar="X,Y")
-    p.add_argument("--goal-tolerance", type=float, default=1.0, metavar="M",
-                   help="a goal on an impassable cell moves to the nearest passable cell within M metres "
-                        "(default 1; 0: fail instead)")
+    p.add_argument(
+        "--goal-tolerance",
+        type=float,
+        default=1.0,
+        metavar="M",
+        help="a goal on an impassable cell moves to the nearest passable cell within M metres "
+        "(default 1; 0: fail instead)",
+    )
     p.set_defaults(func=_run_plan, _parser=p)
     c = subparsers.add_parser(
         "compare",
@@ -172,15 +190,23 @@ def _load(args: argparse.Namespace, points: list[Point]) -> LayerGrid:
     from consumer_planner.client import trusted_servers
 
     trust = args.trust_servers or (
-        str(Path(args.zenoh_config).with_name("servers.json")) if args.zenoh_config else None)
+        str(Path(args.zenoh_config).with_name("servers.json")) if args.zenoh_config else None
+    )
     try:
         ids = trusted_servers(trust, required=bool(args.trust_servers))
     except ValueError as exc:
         args._parser.error(str(exc))
-    cfg = ClientConfig(connect=tuple(args.connect), timeout_s=args.timeout, zenoh_config=args.zenoh_config,
-                       trusted_servers=ids)
+    cfg = ClientConfig(
+        connect=tuple(args.connect),
+        timeout_s=args.timeout,
+        zenoh_config=args.zenoh_config,
+        trusted_servers=ids,
+    )
     with MapClient(cfg) as client:
-        return client.region(args.map, box)
+        grid = client.region(args.map, box)
+        if args.rrd and args.sim_time is None:
+            args.sim_time = client.newest_sample_t(args.map)
+        return grid
 
 
 _COLUMNS = (
@@ -221,7 +247,7 @@ def _finish(args: argparse.Namespace, grid: LayerGrid, costs, routes: list[Route
         from consumer_planner.viz import log_plan, open_recording
 
         rec = open_recording(args.rrd)
-        log_plan(rec, grid, costs, routes)
+        log_plan(rec, grid, costs, routes, sim_time=args.sim_time or 0.0)
         rec.flush()
     head = {
         "map": grid.map,

@@ -18,8 +18,8 @@ from consumer_planner.errors import PlannerError
 from consumer_planner.grid import LayerGrid, stitch
 from protocol.codec import decode
 from protocol.errors import ProtocolError
-from protocol.keys import map_key
-from protocol.messages import MapRegion, RegionQuery
+from protocol.keys import map_key, status_key
+from protocol.messages import MapRegion, RegionQuery, Status
 from protocol.session import zenoh_config
 
 __all__ = ["ClientConfig", "MapClient", "query_region", "trusted_servers"]
@@ -54,6 +54,7 @@ def trusted_servers(path: str | None, required: bool = False) -> tuple[str, ...]
     except (ValueError, AttributeError) as exc:
         raise ValueError(f"{path}: not a servers.json ({{name: zenoh id}}): {exc}") from None
 
+
 def query_region(
     session: zenoh.Session,
     map_id: str,
@@ -82,7 +83,9 @@ def query_region(
             zid = str(rid.zid) if rid is not None else None
             if zid not in trusted:
                 errors.append(f"ignored a reply from {zid}, not a trusted map server")
-                log.warning("ignored a map reply from %s: not one of the trusted servers %s", zid, sorted(trusted))
+                log.warning(
+                    "ignored a map reply from %s: not one of the trusted servers %s", zid, sorted(trusted)
+                )
                 continue
         if reply.ok is not None:
             try:
@@ -121,7 +124,8 @@ class MapClient:
         try:
             c = self.config
             self._session = zenoh.open(
-                zenoh_config(c.connect, (), None if c.zenoh_config else c.mode, c.zenoh_config))
+                zenoh_config(c.connect, (), None if c.zenoh_config else c.mode, c.zenoh_config)
+            )
         except (zenoh.ZError, ValueError) as exc:
             raise PlannerError(
                 f"cannot open a Zenoh session to {', '.join(self.config.connect)}: {exc}"
@@ -137,3 +141,29 @@ class MapClient:
         if self._session is None:
             raise RuntimeError("MapClient used outside its `with` block")
         return query_region(self._session, map_id, box, self.config)
+
+    def newest_sample_t(self, map_id: str) -> float | None:
+        """The newest merged sample's time [s] over every (trusted) server's `status` (mission time:
+        where the recording logs a plan made now), None when no server answers."""
+        if self._session is None:
+            raise RuntimeError("MapClient used outside its `with` block")
+        trusted = set(self.config.trusted_servers)
+        best: float | None = None
+        replies = self._session.get(
+            status_key(map_id),
+            target=zenoh.QueryTarget.ALL,
+            consolidation=zenoh.ConsolidationMode.NONE,
+            timeout=self.config.timeout_s,
+        )
+        for reply in replies:
+            rid = reply.replier_id
+            if trusted and (rid is None or str(rid.zid) not in trusted) or reply.ok is None:
+                continue
+            try:
+                st = decode(reply.ok.payload.to_bytes(), expected_type="status")
+            except ProtocolError as exc:
+                log.warning("undecodable status reply: %s", exc)
+                continue
+            assert isinstance(st, Status)
+            best = st.t if best is None else max(best, st.t)
+        return best

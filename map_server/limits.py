@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from protocol.codec import DEFAULT_MAX_BYTES
+from protocol.errors import DEFAULT_MAX_BYTES
 
 
 @dataclass(frozen=True)

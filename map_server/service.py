@@ -82,6 +82,7 @@ class MapService:
     def __init__(self, config: ServerConfig) -> None:
         self.config = config
         self.map = TiledMap(config.res, config.tile)
+        self.newest_t = 0.0  # newest merged sample's scout clock [s] (the recording's sim_time)
         self.merger = Merger(self.map, config.map_id, limits=config.limits)
         self.store = (
             MapStore(config.db, config.map_id, config.res, config.tile, auto_checkpoint=False)
@@ -114,7 +115,9 @@ class MapService:
         if self._session is not None:
             return self
         c = self.config
-        conf = zenoh_config(c.connect, c.listen, None if c.zenoh_config else c.mode, c.zenoh_config, c.insecure)
+        conf = zenoh_config(
+            c.connect, c.listen, None if c.zenoh_config else c.mode, c.zenoh_config, c.insecure
+        )
         if not c.shared_memory:
             conf.insert_json5("transport/shared_memory/enabled", "false")
         # Zenoh itself drops a message far over the delta limit before buffering it (a margin for framing)
@@ -173,6 +176,7 @@ class MapService:
                 self.store.snapshot(self.map)
             self.store.close()
         if self._viz is not None:
+            self._viz.log_tiles(self.map, set(), self.lock, self.merger.book.version, force=True)
             self._viz.close()
 
     def __enter__(self) -> MapService:
@@ -228,7 +232,9 @@ class MapService:
             if size > limit:
                 with self.lock:
                     self.merger.book.rejected["oversize"] += 1
-                log.warning("rejected delta on %s: oversize: %d bytes; limit max_message_bytes=%d", key, size, limit)
+                log.warning(
+                    "rejected delta on %s: oversize: %d bytes; limit max_message_bytes=%d", key, size, limit
+                )
                 continue
             out.append((key, s.payload.to_bytes()))
         return out
@@ -241,7 +247,9 @@ class MapService:
             self._process(samples)
             return True
         except Exception as exc:
-            log.exception("merge worker failed on a batch of %d deltas; nothing of it was acked", len(samples))
+            log.exception(
+                "merge worker failed on a batch of %d deltas; nothing of it was acked", len(samples)
+            )
             reason = f"internal_{type(exc).__name__}"
             with self.lock:
                 self.merger.book.rejected[reason] += len(samples)
@@ -282,6 +290,8 @@ class MapService:
                     store_error = exc
             touched = self.map.take_touched() if self._viz is not None else set()
             version = self.merger.book.version
+        if res.accepted:
+            self.newest_t = max(self.newest_t, *(a.delta.t for a in res.accepted))
         if store_error is not None:
             try:
                 self._commit_until_durable(res, store_error)
@@ -305,7 +315,7 @@ class MapService:
                 # enough for its log to double still progresses at one slice per FORCED_STEP_S
                 self._snapshot_step()
         if self._viz is not None and touched:
-            self._viz.log_tiles(self.map, touched, self.lock, version)
+            self._viz.log_tiles(self.map, touched, self.lock, version, self.newest_t)
 
     def _snapshot_step(self) -> None:
         assert self.store is not None
@@ -390,6 +400,7 @@ class MapService:
                 dict(book.rejected),
                 scouts,
                 health,
+                self.newest_t,
             )
 
     def region(self, rq: RegionQuery) -> MapRegion:
@@ -398,7 +409,8 @@ class MapService:
         for name, v in (("x0", rq.x0), ("y0", rq.y0), ("x1", rq.x1), ("y1", rq.y1)):
             if not -reach <= v <= reach:
                 raise ProtocolError(
-                    "bad_value", f"{name}={v:g} m is outside the map's index range (±2^30 cells = ±{reach:.4g} m)"
+                    "bad_value",
+                    f"{name}={v:g} m is outside the map's index range (±2^30 cells = ±{reach:.4g} m)",
                 )
         ix0, iy0 = (int(v) for v in cell_index(rq.x0, rq.y0, res))
         ix1, iy1 = (int(v) for v in cell_index(rq.x1, rq.y1, res))

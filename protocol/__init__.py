@@ -2,33 +2,50 @@
 
 from __future__ import annotations
 
-from protocol.codec import DEFAULT_MAX_BYTES, INDEX_LIMIT, decode, encode
-from protocol.errors import REASONS, ProtocolError
-from protocol.keys import (
-    ack_key,
-    alive_key,
-    alive_pattern,
-    delta_key,
-    delta_pattern,
-    map_key,
-    parse_delta_key,
-    status_key,
-    validate_id,
-)
-from protocol.layers import (
-    LAYERS,
-    Layer,
-    cell_center,
-    cell_index,
-    elevation_slope_deg,
-    layer_derived,
-    layer_value,
-    merge_op,
-    plane_fit,
-)
-from protocol.messages import VERSION, Ack, CellDelta, MapRegion, RegionQuery, ScoutStatus, Status
-from protocol.publisher import DeltaPublisher, InMemoryTransport, Transport, UnackedBufferFull
-from protocol.session import zenoh_config
+import importlib
+from typing import Any
+
+# name -> the module defining it; imported on first use (PEP 562), so `import protocol.keys` (or the CLI's
+# start-up) does not pay for numpy, msgpack and Zenoh
+_EXPORTS: dict[str, str] = {
+    "DEFAULT_MAX_BYTES": "protocol.errors",
+    "INDEX_LIMIT": "protocol.codec",
+    "decode": "protocol.codec",
+    "encode": "protocol.codec",
+    "REASONS": "protocol.errors",
+    "ProtocolError": "protocol.errors",
+    "ack_key": "protocol.keys",
+    "alive_key": "protocol.keys",
+    "alive_pattern": "protocol.keys",
+    "delta_key": "protocol.keys",
+    "delta_pattern": "protocol.keys",
+    "map_key": "protocol.keys",
+    "parse_delta_key": "protocol.keys",
+    "status_key": "protocol.keys",
+    "validate_id": "protocol.keys",
+    "LAYERS": "protocol.layers",
+    "Layer": "protocol.layers",
+    "cell_center": "protocol.layers",
+    "cell_index": "protocol.layers",
+    "elevation_slope_deg": "protocol.layers",
+    "layer_derived": "protocol.layers",
+    "layer_value": "protocol.layers",
+    "merge_op": "protocol.layers",
+    "plane_fit": "protocol.layers",
+    "VERSION": "protocol.messages",
+    "Ack": "protocol.messages",
+    "CellDelta": "protocol.messages",
+    "MapRegion": "protocol.messages",
+    "RegionQuery": "protocol.messages",
+    "ScoutStatus": "protocol.messages",
+    "Status": "protocol.messages",
+    "DeltaPublisher": "protocol.publisher",
+    "InMemoryTransport": "protocol.publisher",
+    "Transport": "protocol.publisher",
+    "UnackedBufferFull": "protocol.publisher",
+    "zenoh_config": "protocol.session",
+}
+
 
 __all__ = [
     "DEFAULT_MAX_BYTES",
@@ -68,3 +85,12 @@ __all__ = [
     "validate_id",
     "zenoh_config",
 ]
+
+
+def __getattr__(name: str) -> Any:
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module 'protocol' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value

@@ -8,14 +8,13 @@ from typing import Any
 import msgpack
 import numpy as np
 
-from protocol.errors import ProtocolError
+from protocol.errors import DEFAULT_MAX_BYTES, ProtocolError
 from protocol.keys import parse_ack_key, parse_delta_key, validate_id
 from protocol.layers import Layer, get_layer
 from protocol.messages import VERSION, Ack, CellDelta, MapRegion, ScoutStatus, Status
 
 __all__ = ["DEFAULT_MAX_BYTES", "INDEX_LIMIT", "Message", "decode", "encode"]
 
-DEFAULT_MAX_BYTES = 8 * 1024 * 1024
 INDEX_LIMIT = 2**30  # |ix|, |iy| must not exceed this
 INT64_MAX = 2**63 - 1
 Message = CellDelta | Ack | MapRegion | Status
@@ -91,6 +90,7 @@ def encode(msg: Message) -> bytes:
                 for k, s in msg.scouts.items()
             },
             "health": dict(msg.health),
+            "t": float(msg.t),
         }
     else:
         raise TypeError(f"cannot encode {type(msg).__name__}; messages: CellDelta, Ack, MapRegion, Status")
@@ -316,8 +316,15 @@ def _decode_status(d: dict) -> Status:
         rejected[reason] = count
     health = _dict(d.get("health", {}), f"{w}.health")
     for k, v in health.items():
-        if not isinstance(k, str) or not (v is None or isinstance(v, str | float | int)) or isinstance(v, bool):
+        if (
+            not isinstance(k, str)
+            or not (v is None or isinstance(v, str | float | int))
+            or isinstance(v, bool)
+        ):
             raise ProtocolError("wrong_type", f"{w}.health.{k} must be a string, a number or nil")
+    t = d.get("t", 0.0)  # optional: senders before it was added do not set it
+    if isinstance(t, bool) or not isinstance(t, int | float) or not math.isfinite(t):
+        raise ProtocolError("wrong_type", f"{w}.t must be a finite number of seconds")
     return Status(
         validate_id(_get(d, "map", w), "map"),
         _float(d, "res", w, positive=True),
@@ -328,6 +335,7 @@ def _decode_status(d: dict) -> Status:
         rejected,
         scouts,
         health,
+        float(t),
     )
 
 

@@ -5,6 +5,8 @@ from __future__ import annotations
 __all__ = ["REASONS", "ProtocolError"]
 
 # Every reason a message can be rejected for; the server counts rejections by these keys in `status`.
+DEFAULT_MAX_BYTES = 8 * 1024 * 1024  # a message larger than this is rejected (`oversize`) before decoding
+
 REASONS: tuple[str, ...] = (
     "decode",  # not msgpack, or not a map with string keys
     "oversize",  # payload longer than the configured maximum

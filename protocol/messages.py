@@ -95,6 +95,7 @@ class Status:
     # the merge worker's and the store's health: worker ok | waiting_for_store | failed, worker_error,
     # store ok | error | none, store_error (the original error of the last failed commit), last_commit_unix
     health: dict[str, str | float | None] = field(default_factory=dict)
+    t: float = 0.0  # newest merged sample's scout clock [s] since the server started (mission time; 0: none)
 
     def to_json(self) -> dict:
         """Plain JSON-ready dict (what `psrmap status` prints and a mission's summary.json keeps)."""
@@ -111,6 +112,7 @@ class Status:
                 for k, v in self.scouts.items()
             },
             "health": dict(self.health),
+            "t": self.t,
         }
 
 
@@ -118,7 +120,9 @@ def _no_repeats(names: tuple[str, ...], what: str) -> None:
     seen: set[str] = set()
     for n in names:
         if n in seen:
-            raise ProtocolError("duplicate_name", f"{what} lists {n!r} more than once; name each at most once")
+            raise ProtocolError(
+                "duplicate_name", f"{what} lists {n!r} more than once; name each at most once"
+            )
         seen.add(n)
 
 

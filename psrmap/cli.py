@@ -3,6 +3,11 @@
 Each component package owns its own subcommands in its `cli.py` (a `register(subparsers)` function
 that adds parsers whose `func` default runs the command). This module only collects them, so the
 components stay independent of each other.
+
+Start-up stays fast: `COMMANDS` names each command's module and one-line help, and only the module of the
+command being run is imported (the simulator, Pinocchio and Rerun load only for the commands that use
+them); `psrmap --help` imports none. `tests/test_cli.py` checks that the table matches what each module
+registers.
 """
 
 from __future__ import annotations
@@ -13,30 +18,56 @@ import os
 import sys
 from collections.abc import Sequence
 
-# Packages that contribute subcommands, in the order they are listed in `psrmap --help`.
-_COMMAND_MODULES = (
-    "map_server.cli",  # router, server, status, query
-    "scout_agent.cli",  # scout, evaluate
-    "consumer_planner.cli",  # plan, compare
-    "psrmap.mission",  # mission
-    "psrmap.secure",  # secure init
-    "psrmap.experiments",  # experiment
-)
+# command -> (module whose `register` adds it, its one-line help), in `psrmap --help` order
+COMMANDS: dict[str, tuple[str, str]] = {
+    "router": ("map_server.cli", "run an embedded Zenoh router"),
+    "server": ("map_server.cli", "run the map server of one map"),
+    "status": ("map_server.cli", "print a map server's status"),
+    "query": ("map_server.cli", "query a box of the map"),
+    "scout": ("scout_agent.cli", "walk a simulated Aliengo (ramps or lunar terrain)"),
+    "evaluate": ("scout_agent.cli", "run one scout and score its map and detectors against ground truth"),
+    "plan": ("consumer_planner.cli", "cheapest path on the shared map, with its breakdown"),
+    "compare": ("consumer_planner.cli", "breakdowns of given routes on the shared map"),
+    "mission": (
+        "psrmap.mission",
+        "run a whole mission: router, map server, N scouts, a planner query (embedded defaults)",
+    ),
+    "secure": ("psrmap.secure", "credentials and access control for a mission's Zenoh network"),
+    "experiment": ("psrmap.experiments", "reproduce the seed paper's experiments (and the map-utility one)"),
+}
 
 
-def build_parser() -> argparse.ArgumentParser:
+def _wanted(argv: Sequence[str]) -> str | None:
+    """The command named on the command line (the first word that is not an option), if any."""
+    for a in argv:
+        if not a.startswith("-"):
+            return a
+    return None
+
+
+def build_parser(argv: Sequence[str] | None = None, full: bool = False) -> argparse.ArgumentParser:
+    """The parser for `argv`: the named command's module registers its real parsers; every other command
+    is a placeholder with its help line (`full`: import and register every module)."""
     parser = argparse.ArgumentParser(
         prog="psrmap",
         description="Proprioceptive terrain mapping for legged lunar scouts, shared over Zenoh.",
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    for name in _COMMAND_MODULES:
-        importlib.import_module(name).register(sub)
+    wanted = _wanted(sys.argv[1:] if argv is None else argv)
+    modules = (
+        {m for m, _ in COMMANDS.values()} if full else {COMMANDS[wanted][0]} if wanted in COMMANDS else set()
+    )
+    for module in dict.fromkeys(m for m, _ in COMMANDS.values()):
+        if module in modules:
+            importlib.import_module(module).register(sub)
+    for name, (module, helptext) in COMMANDS.items():
+        if module not in modules:
+            sub.add_parser(name, help=helptext, add_help=False)
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
+    parser = build_parser(argv)
     args = parser.parse_args(argv)
     try:
         result = args.func(args)

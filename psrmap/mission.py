@@ -30,7 +30,9 @@ from typing import Any
 
 import numpy as np
 
+from protocol.recording import use_viewer
 from psrmap.agreement import elevation_agreement
+from psrmap.progress import progress as progress_bar
 
 DRIFT_KEYS = ("drift_xy_m", "drift_xy_pct", "drift_z_m", "drift_yaw_deg", "state_source")
 
@@ -201,9 +203,11 @@ def _credential_files(cfg: MissionConfig) -> dict[str, Path]:
     needed = {n: router.with_name(f"{n}.json5") for n in ["server", "planner", *(s.id for s in cfg.scouts)]}
     missing = [str(p) for p in [router, *needed.values()] if not p.is_file()]
     if missing:
-        raise MissionError(f"--zenoh-config {router}: need the router's file and, beside it, one per component "
-                           f"(psrmap secure init --scouts <the mission's scout ids> --planners planner); missing: "
-                           f"{', '.join(missing)}")
+        raise MissionError(
+            f"--zenoh-config {router}: need the router's file and, beside it, one per component "
+            f"(psrmap secure init --scouts <the mission's scout ids> --planners planner); missing: "
+            f"{', '.join(missing)}"
+        )
     return needed
 
 
@@ -296,8 +300,8 @@ def scout_argv(cfg: MissionConfig, s: ScoutPlan, endpoint: str, run_dir: Path) -
         argv += ["--via=" + ",".join(f"{v:g}" for v in p) for p in s.via]
     else:
         argv += ["--slope", str(cfg.slope)]
-    if cfg.rrd:
-        argv += ["--rrd", str(run_dir / "recordings" / f"{s.id}.rrd")]
+    if cfg.rrd:  # the terrain is in the mission's own recording, once
+        argv += ["--rrd", str(run_dir / "recordings" / f"{s.id}.rrd"), "--no-rrd-terrain"]
     return argv
 
 
@@ -344,20 +348,22 @@ def rerun_exe() -> list[str]:
 
 
 def merge_recordings(run_dir: Path) -> Path | None:
-    """Merge every process's .rrd of the run into `mission.rrd` (the recordings share one recording id)."""
+    """Merge every process's .rrd of the run into `mission.rrd` (the recordings share one recording id) and
+    compact its chunks (`rerun rrd optimize`: the processes send small chunks as they go; the viewer loads
+    and scrubs the compacted file much faster)."""
     parts = sorted((run_dir / "recordings").glob("*.rrd"))
     if not parts:
         return None
     dst = run_dir / "mission.rrd"
     res = subprocess.run(
-        [*rerun_exe(), "rrd", "merge", *map(str, parts), "-o", str(dst)],
+        [*rerun_exe(), "rrd", "optimize", *map(str, parts), "-o", str(dst)],
         capture_output=True,
         text=True,
         check=False,
     )
     if res.returncode != 0:
         print(
-            f"warning: rerun rrd merge failed ({res.stderr.strip()[:300]}); the per-process recordings stay",
+            f"warning: rerun rrd optimize failed ({res.stderr.strip()[:300]}); the per-process recordings stay",
             file=sys.stderr,
         )
         return None
@@ -367,7 +373,6 @@ def merge_recordings(run_dir: Path) -> Path | None:
 def run_mission(cfg: MissionConfig, run_dir: Path | None = None, progress: bool = True) -> dict[str, Any]:
     """Run the mission, return its summary (also written to `<run_dir>/summary.json`)."""
     import zenoh
-    from tqdm import tqdm
 
     from protocol.session import zenoh_config
 
@@ -401,13 +406,17 @@ def run_mission(cfg: MissionConfig, run_dir: Path | None = None, progress: bool 
     elif cfg.secure:
         from psrmap.secure import secure_init
 
-        lay = secure_init(run_dir / "secure", cfg.map, [s.id for s in cfg.scouts], ["planner"], ["server"],
-                          endpoint)
+        lay = secure_init(
+            run_dir / "secure", cfg.map, [s.id for s in cfg.scouts], ["planner"], ["server"], endpoint
+        )
         creds = {name: ["--zenoh-config", str(path)] for name, path in lay.agents.items()}
         router_file = lay.router
     with zenoh.open(zenoh_config(listen=[endpoint], mode="router", config_file=router_file)) as session:
-        say(f"[mission] router listening on {endpoint}"
-            + (" (credentials + ACL)" if creds else " (no credentials)") + f"; run folder {run_dir}")
+        say(
+            f"[mission] router listening on {endpoint}"
+            + (" (credentials + ACL)" if creds else " (no credentials)")
+            + f"; run folder {run_dir}"
+        )
         try:
             server_argv = [
                 "server",
@@ -429,18 +438,21 @@ def run_mission(cfg: MissionConfig, run_dir: Path | None = None, progress: bool 
             _log_context(cfg, run_dir, recording_id)
             for s in cfg.scouts:
                 procs.append(
-                    _spawn(ctx, s.id, scout_argv(cfg, s, endpoint, run_dir) + creds.get(s.id, []), run_dir, env,
-                           json_out=True)
+                    _spawn(
+                        ctx,
+                        s.id,
+                        scout_argv(cfg, s, endpoint, run_dir) + creds.get(s.id, []),
+                        run_dir,
+                        env,
+                        json_out=True,
+                    )
                 )
             say(
                 f"[mission] {len(procs)} scouts walking (≤ {cfg.sim_seconds:g} s each): "
                 + ", ".join(p.name for p in procs)
             )
             total = cfg.sim_seconds * len(procs)
-            bar = tqdm(
-                total=round(total), unit="sim-s", desc="scouts", disable=not progress, dynamic_ncols=True
-            )
-            last_line = 0.0
+            bar = progress_bar(round(total), "scouts", "sim-s", disable=not progress, every_s=15.0)
             while any(p.proc.is_alive() for p in procs):
                 if time.monotonic() > deadline:
                     raise RuntimeError(f"mission timed out after {cfg.timeout_s:g} s")
@@ -454,8 +466,6 @@ def run_mission(cfg: MissionConfig, run_dir: Path | None = None, progress: bool 
                         deltas=st.merged, cells=st.cells, alive=sum(v.alive for v in st.scouts.values())
                     )
                     bar.refresh()
-                    if not bar.disable and time.monotonic() - last_line > 15:
-                        last_line = time.monotonic()
                 if server is not None and not server.proc.is_alive():
                     raise RuntimeError(f"the map server died (code {server.proc.exitcode}); see {server.log}")
                 time.sleep(0.5)
@@ -470,15 +480,19 @@ def run_mission(cfg: MissionConfig, run_dir: Path | None = None, progress: bool 
                 )
             summary["scouts"] = scouts
             # each scout's state-estimate drift at its goal, and how its own map agrees with the others'
-            summary["drift"] = {sid: {k: s.get(k) for k in DRIFT_KEYS} for sid, s in scouts.items() if "error" not in s}
+            summary["drift"] = {
+                sid: {k: s.get(k) for k in DRIFT_KEYS} for sid, s in scouts.items() if "error" not in s
+            }
             summary["elevation_agreement"] = elevation_agreement(
-                {s.id: run_dir / f"{s.id}_local.npz" for s in cfg.scouts})
+                {s.id: run_dir / f"{s.id}_local.npz" for s in cfg.scouts}
+            )
             summary["status"] = _status_json(_await_totals(session, cfg, scouts))
             say(
                 f"[mission] scouts done; server merged {summary['status']['merged']} deltas into {summary['status']['cells']} cells"
             )
             summary["plan"], summary["comparison"] = _plan_and_compare(
-                ctx, cfg, endpoint, run_dir, env, creds.get("planner", []))
+                ctx, cfg, endpoint, run_dir, env, creds.get("planner", [])
+            )
             summary["map_png"] = _plot(session, cfg, run_dir, summary)
         finally:
             for p in procs:
@@ -653,8 +667,10 @@ def _print_report(summary: dict[str, Any]) -> None:
             f"drift {s.get('drift_xy_pct')} % / z {s.get('drift_z_m')} m / yaw {s.get('drift_yaw_deg')}°"
         )
     for pair, a in (summary.get("elevation_agreement") or {}).items():
-        print(f"  own maps {pair}: {a['cells']} shared elevation cells, differ by {a['mean_diff_m']:+.3f} m "
-              f"(RMS {a['rms_diff_m']:.3f} m)")
+        print(
+            f"  own maps {pair}: {a['cells']} shared elevation cells, differ by {a['mean_diff_m']:+.3f} m "
+            f"(RMS {a['rms_diff_m']:.3f} m)"
+        )
     plan = summary.get("plan") or {}
     if "error" in plan:
         print(f"  plan: {plan['error']}")
@@ -662,7 +678,11 @@ def _print_report(summary: dict[str, Any]) -> None:
         moved = plan.get("goal_moved_m") or 0.0
         print(
             f"  plan: {plan.get('length_m', float('nan')):.1f} m, cost {plan.get('cost', float('nan')):.2f}"
-            + (f" (goal cell forbidden by the map: moved {moved:.2f} m to the nearest passable cell)" if moved else "")
+            + (
+                f" (goal cell forbidden by the map: moved {moved:.2f} m to the nearest passable cell)"
+                if moved
+                else ""
+            )
         )
     comparison = summary.get("comparison") or {}
     if comparison.get("routes"):
@@ -699,11 +719,27 @@ def register(sub: Any) -> None:
     p.add_argument("--out", help="parent folder of the run folder (default runs/)")
     p.add_argument("--run-dir", help="exact run folder (default <out>/<timestamp>)")
     p.add_argument("--no-rrd", action="store_true", help="do not write Rerun recordings")
-    p.add_argument("--zenoh-config", metavar="ROUTER.json5",
-                   help="use an existing `psrmap secure init` folder: its router.json5 (the agents' files beside "
-                        "it: server, planner and one per scout id) instead of fresh per-run credentials")
-    p.add_argument("--no-secure", action="store_true",
-                   help="no per-run credentials and router ACL (every component talks to an open loopback router)")
+    p.add_argument(
+        "--zenoh-config",
+        metavar="ROUTER.json5",
+        help="use an existing `psrmap secure init` folder: its router.json5 (the agents' files beside "
+        "it: server, planner and one per scout id) instead of fresh per-run credentials",
+    )
+    p.add_argument(
+        "--no-secure",
+        action="store_true",
+        help="no per-run credentials and router ACL (every component talks to an open loopback router)",
+    )
+    p.add_argument(
+        "--viewer",
+        action="store_true",
+        help="spawn a local Rerun viewer and stream the whole mission to it live (besides the .rrd files)",
+    )
+    p.add_argument(
+        "--connect-viewer",
+        metavar="URL",
+        help="stream the mission live to a running Rerun viewer, e.g. rerun+http://127.0.0.1:9876/proxy",
+    )
     p.add_argument("--quiet", action="store_true", help="no progress output, only the final JSON path")
     p.set_defaults(func=_cmd_mission, parser=p)
 
@@ -728,7 +764,10 @@ def _cmd_mission(args: argparse.Namespace) -> int:
             changes["zenoh_config"] = args.zenoh_config
         cfg = dataclasses.replace(cfg, **changes)
         validate(cfg)
-    except MissionError as exc:
+        if (args.viewer or args.connect_viewer) and not cfg.rrd:
+            raise MissionError("--viewer/--connect-viewer stream the recordings: drop --no-rrd")
+        use_viewer(args.viewer, args.connect_viewer)  # the components inherit PSRMAP_VIEWER_URL
+    except (MissionError, ValueError) as exc:
         args.parser.error(str(exc))
     summary = run_mission(cfg, Path(args.run_dir) if args.run_dir else None, progress=not args.quiet)
     if args.quiet:

@@ -15,6 +15,7 @@ import json
 from dataclasses import replace
 
 from protocol.keys import id_arg
+from protocol.recording import use_viewer, viewer_url
 from scout_agent.evaluate import register_evaluate
 from scout_agent.mapping import add_mapping_arguments, attach_mapping
 from scout_agent.run import SCENES, ScoutRunConfig, build_world, run_scout
@@ -30,10 +31,14 @@ def _floats(n_min: int, n_max: int, what: str):
         try:
             vals = tuple(float(v) for v in text.split(","))
         except ValueError:
-            raise argparse.ArgumentTypeError(f"{what}: expected numbers separated by commas, got {text!r}") from None
+            raise argparse.ArgumentTypeError(
+                f"{what}: expected numbers separated by commas, got {text!r}"
+            ) from None
         if not n_min <= len(vals) <= n_max:
             count = f"{n_min}" if n_min == n_max else f"{n_min} or {n_max}"
-            raise argparse.ArgumentTypeError(f"{what}: expected {count} numbers separated by commas, got {text!r}")
+            raise argparse.ArgumentTypeError(
+                f"{what}: expected {count} numbers separated by commas, got {text!r}"
+            )
         return vals
 
     return parse
@@ -49,34 +54,65 @@ def _patch(text: str) -> Patch:
 def add_scout_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scene", choices=SCENES, default="ramps", help="ramps testbed or 20×20 m lunar field")
     p.add_argument("--slope", type=float, default=15.0, help="ramps: angle α in degrees, 0–25 (default 15)")
-    p.add_argument("--ramp-lengths", type=_floats(5, 5, "approach,up,platform,down,exit lengths"),
-                   metavar="A,U,P,D,E", help="ramps: horizontal segment lengths [m] (default 1.5,3,2,3,2)")
+    p.add_argument(
+        "--ramp-lengths",
+        type=_floats(5, 5, "approach,up,platform,down,exit lengths"),
+        metavar="A,U,P,D,E",
+        help="ramps: horizontal segment lengths [m] (default 1.5,3,2,3,2)",
+    )
     p.add_argument("--seed", type=int, default=0, help="lunar terrain and sensor-noise seed")
     p.add_argument("--route", choices=tuple(LUNAR_ROUTES), help="lunar: a named corner-to-corner route")
     p.add_argument("--start", type=_floats(2, 3, "x,y[,yaw] start"), help="start x,y[,yaw] [m, rad]")
     p.add_argument("--goal", type=_floats(2, 2, "x,y goal"), help="goal x,y [m]")
-    p.add_argument("--via", type=_floats(2, 2, "x,y via point"), action="append", default=[],
-                   help="intermediate waypoint x,y (repeatable)")
+    p.add_argument(
+        "--via",
+        type=_floats(2, 2, "x,y via point"),
+        action="append",
+        default=[],
+        help="intermediate waypoint x,y (repeatable)",
+    )
     p.add_argument("--speed", type=float, default=0.2, help="commanded speed [m/s] (default 0.2)")
     p.add_argument("--sim-seconds", type=float, help="simulated time limit [s]")
     p.add_argument("--friction", type=float, default=0.7, help="regolith friction (default 0.7)")
     p.add_argument("--slippery", type=float, metavar="MU", help="ramps: slippery patch over the down-ramp")
-    p.add_argument("--slippery-patches", type=int, default=0, metavar="N", help="lunar: N seeded slippery patches")
-    p.add_argument("--patch", type=_patch, action="append", default=[], metavar="x0,y0,x1,y1,MU",
-                   help="friction rectangle (repeatable)")
-    p.add_argument("--state", choices=STATE_SOURCES, default="estimate",
-                   help="base state the robot runs on: its own estimate (default) or the simulator's exact "
-                        "state (evaluation only)")
-    p.add_argument("--imu", choices=tuple(IMU_PRESETS), default="bmi088",
-                   help="IMU the sensor model imitates: consumer MEMS (default) or a tactical-grade part")
-    p.add_argument("--contact", choices=CONTACT_SOURCES, default="pressure",
-                   help="foot contact from the 1-D foot pressure sensors (default) or from joint torques")
+    p.add_argument(
+        "--slippery-patches", type=int, default=0, metavar="N", help="lunar: N seeded slippery patches"
+    )
+    p.add_argument(
+        "--patch",
+        type=_patch,
+        action="append",
+        default=[],
+        metavar="x0,y0,x1,y1,MU",
+        help="friction rectangle (repeatable)",
+    )
+    p.add_argument(
+        "--state",
+        choices=STATE_SOURCES,
+        default="estimate",
+        help="base state the robot runs on: its own estimate (default) or the simulator's exact "
+        "state (evaluation only)",
+    )
+    p.add_argument(
+        "--imu",
+        choices=tuple(IMU_PRESETS),
+        default="bmi088",
+        help="IMU the sensor model imitates: consumer MEMS (default) or a tactical-grade part",
+    )
+    p.add_argument(
+        "--contact",
+        choices=CONTACT_SOURCES,
+        default="pressure",
+        help="foot contact from the 1-D foot pressure sensors (default) or from joint torques",
+    )
     p.add_argument("--scout-id", default="scout1", type=id_arg("scout"), help="scout id ([A-Za-z0-9_-]+)")
 
 
 def _sim_config(state: str, contact: str, imu: str = "bmi088") -> SimConfig:
     base = SimConfig()
-    sensors = replace(base.sensors, contact=replace(base.sensors.contact, source=contact), imu=IMU_PRESETS[imu])
+    sensors = replace(
+        base.sensors, contact=replace(base.sensors.contact, source=contact), imu=IMU_PRESETS[imu]
+    )
     return replace(base, state_source=state, sensors=sensors)
 
 
@@ -104,11 +140,23 @@ def config_from_args(args: argparse.Namespace, parser: argparse.ArgumentParser) 
         a, u, pl, d, e = args.ramp_lengths
         ramp = RampConfig(approach_m=a, up_m=u, platform_m=pl, down_m=d, exit_m=e)
     cfg = ScoutRunConfig(
-        scene=args.scene, slope_deg=args.slope, ramp=ramp, seed=args.seed, route=args.route, start=args.start,
-        goal=tuple(args.goal) if args.goal else None, via=tuple(tuple(v) for v in args.via), speed=args.speed,
-        sim_seconds=args.sim_seconds, friction_default=args.friction, slippery_mu=args.slippery,
-        slippery_patches=args.slippery_patches, patches=tuple(args.patch), scout_id=args.scout_id,
-        sim=_sim_config(args.state, args.contact, args.imu))
+        scene=args.scene,
+        slope_deg=args.slope,
+        ramp=ramp,
+        seed=args.seed,
+        route=args.route,
+        start=args.start,
+        goal=tuple(args.goal) if args.goal else None,
+        via=tuple(tuple(v) for v in args.via),
+        speed=args.speed,
+        sim_seconds=args.sim_seconds,
+        friction_default=args.friction,
+        slippery_mu=args.slippery,
+        slippery_patches=args.slippery_patches,
+        patches=tuple(args.patch),
+        scout_id=args.scout_id,
+        sim=_sim_config(args.state, args.contact, args.imu),
+    )
     try:
         build_world(cfg)
     except ValueError as exc:
@@ -121,16 +169,23 @@ def cmd_scout(args: argparse.Namespace) -> int:
     world = build_world(cfg)
     on_tick = None
     logger = None
-    if args.rrd:
+    try:
+        use_viewer(args.viewer, args.connect_viewer)
+    except ValueError as exc:
+        args._parser.error(str(exc))
+    if args.rrd or viewer_url():
         from scout_agent import viz
 
         rec = viz.open_recording(args.rrd)
-        viz.log_terrain(rec, world.terrain)
-        viz.log_friction(rec, world.friction, world.terrain)
+        if not args.no_rrd_terrain:  # a mission logs the terrain once in its own recording
+            viz.log_terrain(rec, world.terrain)
+            viz.log_friction(rec, world.friction, world.terrain)
         logger = viz.ScoutLogger(rec, cfg.scout_id, height=world.terrain.height)
         on_tick = lambda sample, truth, sim: logger.log_tick(sample, truth)  # noqa: E731
     on_estimates = logger.log_estimates if logger is not None else None
-    with attach_mapping(args, cfg, on_tick, on_estimates) as mapping:  # estimators + cell deltas (scout_agent.mapping)
+    with attach_mapping(
+        args, cfg, on_tick, on_estimates
+    ) as mapping:  # estimators + cell deltas (scout_agent.mapping)
         summary = run_scout(cfg, on_tick=mapping.on_tick, progress=not args.quiet, world=world)
     summary["map"] = mapping.summary
     if logger is not None:
@@ -139,22 +194,43 @@ def cmd_scout(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(summary))
     else:
-        state = "FELL at {}".format(summary["fall_xy"]) if summary["fell"] else (
-            "reached the goal" if summary["reached_goal"] else "stopped (time limit)")
-        print(f"{summary['terrain']}: {state}; {summary['distance_m']:.2f} m at {summary['mean_speed_mps']:.3f} m/s, "
-              f"{summary['sim_seconds']:.1f} s simulated, {summary['real_time_factor']}× real time; "
-              f"state {summary['state_source']}, drift {summary.get('drift_xy_m')} m horizontal "
-              f"({summary.get('drift_xy_pct')} % of distance), {summary.get('drift_z_m')} m vertical, "
-              f"{summary.get('drift_yaw_deg')}° yaw")
+        state = (
+            "FELL at {}".format(summary["fall_xy"])
+            if summary["fell"]
+            else ("reached the goal" if summary["reached_goal"] else "stopped (time limit)")
+        )
+        print(
+            f"{summary['terrain']}: {state}; {summary['distance_m']:.2f} m at {summary['mean_speed_mps']:.3f} m/s, "
+            f"{summary['sim_seconds']:.1f} s simulated, {summary['real_time_factor']}× real time; "
+            f"state {summary['state_source']}, drift {summary.get('drift_xy_m')} m horizontal "
+            f"({summary.get('drift_xy_pct')} % of distance), {summary.get('drift_z_m')} m vertical, "
+            f"{summary.get('drift_yaw_deg')}° yaw"
+        )
     return 1 if summary["fell"] else 0
 
 
 def register(subparsers) -> argparse.ArgumentParser:
-    p = subparsers.add_parser("scout", help="walk a simulated Aliengo (ramps or lunar terrain)",
-                              description=__doc__.split("\n\n")[0])
+    p = subparsers.add_parser(
+        "scout",
+        help="walk a simulated Aliengo (ramps or lunar terrain)",
+        description=__doc__.split("\n\n")[0],
+    )
     add_scout_arguments(p)
     add_mapping_arguments(p)
     p.add_argument("--rrd", metavar="PATH", help="write a Rerun recording")
+    p.add_argument(
+        "--viewer", action="store_true", help="spawn a local Rerun viewer and stream the walk to it live"
+    )
+    p.add_argument(
+        "--connect-viewer",
+        metavar="URL",
+        help="stream the walk live to a running Rerun viewer, e.g. rerun+http://127.0.0.1:9876/proxy",
+    )
+    p.add_argument(
+        "--no-rrd-terrain",
+        action="store_true",
+        help="do not log the terrain and friction patches (the mission's own recording holds them)",
+    )
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_scout, _parser=p)

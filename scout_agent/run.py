@@ -6,6 +6,8 @@ estimators and the map publisher plug into the same loop the `scout` command use
 
 from __future__ import annotations
 
+import math
+import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
@@ -102,7 +104,9 @@ def build_world(cfg: ScoutRunConfig) -> World:
     xa, ya, xb, yb = terrain.extent
     for p in waypoints:
         if not (xa <= p[0] <= xb and ya <= p[1] <= yb):
-            raise ValueError(f"waypoint {tuple(float(v) for v in p)} outside the terrain [{xa}, {xb}] × [{ya}, {yb}]")
+            raise ValueError(
+                f"waypoint {tuple(float(v) for v in p)} outside the terrain [{xa}, {xb}] × [{ya}, {yb}]"
+            )
     if cfg.start is not None and len(cfg.start) == 3:
         yaw = float(cfg.start[2])
     else:
@@ -115,8 +119,9 @@ def path_length(waypoints: np.ndarray) -> float:
     return float(np.sum(np.hypot(*np.diff(waypoints, axis=0).T)))
 
 
-def run_scout(cfg: ScoutRunConfig, on_tick: OnTick | None = None, progress: bool = True,
-              world: World | None = None) -> dict:
+def run_scout(
+    cfg: ScoutRunConfig, on_tick: OnTick | None = None, progress: bool = True, world: World | None = None
+) -> dict:
     """Walk the configured path until the goal, a fall or the time limit; return the JSON summary."""
     world = world or build_world(cfg)
     sim_cfg = replace(cfg.sim, sensors=replace(cfg.sim.sensors, seed=cfg.seed))
@@ -125,10 +130,11 @@ def run_scout(cfg: ScoutRunConfig, on_tick: OnTick | None = None, progress: bool
     limit = cfg.sim_seconds or 2.0 * path_length(world.waypoints) / max(cfg.speed, 0.05) + 10.0
     n_ticks = int(np.ceil(limit / sim.control_dt))
     bar = None
-    if progress:
+    if progress and sys.stderr.isatty():
         from tqdm import tqdm
 
         bar = tqdm(total=n_ticks, unit="tick", desc=f"{cfg.scout_id} {world.terrain.name}", leave=False)
+    next_line = 30.0 if progress and bar is None else math.inf  # not a terminal: a status line every 30 s
     wall0 = time.perf_counter()
     prev_xy = np.array(world.start[:2])
     distance = 0.0
@@ -156,6 +162,13 @@ def run_scout(cfg: ScoutRunConfig, on_tick: OnTick | None = None, progress: bool
             on_tick(sample, truth, sim)
         if bar is not None and k % 50 == 0:
             bar.update(50)
+        elif time.perf_counter() - wall0 >= next_line:
+            next_line += 30.0
+            print(
+                f"[{cfg.scout_id}] {sim.t:.0f}/{limit:.0f} s simulated, {distance:.1f} m walked",
+                file=sys.stderr,
+                flush=True,
+            )
         if sim.fell or follower.reached:
             break
     if bar is not None:
@@ -164,19 +177,28 @@ def run_scout(cfg: ScoutRunConfig, on_tick: OnTick | None = None, progress: bool
     walked = sim.t - (walk_t0 or sim.t)
     pos = sim.data.qpos[0:3]
     return {
-        "scene": cfg.scene, "terrain": world.terrain.name, "scout": cfg.scout_id,
-        "waypoints": world.waypoints.round(3).tolist(), "speed_cmd_mps": cfg.speed,
-        "fell": bool(sim.fell), "fall_xy": list(sim.fall_xy) if sim.fall_xy else None,
-        "reached_goal": bool(follower.reached), "final_xy": [float(pos[0]), float(pos[1])],
-        "distance_m": round(distance, 3), "mean_speed_mps": round(distance / walked, 4) if walked > 0 else 0.0,
-        "sim_seconds": round(sim.t, 3), "wall_seconds": round(wall, 2),
+        "scene": cfg.scene,
+        "terrain": world.terrain.name,
+        "scout": cfg.scout_id,
+        "waypoints": world.waypoints.round(3).tolist(),
+        "speed_cmd_mps": cfg.speed,
+        "fell": bool(sim.fell),
+        "fall_xy": list(sim.fall_xy) if sim.fall_xy else None,
+        "reached_goal": bool(follower.reached),
+        "final_xy": [float(pos[0]), float(pos[1])],
+        "distance_m": round(distance, 3),
+        "mean_speed_mps": round(distance / walked, 4) if walked > 0 else 0.0,
+        "sim_seconds": round(sim.t, 3),
+        "wall_seconds": round(wall, 2),
         "real_time_factor": round(sim.t / wall, 2) if wall > 0 else None,
-        "nonfoot_contact_ticks": int(nonfoot_ticks), "friction": world.friction.to_dict(),
+        "nonfoot_contact_ticks": int(nonfoot_ticks),
+        "friction": world.friction.to_dict(),
         "state_source": sim.config.state_source,
         **drift(sample, truth, distance),
         "energy_truth_j": round(sim.energy_true_j, 3),
         "cot_whole_run_truth": _r4(sim.energy_true_j / (C.TOTAL_MASS * C.LUNAR_G * speed_path))
-        if speed_path > 0.05 else None,
+        if speed_path > 0.05
+        else None,
     }
 
 

@@ -1,7 +1,9 @@
 """Rerun logging for a scout (the only module of scout_agent that imports rerun).
 
 One explicit `rr.RecordingStream` is passed in; entity paths mirror the system:
-`world/terrain`, `world/friction`, `world/scouts/<id>/{base,feet,trajectory,signals/…}`.
+`world/terrain`, `world/friction`, `world/scouts/<id>/{base,feet,trajectory,trajectory_estimate,slips}`, and
+time series grouped by unit (one plot per unit; series named after the scout, foot or joint):
+`world/scouts/<id>/series/<group>` — see `SERIES`. Everything is on `sim_time` (protocol.recording).
 """
 
 from __future__ import annotations
@@ -9,23 +11,39 @@ from __future__ import annotations
 import numpy as np
 import rerun as rr
 
-from protocol.recording import APP_ID, recording_id
-from scout_agent.signals import LEG_NAMES, GroundTruth, ProprioSample
+from protocol.recording import TIMELINE, open_stream, scout_color
+from scout_agent.signals import JOINT_NAMES, LEG_NAMES, GroundTruth, ProprioSample
 from scout_agent.sim.friction import FrictionMap
 from scout_agent.sim.terrain import Terrain
 
-TIMELINE = "sim_time"
+# series group -> (title with unit, series names; "{id}" is the scout id). One entity per group and scout,
+# one plot per group in the default blueprint.
+SERIES: dict[str, tuple[str, tuple[str, ...]]] = {
+    "speed_mps": ("speed [m/s]", ("{id} true", "{id} estimate")),
+    "drift_m": ("state-estimate drift [m]", ("{id} horizontal", "{id} vertical")),
+    "foot_pressure_n": ("foot pressure [N]", tuple(f"{{id}} {leg}" for leg in LEG_NAMES)),
+    "stance_disp_m": ("stance foot displacement (truth) [m]", tuple(f"{{id}} {leg}" for leg in LEG_NAMES)),
+    "joint_torque_nm": ("joint torque [N·m]", tuple("{id} " + j.removesuffix("_joint") for j in JOINT_NAMES)),
+    "slip_dv_mps": (
+        "slip ΔV and threshold ε_v [m/s]",
+        (*(f"{{id}} ΔV {leg}" for leg in LEG_NAMES), "{id} ε_v"),
+    ),
+    "cot": ("running cost of transport [1]", ("{id}",)),
+    "giim_rad": ("GIIM [rad]", ("{id}",)),
+    "giam_mps2": ("GIAM [m/s²]", ("{id}",)),
+    "nonfoot_contacts": ("non-foot contacts [count]", ("{id}",)),
+}
 
 
-def open_recording(path: str, app_id: str = APP_ID) -> rr.RecordingStream:
-    """A recording that streams to an .rrd file, in the mission's recording (`PSRMAP_RECORDING_ID`) if set."""
-    rec = rr.RecordingStream(app_id, recording_id=recording_id())
-    rec.save(path)
-    return rec
+def open_recording(path: str | None) -> rr.RecordingStream:
+    """A recording saved to `path` (and streamed to the live viewer if `PSRMAP_VIEWER_URL` names one), in
+    the mission's recording (`PSRMAP_RECORDING_ID`) if set."""
+    return open_stream(path)
 
 
 def log_terrain(rec: rr.RecordingStream, terrain: Terrain, step: int = 2) -> None:
-    """The terrain as a static triangle mesh (every `step`-th grid sample), coloured by slope."""
+    """The terrain as a static triangle mesh (every `step`-th grid sample), coloured by slope; z up."""
+    rec.log("/", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
     z = terrain.z[::step, ::step]
     ny, nx = z.shape
     xa, ya, _, _ = terrain.extent
@@ -39,8 +57,11 @@ def log_terrain(rec: rr.RecordingStream, terrain: Terrain, step: int = 2) -> Non
     slope = terrain.slope_deg(X.ravel(), Y.ravel())
     shade = np.clip(1.0 - slope / 40.0, 0.2, 1.0)
     colors = (np.stack([shade * 0.75, shade * 0.75, shade * 0.72], 1) * 255).astype(np.uint8)
-    rec.log("world/terrain", rr.Mesh3D(vertex_positions=verts, triangle_indices=tris, vertex_colors=colors),
-            static=True)
+    rec.log(
+        "world/terrain",
+        rr.Mesh3D(vertex_positions=verts, triangle_indices=tris, vertex_colors=colors),
+        static=True,
+    )
 
 
 def log_friction(rec: rr.RecordingStream, friction: FrictionMap, terrain: Terrain) -> None:
@@ -57,6 +78,10 @@ def log_friction(rec: rr.RecordingStream, friction: FrictionMap, terrain: Terrai
 
 _IN_CONTACT = np.array([40, 220, 40, 255])
 _IN_SWING = np.array([200, 200, 200, 255])
+
+
+def _lighter(rgb: tuple[int, int, int], k: float = 0.55) -> list[int]:
+    return [round(c + (255 - c) * k) for c in rgb]
 
 
 class _Series:
@@ -80,16 +105,18 @@ class _Series:
             cols = rr.Scalars.columns(scalars=vals.ravel())
             if vals.ndim == 2:
                 cols = cols.partition(lengths=[vals.shape[1]] * len(ts))
-            self.rec.send_columns(path, indexes=[rr.TimeColumn(TIMELINE, duration=np.asarray(ts))], columns=cols)
+            self.rec.send_columns(
+                path, indexes=[rr.TimeColumn(TIMELINE, duration=np.asarray(ts))], columns=cols
+            )
             ts.clear()
             self.v[path].clear()
 
 
 class ScoutLogger:
-    """Logs one scout: pose, feet and contacts, signals and the estimators' outputs (ΔV, ε_v, running CoT,
-    GIIM, GIAM), sampled every `every` control ticks and sent in columns every `flush_every_s` (one Rerun
-    call per entity per flush: a `log` call costs ~0.5 ms); the trail every `trail_every_s`; slip events as
-    they happen.
+    """Logs one scout: pose (a box in the scout's colour, labelled with its id), feet and contacts, the true
+    trajectory (scout colour) beside the scout's own estimate of it (lighter), slip events, and time series
+    grouped by unit (`SERIES`), sampled every `every` control ticks and sent in columns every `flush_every_s`
+    (one Rerun call per entity per flush: a `log` call costs ~0.5 ms); the trail every `trail_every_s`.
 
     `height(x, y)` (optional, e.g. the terrain's) only places slip-event markers on the ground for display."""
 
@@ -103,7 +130,9 @@ class ScoutLogger:
         flush_every_s: float = 1.0,
     ) -> None:
         self.rec = rec
+        self.id = scout_id
         self.root = f"world/scouts/{scout_id}"
+        self.color = scout_color(scout_id)
         self.every = every
         self.height = height
         self.trail_every_s = trail_every_s
@@ -126,11 +155,31 @@ class ScoutLogger:
         self._feet: list[np.ndarray] = []
         self._contact: list[np.ndarray] = []
 
+    def _series(self, group: str) -> str:
+        return f"{self.root}/series/{group}"
+
+    def _log_static(self) -> None:
+        """What never changes: the body box, the feet's size, every series' name and colour."""
+        rec, root = self.rec, self.root
+        rec.log(
+            f"{root}/base/body",
+            rr.Boxes3D(
+                half_sizes=[[0.32, 0.075, 0.056]], colors=[self.color], labels=[self.id], show_labels=True
+            ),
+            static=True,
+        )
+        rec.log(f"{root}/feet", rr.Points3D.from_fields(radii=[0.03] * 4), static=True)
+        for group, (_, names) in SERIES.items():
+            rec.log(
+                self._series(group), rr.SeriesLines(names=[n.format(id=self.id) for n in names]), static=True
+            )
+        self._static_logged = True
+
     def log_tick(self, sample: ProprioSample, truth: GroundTruth) -> None:
         self._k += 1
         if self._k % self.every:
             return
-        root, t = self.root, truth.t
+        t = truth.t
         self._t = t
         b = truth.base
         self._traj.append(b.pos.copy())
@@ -140,15 +189,17 @@ class ScoutLogger:
         self._quat.append([b.quat[1], b.quat[2], b.quat[3], b.quat[0]])  # xyzw
         self._feet.append(truth.foot_pos_world.copy())
         self._contact.append(sample.contact.copy())
-        sig, add = f"{root}/signals", self.series.add
-        add(f"{sig}/speed_mps", t, float(np.hypot(*b.vel[:2])))
-        add(f"{sig}/speed_estimate_mps", t, float(np.hypot(*sample.base.vel[:2])))
-        add(f"{sig}/drift_xy_m", t, float(np.hypot(*(sample.base.pos[:2] - b.pos[:2]))))
-        add(f"{sig}/drift_z_m", t, float(sample.base.pos[2] - b.pos[2]))
-        add(f"{sig}/foot_pressure_n", t, sample.foot_pressure)
-        add(f"{sig}/stance_disp_m", t, np.nan_to_num(truth.stance_disp))
-        add(f"{sig}/nonfoot_contacts", t, float(truth.nonfoot_contacts))
-        add(f"{sig}/tau", t, sample.tau)
+        add, s = self.series.add, self._series
+        add(s("speed_mps"), t, [float(np.hypot(*b.vel[:2])), float(np.hypot(*sample.base.vel[:2]))])
+        add(
+            s("drift_m"),
+            t,
+            [float(np.hypot(*(sample.base.pos[:2] - b.pos[:2]))), float(sample.base.pos[2] - b.pos[2])],
+        )
+        add(s("foot_pressure_n"), t, sample.foot_pressure)
+        add(s("stance_disp_m"), t, np.nan_to_num(truth.stance_disp))
+        add(s("nonfoot_contacts"), t, float(truth.nonfoot_contacts))
+        add(s("joint_torque_nm"), t, sample.tau)
         if t >= self._next_trail:
             self._next_trail = t + self.trail_every_s
             self.rec.set_time(TIMELINE, duration=t)
@@ -159,20 +210,28 @@ class ScoutLogger:
 
     def _flush(self) -> None:
         """Send the buffered poses, feet and time series, one `send_columns` call per entity."""
+        if not self._static_logged:
+            self._log_static()
         if self._pose_t:
             rec, root, n = self.rec, self.root, len(self._pose_t)
-            if not self._static_logged:  # what rides on the base and never changes: once
-                rec.log(f"{root}/base/body", rr.Boxes3D(half_sizes=[[0.32, 0.075, 0.056]], colors=[230, 115, 25]),
-                        static=True)
-                rec.log(f"{root}/feet", rr.Points3D.from_fields(radii=[0.03] * 4, labels=list(LEG_NAMES)),
-                        static=True)
-                self._static_logged = True
             time = [rr.TimeColumn(TIMELINE, duration=np.asarray(self._pose_t))]
-            rec.send_columns(f"{root}/base", indexes=time, columns=rr.Transform3D.columns(
-                translation=np.asarray(self._pose), quaternion=np.asarray(self._quat)))
-            colors = np.where(np.asarray(self._contact).reshape(-1, 1), _IN_CONTACT, _IN_SWING).astype(np.uint8)
-            rec.send_columns(f"{root}/feet", indexes=time, columns=rr.Points3D.columns(
-                positions=np.asarray(self._feet).reshape(-1, 3), colors=colors).partition(lengths=[4] * n))
+            rec.send_columns(
+                f"{root}/base",
+                indexes=time,
+                columns=rr.Transform3D.columns(
+                    translation=np.asarray(self._pose), quaternion=np.asarray(self._quat)
+                ),
+            )
+            colors = np.where(np.asarray(self._contact).reshape(-1, 1), _IN_CONTACT, _IN_SWING).astype(
+                np.uint8
+            )
+            rec.send_columns(
+                f"{root}/feet",
+                indexes=time,
+                columns=rr.Points3D.columns(
+                    positions=np.asarray(self._feet).reshape(-1, 3), colors=colors
+                ).partition(lengths=[4] * n),
+            )
             for buf in (self._pose_t, self._pose, self._quat, self._feet, self._contact):
                 buf.clear()
         self.series.flush()
@@ -190,21 +249,27 @@ class ScoutLogger:
         self._ke += 1
         if self._ke % self.every:
             return
-        root, t, add = f"{self.root}/estimates", est.t, self.series.add
-        add(f"{root}/dv", t, np.nan_to_num(np.asarray(est.slip.dv, dtype=float)))
-        add(f"{root}/eps_v", t, float(est.slip.eps_v))
+        t, add, s = est.t, self.series.add, self._series
+        add(
+            s("slip_dv_mps"), t, [*np.nan_to_num(np.asarray(est.slip.dv, dtype=float)), float(est.slip.eps_v)]
+        )
         if self._dist > 0.05:
-            add(f"{root}/cot_running", t, self._work / self._dist)
+            add(s("cot"), t, self._work / self._dist)
         if np.isfinite(est.giim):
-            add(f"{root}/giim_rad", t, float(est.giim))
-            add(f"{root}/giam_mps2", t, float(est.giam))
+            add(s("giim_rad"), t, float(est.giim))
+            add(s("giam_mps2"), t, float(est.giam))
 
     def _log_trail(self) -> None:
-        """The true trajectory (red) and the scout's estimate of it (cyan), side by side."""
+        """The true trajectory (scout colour) and the scout's estimate of it (lighter), side by side."""
         if len(self._traj) > 1:
-            self.rec.log(f"{self.root}/trajectory", rr.LineStrips3D([np.array(self._traj)], colors=[255, 60, 60]))
-            self.rec.log(f"{self.root}/trajectory_estimate",
-                         rr.LineStrips3D([np.array(self._traj_est)], colors=[40, 200, 230]))
+            self.rec.log(
+                f"{self.root}/trajectory",
+                rr.LineStrips3D([np.array(self._traj)], colors=[self.color], labels=[self.id]),
+            )
+            self.rec.log(
+                f"{self.root}/trajectory_estimate",
+                rr.LineStrips3D([np.array(self._traj_est)], colors=[_lighter(self.color)]),
+            )
 
     def finish(self) -> None:
         self.rec.set_time(TIMELINE, duration=self._t)

@@ -317,9 +317,9 @@ class RunPool:
                 todo[k] = s
         bar = None
         if self.progress:
-            from tqdm import tqdm
+            from psrmap.progress import progress
 
-            bar = tqdm(total=len(results) + len(todo), initial=len(results), desc=desc, unit="run")
+            bar = progress(len(results) + len(todo), desc, "run", initial=len(results), every_s=30.0)
         try:
             for res in self._walk(list(todo.values())):
                 key = res["key"]
@@ -333,7 +333,7 @@ class RunPool:
                 results[key] = res
                 if bar is not None:
                     s = res["summary"]
-                    bar.set_postfix_str(f"{res['spec']['label']} {'FELL' if s['fell'] else 'ok'}")
+                    bar.set_postfix(last=f"{res['spec']['label']} {'FELL' if s['fell'] else 'ok'}")
                     bar.update(1)
         finally:
             if bar is not None:
@@ -379,7 +379,9 @@ def estimation_summary(runs: list[dict]) -> dict[str, Any]:
         "falls": sum(bool(r["summary"]["fell"]) for r in runs),
         "drift_xy_pct_mean": fmean(xy),
         "drift_xy_pct_max": max(xy) if xy else None,
-        "drift_z_m_mean_abs": fmean(abs(v) for v in vals(lambda r: r["summary"].get("drift_z_m")) if v is not None),
+        "drift_z_m_mean_abs": fmean(
+            abs(v) for v in vals(lambda r: r["summary"].get("drift_z_m")) if v is not None
+        ),
         "drift_yaw_deg_mean_abs": fmean(
             abs(v) for v in vals(lambda r: r["summary"].get("drift_yaw_deg")) if v is not None
         ),

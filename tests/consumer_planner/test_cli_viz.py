@@ -112,3 +112,81 @@ def test_slip_spread_option_reaches_the_cost(npz, capsys):
     assert costs["0.8"]["terms"]["slip"] == pytest.approx(costs["0.8"]["expected_slip_events"])
     assert main(["compare", "--npz", str(npz), *route]) == 0
     assert "slip spread 0.8 m" in capsys.readouterr().out
+
+
+def test_plan_recording_is_placed_draped_and_readable(npz, tmp_path, capsys):
+    """The cost grid lands on the map box (row 0 of the image = the north edge, as Rerun draws it), the path
+    is draped on the map's elevation, the breakdown is a Markdown table, all at the given sim_time."""
+    from rerun.chunk import RrdReader
+
+    data = dict(np.load(npz))
+    for key in [k for k in data if k.endswith("/n")]:
+        data[key][-2:, :] = 0.0  # the two northmost rows (iy 10, 11: y 4..5 m) unexplored
+    data["elevation/n"] = data["cot/n"].copy()
+    data["elevation/value"] = np.where(data["elevation/n"] > 0, 0.7, np.nan)
+    np.savez(npz, **data)
+    rrd = tmp_path / "plan.rrd"
+    assert (
+        main(
+            [
+                "plan",
+                "--npz",
+                str(npz),
+                "--from=-0.5,-0.5",
+                "--to",
+                "6.5,3.5",
+                "--unknown",
+                "penalty",
+                "--json",
+                "--rrd",
+                str(rrd),
+                "--sim-time",
+                "42.5",
+            ]
+        )
+        == 0
+    )
+    capsys.readouterr()
+    cols: dict[str, dict] = {}
+    for chunk in RrdReader(rrd).stream():
+        rb = chunk.to_record_batch()
+        if not chunk.is_static:
+            assert "sim_time" in chunk.timeline_names, chunk.entity_path
+            t = rb.column(rb.schema.names.index("sim_time")).cast("int64").to_pylist()
+            assert t == [42_500_000_000] * len(t)
+        cols.setdefault(chunk.entity_path, {}).update(
+            {n: rb.column(i).to_pylist()[-1] for i, n in enumerate(rb.schema.names) if ":" in n}
+        )
+    cost = cols["/map/cost"]
+    assert np.ravel(cost["GridMap:translation"])[:2].tolist() == [-1.0, -1.0]  # ix0 = iy0 = -2 at 0.5 m
+    fmt = cost["GridMap:format"][0]
+    img = np.asarray(cost["GridMap:data"][0], dtype=np.uint8).reshape(fmt["height"], fmt["width"], 4)
+    # the dearest cells (the unknown-cell penalty) are bright (viridis' yellow): the whole row iy = 10, near the
+    # north edge, is; Rerun draws image row 0 at the top, so it must be image row h - 1 - 10 = 1
+    bright = (img[..., 0] > 200) & (img[..., 1] > 200)
+    assert bright[1].all() and bright[2:, 7:9].all()
+    assert not bright[10].all() and not bright[2:, :7].any()
+    path = (
+        np.asarray(cols["/plans/plan/path"]["LineStrips3D:strips"][0]) if "/plans/plan/path" in cols else None
+    )
+    if path is None:
+        path = np.asarray(next(v["LineStrips3D:strips"][0] for k, v in cols.items() if k.endswith("/path")))
+    assert np.allclose(path[:, 2], 0.7 + 0.15)  # on the mapped ground, lifted to stay visible
+    text = cols["/plans/breakdown"]["TextDocument:text"][0]
+    assert text.startswith("| route | length [m] |") and "|---|" in text
+
+
+def test_cost_image_marks_impassable_cells_red_and_spans_the_cost_range():
+    from consumer_planner.viz import cost_image
+
+    class _Costs:  # cost_image reads only `.cost`
+        cost = np.array([[1.0, 2.0], [np.inf, 3.0]])
+
+    img = cost_image(_Costs())  # type: ignore[arg-type]
+    assert img.shape == (2, 2, 4)
+    assert tuple(img[1, 0]) == (220, 30, 30, 230)  # impassable
+    assert tuple(img[0, 0, :3]) == (68, 1, 84) and tuple(img[1, 1, :3]) == (
+        253,
+        231,
+        37,
+    )  # min, max of viridis

@@ -156,12 +156,160 @@ def test_the_mission_runs_secured_by_default(mission: tuple[dict, Path]) -> None
 def test_a_mission_on_an_existing_secure_folder(tmp_path: Path) -> None:
     from psrmap.secure import secure_init
 
-    cfg = dataclasses.replace(with_scouts(load_config(), 1), sim_seconds=6.0, rrd=False, timeout_s=300.0,
-                              plan_from=(1.6, 1.6), plan_to=(2.0, 2.0))
+    cfg = dataclasses.replace(
+        with_scouts(load_config(), 1),
+        sim_seconds=6.0,
+        rrd=False,
+        timeout_s=300.0,
+        plan_from=(1.6, 1.6),
+        plan_to=(2.0, 2.0),
+    )
     lay = secure_init(tmp_path / "sec", cfg.map, [s.id for s in cfg.scouts], ["planner"])
     bad = dataclasses.replace(cfg, zenoh_config=str(tmp_path / "nowhere" / "router.json5"))
     with pytest.raises(MissionError, match="missing"):
         run_mission(bad, tmp_path / "bad", progress=False)
-    summary = run_mission(dataclasses.replace(cfg, zenoh_config=str(lay.router)), tmp_path / "run", progress=False)
+    summary = run_mission(
+        dataclasses.replace(cfg, zenoh_config=str(lay.router)), tmp_path / "run", progress=False
+    )
     assert summary["status"]["merged"] == deltas_sent(summary["scouts"]["scout1"]) > 0
     assert not (tmp_path / "run" / "secure").exists()  # no fresh credentials: the given ones were used
+
+
+def _recording_index(rrd: Path) -> tuple[dict[str, set[str]], dict[str, bool]]:
+    """entity -> timelines its temporal chunks carry; entity -> has static data."""
+    from rerun.chunk import RrdReader
+
+    timelines: dict[str, set[str]] = {}
+    static: dict[str, bool] = {}
+    for chunk in RrdReader(rrd).stream():
+        e = chunk.entity_path.rstrip("/") or "/"
+        if chunk.is_static:
+            static[e] = True
+        else:
+            timelines.setdefault(e, set()).update(chunk.timeline_names)
+    return timelines, static
+
+
+def _views(container):  # every view of a blueprint container, depth first
+    for item in getattr(container, "contents", []):
+        if hasattr(item, "origin"):
+            yield item
+        else:
+            yield from _views(item)
+
+
+def test_every_blueprint_entity_has_data_on_sim_time(mission: tuple[dict, Path]) -> None:
+    """The default view (timeline sim_time) shows scouts, map, plans together: every entity the default
+    blueprint shows has data on sim_time (or static data, shown on every timeline), and every view's
+    contents match entities of the recording."""
+    from protocol.recording import TIMELINE
+    from psrmap.viz import default_blueprint
+
+    summary, _ = mission
+    timelines, static = _recording_index(Path(summary["recording"]))
+    entities = set(timelines) | set(static)
+    for e, tls in timelines.items():
+        assert TIMELINE in tls, f"{e} is logged on {sorted(tls)}, not on {TIMELINE}"
+    blueprint = default_blueprint(sorted(summary["scouts"]))
+    assert blueprint.time_panel is not None
+    for view in _views(blueprint.root_container):
+        origin = str(view.origin).strip("/")
+        patterns = view.contents if isinstance(view.contents, list) else [view.contents]
+        for pat in patterns:
+            pat = str(pat).replace("$origin", origin).strip("/")
+            if pat.endswith("**"):
+                base = "/" + pat[:-2].rstrip("/")
+                hits = [e for e in entities if e == base or e.startswith(base.rstrip("/") + "/")]
+            else:
+                hits = [e for e in entities if e == "/" + pat]
+            assert hits, f"view {view.name!r}: nothing in the recording matches {pat!r}"
+
+
+def _last_value(rrd: Path, entity: str, column: str) -> list:
+    from rerun.chunk import RrdReader
+
+    best, best_t = None, -1
+    for chunk in RrdReader(rrd).stream():
+        if chunk.entity_path != entity or chunk.is_static:
+            continue
+        rb = chunk.to_record_batch()
+        names = rb.schema.names
+        ts = rb.column(names.index("sim_time")).cast("int64").to_pylist()
+        vals = rb.column(names.index(column)).to_pylist()
+        for t, v in zip(ts, vals, strict=True):
+            if v is not None and t >= best_t:
+                best, best_t = v, t
+    assert best is not None, f"{entity} has no {column}"
+    return best
+
+
+def test_map_layers_lie_under_the_trajectories(mission: tuple[dict, Path]) -> None:
+    """Read the recording back and place every mapped elevation cell the way Rerun draws a GridMap
+    (translation = the image's lower-left corner, image row 0 drawn at the top): each lies under a scout's
+    true trajectory (within a leg's reach + a cell), and the mirrored placement would not."""
+    from rerun.chunk import RrdReader
+
+    summary, _ = mission
+    rrd = Path(summary["recording"])
+    trail = np.concatenate(
+        [
+            np.asarray(_last_value(rrd, f"/world/scouts/{sid}/trajectory", "LineStrips3D:strips")[0])[:, :2]
+            for sid in summary["scouts"]
+        ]
+    )
+    tiles = sorted(
+        {c.entity_path for c in RrdReader(rrd).stream() if c.entity_path.startswith("/map/elevation/")}
+    )
+    assert tiles
+    right, mirrored = [], []
+    for tile in tiles:
+        data = np.asarray(_last_value(rrd, tile, "GridMap:data")[0], dtype=np.uint8)
+        fmt = _last_value(rrd, tile, "GridMap:format")[0]
+        cell = float(np.ravel(_last_value(rrd, tile, "GridMap:cell_size"))[0])
+        x0, y0, _ = np.ravel(_last_value(rrd, tile, "GridMap:translation"))
+        h, w = int(fmt["height"]), int(fmt["width"])
+        img = data.reshape(h, w, 4)
+        rows, cols = np.nonzero(img[..., 3] > 0)
+        xs = x0 + (cols + 0.5) * cell
+        right.append(np.column_stack([xs, y0 + (h - 1 - rows + 0.5) * cell]))
+        mirrored.append(np.column_stack([xs, y0 + (rows + 0.5) * cell]))
+
+    def dist(pts: np.ndarray) -> np.ndarray:
+        return np.min(np.linalg.norm(pts[:, None, :] - trail[None, :, :], axis=2), axis=1)
+
+    d_right, d_mirror = dist(np.concatenate(right)), dist(np.concatenate(mirrored))
+    assert len(d_right) >= 5
+    assert d_right.max() < 0.8, d_right.max()
+    assert np.median(d_mirror) > 2.0, np.median(d_mirror)
+
+
+def test_mission_output_off_a_terminal_is_a_few_plain_lines(tmp_path: Path) -> None:
+    """stdout to a file/CI (not a TTY): no progress-bar redraws, a periodic status line, the report."""
+    import sys
+
+    res = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "psrmap",
+            "mission",
+            "--scouts",
+            "1",
+            "--sim-seconds",
+            "25",
+            "--no-rrd",
+            "--no-secure",
+            "--run-dir",
+            str(tmp_path / "run"),
+        ],
+        capture_output=True,
+        text=True,
+        check=False,
+        timeout=600,
+    )
+    assert res.returncode in (0, 1), res.stderr[-2000:]
+    lines = res.stdout.splitlines()
+    assert "\r" not in res.stdout
+    assert 5 <= len(lines) < 100, res.stdout
+    assert any(line.startswith("[scouts] ") and "sim-s" in line for line in lines), res.stdout
+    assert any(line.startswith("Mission finished") for line in lines)

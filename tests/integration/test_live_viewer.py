@@ -1,0 +1,145 @@
+"""Live viewing: `--connect-viewer URL` streams a scout's walk and a whole mission to a running Rerun gRPC
+server as they run (a real `rerun --serve-grpc` that saves what it receives, standing in for a viewer)."""
+
+from __future__ import annotations
+
+import signal
+import socket
+import subprocess
+import sys
+import time
+import warnings
+from pathlib import Path
+
+import pytest
+
+from psrmap.mission import rerun_exe
+
+pytestmark = pytest.mark.slow
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class _Receiver:
+    """`rerun --serve-grpc --save FILE` on a free loopback port."""
+
+    def __init__(self, path: Path) -> None:
+        self.path, self.port = path, _free_port()
+        self.url = f"rerun+http://127.0.0.1:{self.port}/proxy"
+        self.proc = subprocess.Popen(
+            [
+                *rerun_exe(),
+                "--serve-grpc",
+                "--bind",
+                "127.0.0.1",
+                "--port",
+                str(self.port),
+                "--save",
+                str(path),
+            ],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
+        deadline = time.monotonic() + 20
+        while time.monotonic() < deadline:
+            with socket.socket() as s:
+                if s.connect_ex(("127.0.0.1", self.port)) == 0:
+                    return
+            time.sleep(0.1)
+        self.proc.kill()
+        raise RuntimeError("rerun --serve-grpc did not start")
+
+    def entities(self) -> set[str]:
+        from rerun.chunk import RrdReader
+
+        time.sleep(1.0)
+        self.proc.send_signal(signal.SIGINT)  # flushes and closes the file
+        self.proc.wait(timeout=20)
+        with warnings.catch_warnings():  # `--save` writes a stream without the footer of a finished file
+            warnings.simplefilter("ignore")
+            return {c.entity_path for c in RrdReader(self.path).stream()}
+
+
+def test_scout_streams_live_to_a_viewer(tmp_path: Path) -> None:
+    rx = _Receiver(tmp_path / "live.rrd")
+    res = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "psrmap",
+            "scout",
+            "--scene",
+            "ramps",
+            "--sim-seconds",
+            "4",
+            "--quiet",
+            "--connect-viewer",
+            rx.url,
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+    )
+    assert res.returncode == 0, res.stderr[-2000:]
+    entities = rx.entities()
+    assert {
+        "/world/terrain",
+        "/world/scouts/scout1/base",
+        "/world/scouts/scout1/series/speed_mps",
+    } <= entities
+
+
+def test_a_bad_viewer_url_is_refused_with_the_valid_form(tmp_path: Path) -> None:
+    res = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "psrmap",
+            "scout",
+            "--sim-seconds",
+            "1",
+            "--connect-viewer",
+            "http://127.0.0.1:9876",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
+    assert res.returncode == 2
+    assert "rerun+http://HOST:PORT/proxy" in res.stderr
+
+
+def test_mission_streams_every_component_live(tmp_path: Path) -> None:
+    rx = _Receiver(tmp_path / "live.rrd")
+    res = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "psrmap",
+            "mission",
+            "--scouts",
+            "1",
+            "--sim-seconds",
+            "10",
+            "--no-secure",
+            "--run-dir",
+            str(tmp_path / "run"),
+            "--connect-viewer",
+            rx.url,
+        ],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        check=False,
+    )
+    assert res.returncode in (0, 1), res.stderr[-2000:]
+    entities = rx.entities()
+    for prefix in ("/world/terrain", "/world/scouts/scout1/", "/map/elevation/", "/map/cost", "/plans/"):
+        assert any(e.startswith(prefix) for e in entities), (prefix, sorted(entities)[:30])
+    assert (tmp_path / "run" / "mission.rrd").exists()  # the files are written as well

@@ -1,0 +1,66 @@
+"""The `psrmap` command table: fast start-up without losing a command or its help."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import subprocess
+import sys
+
+import pytest
+
+from psrmap.cli import COMMANDS, build_parser
+
+HEAVY = ("mujoco", "pinocchio", "rerun", "zenoh", "numpy", "scipy", "matplotlib")
+
+
+def _registered() -> dict[str, str]:
+    """command -> help, as the component modules register them."""
+    p = argparse.ArgumentParser()
+    sub = p.add_subparsers()
+    for module in dict.fromkeys(m for m, _ in COMMANDS.values()):
+        importlib.import_module(module).register(sub)
+    helps = {a.dest: a.help for a in sub._choices_actions}
+    return {name: helps.get(name, "") for name in sub.choices}
+
+
+def test_the_command_table_matches_what_the_modules_register() -> None:
+    registered = _registered()
+    assert set(registered) == set(COMMANDS)
+    for name, (_, helptext) in COMMANDS.items():
+        assert registered[name] == helptext, name
+
+
+@pytest.mark.parametrize(
+    "argv", [["--help"], ["router", "--help"], ["status", "--help"], ["query", "--help"]]
+)
+def test_light_commands_start_without_heavy_imports(argv: list[str]) -> None:
+    code = (
+        f"import sys\nfrom psrmap.cli import main\ntry:\n    main({argv!r})\nexcept SystemExit:\n    pass\n"
+        f"print('HEAVY:' + ','.join(m for m in {HEAVY!r} if m in sys.modules))"
+    )
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert "usage: psrmap" in res.stdout
+    heavy = res.stdout.strip().splitlines()[-1]
+    assert heavy == "HEAVY:", f"psrmap {' '.join(argv)} imported {heavy}"
+
+
+def test_every_command_parses_with_its_own_parser() -> None:
+    for name in COMMANDS:
+        parser = build_parser([name])
+        sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+        assert sub.choices[name].add_help, f"{name}: only a placeholder was built"
+
+
+def test_status_lines_print_plain_periodic_lines(capsys: pytest.CaptureFixture[str]) -> None:
+    from psrmap.progress import StatusLines, progress
+
+    bar = progress(10, "work", "run")  # pytest's stderr is not a terminal
+    assert isinstance(bar, StatusLines)
+    bar = StatusLines(10, "work", "run", every_s=0.0)
+    bar.set_postfix(last="a")
+    bar.update(4)
+    bar.close()
+    out = capsys.readouterr().out.splitlines()
+    assert out[0].startswith("[work] 4/10 run (40 %), last=a")
+    assert len(out) == 2 and "\r" not in "".join(out)
