@@ -9,6 +9,7 @@ import logging
 import signal
 import sys
 import threading
+import time
 from collections.abc import Sequence
 from dataclasses import replace
 from typing import Any
@@ -36,15 +37,22 @@ def _stop_on_signals() -> threading.Event:
 
 def add_security_arguments(p: argparse.ArgumentParser, listens: bool = False) -> None:
     """`--zenoh-config FILE` (credentials, TLS: `psrmap secure init`) and, for what listens, `--insecure`."""
-    p.add_argument("--zenoh-config", metavar="FILE", help="Zenoh config with this agent's credentials "
-                   "(`psrmap secure init` writes one per agent)")
+    p.add_argument(
+        "--zenoh-config",
+        metavar="FILE",
+        help="Zenoh config with this agent's credentials (`psrmap secure init` writes one per agent)",
+    )
     if listens:
-        p.add_argument("--insecure", action="store_true",
-                       help="allow listening on a non-loopback endpoint without credentials")
+        p.add_argument(
+            "--insecure",
+            action="store_true",
+            help="allow listening on a non-loopback endpoint without credentials",
+        )
 
 
-def _conf(args: argparse.Namespace, connect: Sequence[str] = (), listen: Sequence[str] = (),
-          mode: str = "client") -> Any:
+def _conf(
+    args: argparse.Namespace, connect: Sequence[str] = (), listen: Sequence[str] = (), mode: str = "client"
+) -> Any:
     """The Zenoh config of a command, or a usage error naming what would have been valid."""
     from protocol.session import zenoh_config
 
@@ -145,8 +153,11 @@ def cmd_server(args: argparse.Namespace) -> int:
         )
         while not stop.wait(0.2):
             if service.failed.is_set():
-                log.error("merge worker failed (%s); exiting non-zero so a supervisor restarts the server "
-                          "from its store", service.worker_error)
+                log.error(
+                    "merge worker failed (%s); exiting non-zero so a supervisor restarts the server "
+                    "from its store",
+                    service.worker_error,
+                )
                 break
     if service.failed.is_set():
         return 70  # EX_SOFTWARE
@@ -174,6 +185,49 @@ def cmd_status(args: argparse.Namespace) -> int:
     out = st.to_json()
     print(json.dumps(out, indent=2))
     return 0
+
+
+QUERY_FORMATS = ("npz", "geotiff", "mcap")
+
+
+def _format_of(out: str | None) -> str:
+    low = (out or "").lower()
+    return "geotiff" if low.endswith((".tif", ".tiff")) else "mcap" if low.endswith(".mcap") else "npz"
+
+
+def _write_interop(args: argparse.Namespace, region: Any, fmt: str) -> str:
+    """The region as a GeoTIFF or a rosbag2/MCAP (interop), from its `value` and `n` stats."""
+    import math
+    from pathlib import Path
+
+    missing = [n for n, st in region.layers.items() if "value" not in st or "n" not in st]
+    if missing:
+        args.parser.error(
+            f"--format {fmt} needs the value and n stats of every layer (--stats value,n); "
+            f"missing for {', '.join(missing)}"
+        )
+    values = {n: st["value"] for n, st in region.layers.items()}
+    counts = {n: st["n"] for n, st in region.layers.items()}
+    x0, y0 = region.ix0 * region.res, region.iy0 * region.res
+    if fmt == "geotiff":
+        from interop.geotiff import MoonOrigin, write_geotiff
+
+        try:
+            origin = MoonOrigin.parse(args.origin) if args.origin else None
+        except ValueError as exc:
+            args.parser.error(str(exc))
+        return str(write_geotiff(args.out, values, counts, region.res, x0, y0, origin,
+                                 tags={"PSRMAP_MAP": region.map, "PSRMAP_VERSION": str(region.version)}))  # fmt: skip
+    from interop.ros2_messages import GRID_MAP, grid_map_msg
+    from interop.rosbag import BagMessage, write_mcap_bag
+
+    out = Path(args.out)
+    if out.exists():
+        args.parser.error(f"--out {out}: exists; a rosbag2 is written into a new folder")
+    layers = {**values, **{f"{n}_count": c for n, c in counts.items()}}
+    stamp = math.floor(time.time() * 1e9)
+    msg = grid_map_msg(layers, region.res, x0, y0, "map", stamp)
+    return str(write_mcap_bag(out, [BagMessage("/psrmap/grid_map", GRID_MAP, msg, stamp)]))
 
 
 def cmd_query(args: argparse.Namespace) -> int:
@@ -209,7 +263,11 @@ def cmd_query(args: argparse.Namespace) -> int:
             v = stats["value"][np.isfinite(stats["value"])]
             entry.update(value_min=float(v.min()), value_mean=float(v.mean()), value_max=float(v.max()))
         summary["layers"][name] = entry
-    if args.out:
+    fmt = args.format or _format_of(args.out)
+    if args.out and fmt != "npz":
+        summary["out"] = _write_interop(args, region, fmt)
+        summary["format"] = fmt
+    elif args.out:
         arrays: dict[str, Any] = {
             f"{name}.{s}": a for name, stats in region.layers.items() for s, a in stats.items()
         }
@@ -245,8 +303,14 @@ def register(subparsers: Any) -> None:
     add_security_arguments(p, listens=True)
     g = p.add_argument_group("limits (a message or query over one is rejected, naming it)")
     for f in dataclasses.fields(Limits):
-        g.add_argument(f"--limit-{f.name.replace('_', '-')}", dest=f"limit_{f.name}", type=_positive_int,
-                       default=f.default, metavar="N", help=f"(default {f.default})")
+        g.add_argument(
+            f"--limit-{f.name.replace('_', '-')}",
+            dest=f"limit_{f.name}",
+            type=_positive_int,
+            default=f.default,
+            metavar="N",
+            help=f"(default {f.default})",
+        )
     p.add_argument("-v", "--verbose", action="store_true")
     p.set_defaults(func=cmd_server, parser=p)
 
@@ -263,7 +327,22 @@ def register(subparsers: Any) -> None:
             p.add_argument("--box", required=True, help="x0,y0,x1,y1 [m], inclusive")
             p.add_argument("--layers", default=None, help="comma-separated layers (default: all)")
             p.add_argument("--stats", default="value,n", help="stats, derived names, or 'all'")
-            p.add_argument("--out", default=None, help="write the arrays to this .npz")
+            p.add_argument(
+                "--out",
+                default=None,
+                help="write the region to this file: .npz (arrays), .tif (GeoTIFF), or a new folder for "
+                "--format mcap (rosbag2)",
+            )
+            p.add_argument(
+                "--format",
+                choices=QUERY_FORMATS,
+                help="format of --out (default from its extension: .tif/.tiff geotiff, .mcap mcap, else npz)",
+            )
+            p.add_argument(
+                "--origin",
+                metavar="LAT,LON[,HEADING]",
+                help="geotiff: the map origin on the Moon [deg]; the file is then in IAU_2015:30135",
+            )
         p.set_defaults(func=fn, parser=p)
 
 

@@ -32,6 +32,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "psrmap.mission",
         "run a whole mission: router, map server, N scouts, a planner query (embedded defaults)",
     ),
+    "ros2": ("psrmap.ros2", "publish the shared map, cost grid and plan to ROS 2 (rmw_zenoh)"),
+    "export": ("psrmap.export", "write a map region as GeoTIFF (GIS) or rosbag2/MCAP (ROS tools)"),
     "secure": ("psrmap.secure", "credentials and access control for a mission's Zenoh network"),
     "experiment": ("psrmap.experiments", "reproduce the seed paper's experiments (and the map-utility one)"),
 }

@@ -83,6 +83,9 @@ class MissionConfig:
     secure: bool = True  # per-run credentials + router ACL (psrmap secure init) for every component
     zenoh_config: str | None = None  # an existing secure folder's router.json5 (agents' files beside it)
     timeout_s: float = 900.0  # the whole mission gives up after this long [s wall clock]
+    # where the map frame's origin is on the Moon: latitude, longitude [deg], heading of the map's +x axis from
+    # the south polar stereographic easting [deg]; exports are then in IAU_2015:30135 (`psrmap export`)
+    origin: tuple[float, float, float] | None = None
 
 
 def _pair(v: Any, what: str) -> tuple[float, float]:
@@ -111,10 +114,29 @@ def _scout(d: dict[str, Any], i: int) -> ScoutPlan:
     return ScoutPlan(sid, (start[0], start[1], start[2]), goal, via)
 
 
-_MISSION_KEYS = ("map", "res", "sim_seconds", "speed", "rate_hz", "out", "secure")
+_MISSION_KEYS = ("map", "res", "sim_seconds", "speed", "rate_hz", "out", "secure", "origin")
 _TERRAIN_KEYS = ("scene", "seed", "slope", "slippery_patches")
 _PLANNER_KEYS = ("from", "to", "unknown", "weights")
 _SCOUT_KEYS = ("id", "start", "goal", "via")
+
+
+def _origin(v: Any, where: str) -> tuple[float, float, float] | None:
+    if v is None:
+        return None
+    try:
+        vals = [float(c) for c in v]
+        if len(vals) == 2:
+            vals.append(0.0)
+        lat, lon, heading = vals
+    except (TypeError, ValueError):
+        raise MissionError(
+            f"{where}: [mission] origin = {v!r}: need [lat, lon] or [lat, lon, heading] in degrees"
+        ) from None
+    if not -90.0 <= lat < -60.0:
+        raise MissionError(
+            f"{where}: [mission] origin latitude {lat}: the south polar projection needs -90 <= lat < -60"
+        )
+    return (lat, lon, heading)
 
 
 def load_config(path: str | Path | None = None) -> MissionConfig:
@@ -169,6 +191,7 @@ def load_config(path: str | Path | None = None) -> MissionConfig:
         plan_to=_pair(p.get("to", base.plan_to), "[planner] to"),
         unknown=str(p.get("unknown", base.unknown)),
         weights={str(k): float(v) for k, v in p.get("weights", {}).items()},
+        origin=_origin(m.get("origin"), where),
     )
     validate(cfg)
     return cfg

@@ -21,6 +21,7 @@ from scout_agent.mapping import add_mapping_arguments, attach_mapping
 from scout_agent.run import SCENES, ScoutRunConfig, build_world, run_scout
 from scout_agent.sensors import IMU_PRESETS
 from scout_agent.sensors.foot_pressure import CONTACT_SOURCES
+from scout_agent.sim.dem import DemWindow
 from scout_agent.sim.friction import Patch
 from scout_agent.sim.simulator import STATE_SOURCES, SimConfig
 from scout_agent.sim.terrain import LUNAR_ROUTES, RampConfig
@@ -62,6 +63,19 @@ def add_scout_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--seed", type=int, default=0, help="lunar terrain and sensor-noise seed")
     p.add_argument("--route", choices=tuple(LUNAR_ROUTES), help="lunar: a named corner-to-corner route")
+    p.add_argument(
+        "--dem",
+        metavar="FILE.tif",
+        help="lunar: take the broad relief from this GeoTIFF DEM (projected, metres; e.g. a LOLA "
+        "LDEM_*.tif); craters, rocks and roughness below its resolution are added, seeded",
+    )
+    p.add_argument(
+        "--dem-window",
+        type=_floats(2, 2, "x,y of the scene's corner in the DEM's CRS"),
+        metavar="X,Y",
+        help="with --dem: the DEM-CRS coordinates [m] of the scene's (0, 0) corner; the 20 m scene "
+        "extends east and north from it (default: the DEM's centre minus 10 m)",
+    )
     p.add_argument("--start", type=_floats(2, 3, "x,y[,yaw] start"), help="start x,y[,yaw] [m, rad]")
     p.add_argument("--goal", type=_floats(2, 2, "x,y goal"), help="goal x,y [m]")
     p.add_argument(
@@ -156,12 +170,32 @@ def config_from_args(args: argparse.Namespace, parser: argparse.ArgumentParser) 
         patches=tuple(args.patch),
         scout_id=args.scout_id,
         sim=_sim_config(args.state, args.contact, args.imu),
+        dem=_dem(args, parser),
     )
     try:
         build_world(cfg)
     except ValueError as exc:
         parser.error(str(exc))
     return cfg
+
+
+def _dem(args: argparse.Namespace, parser: argparse.ArgumentParser) -> DemWindow | None:
+    if args.dem is None:
+        if args.dem_window is not None:
+            parser.error("--dem-window needs --dem FILE.tif")
+        return None
+    if args.scene != "lunar":
+        parser.error("--dem builds the lunar scene: add --scene lunar")
+    if args.dem_window is not None:
+        return DemWindow(args.dem, *args.dem_window)
+    try:
+        import rasterio
+
+        with rasterio.open(args.dem) as ds:
+            b = ds.bounds
+    except Exception as exc:  # rasterio raises its own error types for unreadable files
+        parser.error(f"--dem {args.dem}: cannot read it as a GeoTIFF ({exc})")
+    return DemWindow(args.dem, (b.left + b.right) / 2 - 10.0, (b.bottom + b.top) / 2 - 10.0)
 
 
 def cmd_scout(args: argparse.Namespace) -> int:

@@ -17,6 +17,7 @@ import numpy as np
 from scout_agent.control.follower import FollowerConfig, PathFollower
 from scout_agent.robot import constants as C
 from scout_agent.signals import GroundTruth, ProprioSample
+from scout_agent.sim.dem import DemWindow, read_dem_window
 from scout_agent.sim.friction import (
     DEFAULT_MU,
     FrictionMap,
@@ -58,6 +59,7 @@ class ScoutRunConfig:
     patches: tuple[Patch, ...] = ()  # any scene: explicit rectangles
     sim: SimConfig = field(default_factory=SimConfig)
     scout_id: str = "scout1"
+    dem: DemWindow | None = None  # lunar: the broad relief from a DEM window (seeded detail on top)
 
 
 @dataclass(frozen=True)
@@ -69,10 +71,20 @@ class World:
 
 
 def build_world(cfg: ScoutRunConfig) -> World:
+    if cfg.dem is not None and cfg.scene != "lunar":
+        raise ValueError("--dem builds the lunar scene: use it with --scene lunar")
     if cfg.scene == "ramps":
         terrain = make_ramps(replace(cfg.ramp, slope_deg=cfg.slope_deg))
     elif cfg.scene == "lunar":
-        terrain = make_lunar(LunarConfig(seed=cfg.seed))
+        lunar = LunarConfig(seed=cfg.seed)
+        if cfg.dem is not None:
+            base, info = read_dem_window(cfg.dem, lunar.res) if cfg.dem.size_m == lunar.size_m else (None, {})
+            if base is None:
+                raise ValueError(
+                    f"DEM window size {cfg.dem.size_m:g} m: the lunar scene is {lunar.size_m:g} m"
+                )
+            lunar = replace(lunar, base=base, base_info=info)
+        terrain = make_lunar(lunar)
     else:
         raise ValueError(f"unknown scene {cfg.scene!r}; valid: {', '.join(SCENES)}")
     patches: list[Patch] = []
@@ -115,6 +127,9 @@ def build_world(cfg: ScoutRunConfig) -> World:
     return World(terrain, friction, waypoints, (float(start_xy[0]), float(start_xy[1]), yaw))
 
 
+PATH_EVERY_S = 1.0  # the summary's estimated path: one pose per simulated second
+
+
 def path_length(waypoints: np.ndarray) -> float:
     return float(np.sum(np.hypot(*np.diff(waypoints, axis=0).T)))
 
@@ -142,6 +157,8 @@ def run_scout(
     walk_t0 = None
     nonfoot_ticks = 0
     sample = truth = None
+    path_estimate: list[list[float]] = []  # [t, x, y, z] of the robot's own estimate, every PATH_EVERY_S
+    next_path_t = 0.0
     for k in range(n_ticks):
         st = sim.robot_state()  # the robot's own estimate (exact only with state_source "exact")
         yaw = float(np.arctan2(st.R[1, 0], st.R[0, 0]))
@@ -156,6 +173,9 @@ def run_scout(
             xy = truth.base.pos[:2]
             distance += float(np.hypot(*(xy - prev_xy)))
             prev_xy = xy.copy()
+        if sim.t >= next_path_t:
+            next_path_t += PATH_EVERY_S
+            path_estimate.append([round(sim.t, 3), *(round(float(v), 3) for v in sample.base.pos)])
         nonfoot_ticks += truth.nonfoot_contacts > 0
         speed_path += float(np.hypot(truth.base.vel[0], truth.base.vel[1])) * sim.control_dt
         if on_tick is not None:
@@ -181,6 +201,7 @@ def run_scout(
         "terrain": world.terrain.name,
         "scout": cfg.scout_id,
         "waypoints": world.waypoints.round(3).tolist(),
+        "path_estimate": path_estimate,  # [t s, x, y, z m]: where the scout believes it walked
         "speed_cmd_mps": cfg.speed,
         "fell": bool(sim.fell),
         "fall_xy": list(sim.fall_xy) if sim.fall_xy else None,

@@ -106,8 +106,13 @@ class Terrain:
         if mask is not None:
             s = s[mask]
         p = np.percentile(s, [50, 95, 99, 100])
-        return {"median": float(p[0]), "p95": float(p[1]), "p99": float(p[2]), "max": float(p[3]),
-                "relief_m": float(self.z.max() - self.z.min())}
+        return {
+            "median": float(p[0]),
+            "p95": float(p[1]),
+            "p99": float(p[2]),
+            "max": float(p[3]),
+            "relief_m": float(self.z.max() - self.z.min()),
+        }
 
     def corridor_mask(self, waypoints, half_width: float) -> np.ndarray:
         """(ny-1, nx-1) cells whose centre lies within `half_width` of the polyline `waypoints`."""
@@ -165,11 +170,23 @@ def make_ramps(cfg: RampConfig = RampConfig()) -> Terrain:
     gx = np.arange(nx) * cfg.res
     row = np.interp(gx, xs, zs)
     z = np.tile(row, (ny, 1))
-    segments = {"approach": (xs[0], xs[1]), "up": (xs[1], xs[2]), "platform": (xs[2], xs[3]),
-                "down": (xs[3], xs[4]), "exit": (xs[4], xs[5])}
-    return Terrain(z=z, res=cfg.res, x0=0.0, y0=-cfg.width_m / 2, name=f"ramps{cfg.slope_deg:g}",
-                   spawn=(0.6, 0.0, 0.0), goal=(float(xs[-1] - 0.8), 0.0),
-                   info={"segments": segments, "slope_deg": cfg.slope_deg})
+    segments = {
+        "approach": (xs[0], xs[1]),
+        "up": (xs[1], xs[2]),
+        "platform": (xs[2], xs[3]),
+        "down": (xs[3], xs[4]),
+        "exit": (xs[4], xs[5]),
+    }
+    return Terrain(
+        z=z,
+        res=cfg.res,
+        x0=0.0,
+        y0=-cfg.width_m / 2,
+        name=f"ramps{cfg.slope_deg:g}",
+        spawn=(0.6, 0.0, 0.0),
+        goal=(float(xs[-1] - 0.8), 0.0),
+        info={"segments": segments, "slope_deg": cfg.slope_deg},
+    )
 
 
 # ---------------------------------------------------------------------------------------------- lunar
@@ -187,7 +204,11 @@ class LunarConfig:
     relief_max_slope_deg: float = 12.0  # the broad relief is scaled down until its steepest slope is this
     fine_noise_m: float = 0.004  # smoothed fine noise std
     # crater classes: (min radius, max radius, density per m²), OmniLRS-like
-    crater_classes: tuple[tuple[float, float, float], ...] = ((0.75, 1.25, 0.03), (0.4, 0.75, 0.05), (0.15, 0.4, 0.15))
+    crater_classes: tuple[tuple[float, float, float], ...] = (
+        (0.75, 1.25, 0.03),
+        (0.4, 0.75, 0.05),
+        (0.15, 0.4, 0.15),
+    )
     crossable_depth_ratio: tuple[float, float] = (0.08, 0.15)  # depth/diameter near routes (walls ≤ 25°)
     hazard_depth_ratio: tuple[float, float] = (0.25, 0.4)  # depth/diameter of large craters off routes
     fresh_depth_ratio: tuple[float, float] = (0.12, 0.2)  # smaller craters off routes (fresh: ≈ 0.2)
@@ -201,6 +222,10 @@ class LunarConfig:
     corridor_m: float = 1.2  # half-width of the surveyed corridors along routes
     spawn_radius_m: float = 0.9  # flattened patch around route ends
     corridor_max_slope_deg: float = 26.0  # slopes within corridors are smoothed down to this cap
+    # a measured broad relief (n, n) at `res` (e.g. a DEM window, `scout_agent.sim.dem`) instead of the
+    # seeded one; the seeded detail (fine noise, craters, rocks) is added on top
+    base: np.ndarray | None = field(default=None, compare=False, repr=False)
+    base_info: dict = field(default_factory=dict, compare=False, repr=False)
 
 
 def make_lunar(cfg: LunarConfig = LunarConfig()) -> Terrain:
@@ -208,12 +233,17 @@ def make_lunar(cfg: LunarConfig = LunarConfig()) -> Terrain:
     n = int(round(cfg.size_m / cfg.res)) + 1
     xs = np.arange(n) * cfg.res
     X, Y = np.meshgrid(xs, xs)
-    # broad relief: uniform noise on a coarse grid, bicubic upsampling, then slope cap
-    coarse = rng.uniform(-0.5, 0.5, (cfg.relief_cells, cfg.relief_cells))
-    z = zoom(coarse, (n - 1) / (cfg.relief_cells - 1) + 1e-9, order=3, mode="nearest")[:n, :n]
-    z = (z - z.min()) / max(np.ptp(z), 1e-9) * cfg.relief_m - cfg.relief_m / 2
-    g = np.hypot(*np.gradient(z, cfg.res))
-    z *= min(1.0, np.tan(np.radians(cfg.relief_max_slope_deg)) / g.max())
+    # broad relief: uniform noise on a coarse grid, bicubic upsampling, then slope cap (or a DEM's)
+    coarse = rng.uniform(-0.5, 0.5, (cfg.relief_cells, cfg.relief_cells))  # drawn either way: same detail
+    if cfg.base is not None:
+        if cfg.base.shape != (n, n):
+            raise ValueError(f"base relief {cfg.base.shape}: need ({n}, {n}) at res {cfg.res} m")
+        z = np.array(cfg.base, dtype=np.float64)
+    else:
+        z = zoom(coarse, (n - 1) / (cfg.relief_cells - 1) + 1e-9, order=3, mode="nearest")[:n, :n]
+        z = (z - z.min()) / max(np.ptp(z), 1e-9) * cfg.relief_m - cfg.relief_m / 2
+        g = np.hypot(*np.gradient(z, cfg.res))
+        z *= min(1.0, np.tan(np.radians(cfg.relief_max_slope_deg)) / g.max())
     z += gaussian_filter(rng.normal(0.0, 1.0, z.shape), 2.0) * cfg.fine_noise_m * 2.0 / 0.14
 
     route_dist = np.full(z.shape, np.inf)
@@ -240,14 +270,22 @@ def make_lunar(cfg: LunarConfig = LunarConfig()) -> Terrain:
             if ends < r * 1.3 + cfg.spawn_radius_m + 0.5:
                 continue
             hazard = (not near) and r >= cfg.crater_classes[0][0]
-            ratio = rng.uniform(*(cfg.hazard_depth_ratio if hazard else
-                                  cfg.crossable_depth_ratio if near else cfg.fresh_depth_ratio))
+            ratio = rng.uniform(
+                *(
+                    cfg.hazard_depth_ratio
+                    if hazard
+                    else cfg.crossable_depth_ratio
+                    if near
+                    else cfg.fresh_depth_ratio
+                )
+            )
             depth = ratio * 2 * r
             ell = rng.uniform(0.85, 1.0)
             rot = rng.uniform(0, np.pi)
             placed.append((cx, cy, r))
-            craters.append({"x": float(cx), "y": float(cy), "r": float(r), "depth": float(depth),
-                            "hazard": bool(hazard)})
+            craters.append(
+                {"x": float(cx), "y": float(cy), "r": float(r), "depth": float(depth), "hazard": bool(hazard)}
+            )
             win = r * 2.0
             i0, i1 = int(max(0, (cy - win) / cfg.res)), int(min(n, (cy + win) / cfg.res + 2))
             j0, j1 = int(max(0, (cx - win) / cfg.res)), int(min(n, (cx + win) / cfg.res + 2))
@@ -291,10 +329,23 @@ def make_lunar(cfg: LunarConfig = LunarConfig()) -> Terrain:
 
     direct = LUNAR_ROUTES["direct"]
     yaw = float(np.arctan2(direct[1][1] - direct[0][1], direct[1][0] - direct[0][0]))
-    terrain = Terrain(z=z, res=cfg.res, x0=0.0, y0=0.0, name=f"lunar{cfg.seed}",
-                      spawn=(direct[0][0], direct[0][1], yaw), goal=direct[-1],
-                      info={"seed": cfg.seed, "craters": craters, "rocks": rocks,
-                            "routes": {k: [list(p) for p in v] for k, v in LUNAR_ROUTES.items()}})
+    name = f"dem{cfg.seed}" if cfg.base is not None else f"lunar{cfg.seed}"
+    terrain = Terrain(
+        z=z,
+        res=cfg.res,
+        x0=0.0,
+        y0=0.0,
+        name=name,
+        spawn=(direct[0][0], direct[0][1], yaw),
+        goal=direct[-1],
+        info={
+            "seed": cfg.seed,
+            "craters": craters,
+            "rocks": rocks,
+            **cfg.base_info,
+            "routes": {k: [list(p) for p in v] for k, v in LUNAR_ROUTES.items()},
+        },
+    )
     return terrain
 
 

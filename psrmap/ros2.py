@@ -1,0 +1,203 @@
+"""`psrmap ros2`: the shared map on ROS 2, over ROS 2's own Zenoh middleware (rmw_zenoh).
+
+Publishes, on a Zenoh network a ROS 2 system using `rmw_zenoh_cpp` shares (the same router):
+- `<prefix>/grid_map`: `grid_map_msgs/msg/GridMap`, every layer's value (`<layer>`) and observation count
+  (`<layer>_count`) over `--box` (RViz's grid_map plugin, `ros2 topic echo`);
+- `<prefix>/cost`: the planner's cost grid as `nav_msgs/msg/OccupancyGrid` (0..99 by cost, 100 impassable,
+  -1 unknown);
+- `<prefix>/plan`: with `--plan-from/--plan-to`, the planned path as `nav_msgs/msg/Path`;
+all transient-local (a late subscriber gets the last one), at most `--rate` times a second and only when the
+map's version changed. Wire details in `interop/rmw_zenoh.py`; messages in `interop/ros2_messages.py`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import threading
+import time
+from dataclasses import dataclass
+from typing import Any
+
+__all__ = ["BridgeConfig", "register", "run_bridge"]
+
+
+@dataclass(frozen=True)
+class BridgeConfig:
+    map_id: str
+    box: tuple[float, float, float, float]
+    connect: tuple[str, ...]
+    zenoh_config: str | None = None
+    domain: int = 0
+    prefix: str = "/psrmap"
+    node: str = "psrmap_bridge"
+    frame: str = "map"
+    rate_hz: float = 1.0
+    plan_from: tuple[float, float] | None = None
+    plan_to: tuple[float, float] | None = None
+    once: bool = False  # publish the current map once, then exit
+    max_seconds: float | None = None
+    linger_s: float = 1.0  # with `once`: stay up this long so subscribers and caches get the samples
+
+
+def run_bridge(cfg: BridgeConfig, stop: threading.Event | None = None, log=print) -> dict[str, Any]:
+    """Run until `stop` (or SIGTERM/SIGINT via the CLI), `once`, or `max_seconds`; returns what was published."""
+    import zenoh
+
+    from consumer_planner.client import ClientConfig, query_region
+    from consumer_planner.compare import plan_route
+    from consumer_planner.costs import build_costs
+    from consumer_planner.errors import PlannerError
+    from interop.rmw_zenoh import RosNode
+    from interop.ros2_messages import (
+        GRID_MAP,
+        OCCUPANCY_GRID,
+        PATH,
+        grid_map_msg,
+        occupancy_grid_msg,
+        path_msg,
+    )
+    from protocol.session import zenoh_config
+
+    stop = stop or threading.Event()
+    conf = zenoh_config(cfg.connect, (), None if cfg.zenoh_config else "client", cfg.zenoh_config)
+    conf.insert_json5("timestamping/enabled", "true")  # publication caches (transient local) need timestamps
+    published = {"grid_map": 0, "cost": 0, "plan": 0}
+    t_end = time.monotonic() + cfg.max_seconds if cfg.max_seconds else float("inf")
+    with zenoh.open(conf) as session:
+        node = RosNode(session, cfg.node, domain=cfg.domain)
+        pubs = {"grid_map": node.publisher(f"{cfg.prefix}/grid_map", GRID_MAP),
+                "cost": node.publisher(f"{cfg.prefix}/cost", OCCUPANCY_GRID)}  # fmt: skip
+        if cfg.plan_from and cfg.plan_to:
+            pubs["plan"] = node.publisher(f"{cfg.prefix}/plan", PATH)
+        log(f"[ros2] node {cfg.node} on domain {cfg.domain}: " + ", ".join(p.topic for p in pubs.values()))
+        last_version = None
+        client = ClientConfig(connect=cfg.connect, zenoh_config=cfg.zenoh_config)
+        try:
+            while not stop.is_set() and time.monotonic() < t_end:
+                version = _map_version(session, cfg.map_id)
+                grid = None
+                if version is not None and version != last_version:
+                    try:
+                        grid = query_region(session, cfg.map_id, cfg.box, client)
+                    except PlannerError as exc:  # servers gone or refusing: say so, try again next tick
+                        log(f"[ros2] map query failed: {exc}")
+                if grid is not None:
+                    stamp = time.time_ns()
+                    xa, ya, _, _ = grid.bounds_m()
+                    layers = {}
+                    for name in grid.layers:
+                        layers[name] = grid.value(name)
+                        layers[f"{name}_count"] = grid.count(name)
+                    pubs["grid_map"].publish(grid_map_msg(layers, grid.res, xa, ya, cfg.frame, stamp), stamp)
+                    costs = build_costs(grid)
+                    pubs["cost"].publish(occupancy_grid_msg(costs.cost, costs.known, grid.res, xa, ya, cfg.frame,
+                                                            stamp), stamp)  # fmt: skip
+                    published["grid_map"] += 1
+                    published["cost"] += 1
+                    if "plan" in pubs:
+                        try:
+                            assert cfg.plan_from is not None and cfg.plan_to is not None
+                            route = plan_route(grid, costs, cfg.plan_from, cfg.plan_to, goal_tolerance_m=1.0)
+                        except PlannerError as exc:  # e.g. the start is off the map: keep serving the map
+                            log(f"[ros2] no plan on v{version}: {exc}")
+                            route = None
+                        if route is not None:
+                            pubs["plan"].publish(path_msg(route.path.tolist(), cfg.frame, stamp), stamp)
+                            published["plan"] += 1
+                    last_version = version
+                    log(f"[ros2] map {cfg.map_id} v{version}: published {', '.join(pubs)}")
+                if cfg.once and last_version is not None:
+                    stop.wait(cfg.linger_s)
+                    break
+                stop.wait(1.0 / cfg.rate_hz)
+        finally:
+            node.close()
+    return {"map": cfg.map_id, "version": last_version, "published": published,
+            "topics": {k: p.key for k, p in pubs.items()}}  # fmt: skip
+
+
+def _map_version(session: Any, map_id: str) -> int | None:
+    """The sum of every answering server's map version (changes when any shard's map does); None: no answer."""
+    import zenoh
+
+    from protocol.codec import decode
+    from protocol.errors import ProtocolError
+    from protocol.keys import status_key
+    from protocol.messages import Status
+
+    total = None
+    for reply in session.get(status_key(map_id), target=zenoh.QueryTarget.ALL, timeout=2.0):
+        if reply.ok is None:
+            continue
+        try:
+            st = decode(reply.ok.payload.to_bytes(), expected_type="status")
+        except ProtocolError:
+            continue
+        assert isinstance(st, Status)
+        total = (total or 0) + st.version
+    return total
+
+
+def _pair(text: str) -> tuple[float, float]:
+    try:
+        x, y = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: need x,y in metres") from None
+    return (x, y)
+
+
+def _box(text: str) -> tuple[float, float, float, float]:
+    try:
+        x0, y0, x1, y1 = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: need x0,y0,x1,y1 in map-frame metres") from None
+    if x1 < x0 or y1 < y0:
+        raise argparse.ArgumentTypeError(f"{text!r}: need x0 <= x1 and y0 <= y1")
+    return (x0, y0, x1, y1)
+
+
+def register(sub: Any) -> None:
+    from protocol.keys import id_arg
+
+    p = sub.add_parser("ros2", help="publish the shared map, cost grid and plan to ROS 2 (rmw_zenoh)",
+                       description=__doc__.split("\n\n")[0])  # fmt: skip
+    p.add_argument("--map", required=True, type=id_arg("map"), help="map id")
+    p.add_argument(
+        "--connect",
+        action="append",
+        required=True,
+        metavar="ENDPOINT",
+        help="the Zenoh router the map servers and the ROS 2 system (rmw_zenoh) share",
+    )
+    p.add_argument("--box", required=True, type=_box, metavar="X0,Y0,X1,Y1", help="map area to publish [m]")
+    p.add_argument("--zenoh-config", metavar="FILE", help="Zenoh config with this bridge's credentials")
+    p.add_argument("--domain", type=int, default=0, help="ROS_DOMAIN_ID (default 0)")
+    p.add_argument("--prefix", default="/psrmap", help="topic namespace (default /psrmap)")
+    p.add_argument("--frame", default="map", help="frame_id of every message (default map)")
+    p.add_argument("--rate", type=float, default=1.0, help="at most this many updates per second (default 1)")
+    p.add_argument("--plan-from", type=_pair, metavar="X,Y", help="also plan and publish a path from here…")
+    p.add_argument("--plan-to", type=_pair, metavar="X,Y", help="…to here")
+    p.add_argument("--once", action="store_true", help="publish the current map once and exit")
+    p.add_argument("--max-seconds", type=float, help="stop after this long")
+    p.set_defaults(func=_cmd, parser=p)
+
+
+def _cmd(args: argparse.Namespace) -> int:
+    if (args.plan_from is None) != (args.plan_to is None):
+        args.parser.error("--plan-from and --plan-to go together")
+    if args.rate <= 0:
+        args.parser.error(f"--rate {args.rate}: need a positive number of updates per second")
+    if not 0 <= args.domain <= 232:
+        args.parser.error(f"--domain {args.domain}: ROS 2 domain ids are 0..232")
+    if not args.prefix.startswith("/"):
+        args.parser.error(f"--prefix {args.prefix!r}: a ROS namespace starts with '/'")
+    cfg = BridgeConfig(args.map, args.box, tuple(args.connect), args.zenoh_config, args.domain,
+                       args.prefix.rstrip("/"), frame=args.frame, rate_hz=args.rate, plan_from=args.plan_from,
+                       plan_to=args.plan_to, once=args.once, max_seconds=args.max_seconds)  # fmt: skip
+    stop = threading.Event()
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(sig, lambda *_: stop.set())
+    print(json.dumps(run_bridge(cfg, stop)))
+    return 0

@@ -1,0 +1,222 @@
+"""`psrmap ros2` against a real router and map server: what it puts on Zenoh is decoded here with `rosbags`
+from the official message definitions (written out below, independently of the encoder's shipped copies),
+and checked cell for cell against a `map` query; the key expressions, the attachment and the liveliness
+tokens are checked against rmw_zenoh's layout."""
+
+from __future__ import annotations
+
+import struct
+import threading
+import time
+
+import numpy as np
+import pytest
+import xxhash
+import zenoh
+
+from consumer_planner.client import ClientConfig, query_region
+from consumer_planner.costs import build_costs
+from protocol.codec import decode, encode
+from protocol.keys import delta_key, status_key
+from protocol.messages import CellDelta
+from protocol.testing import layer_cells
+from psrmap.ros2 import BridgeConfig, run_bridge
+
+pytestmark = pytest.mark.slow
+
+# grid_map_msgs (ROS 2 branch of ANYbotics/grid_map), field for field
+GRID_MAP_MSG = """std_msgs/Header header
+GridMapInfo info
+string[] layers
+string[] basic_layers
+std_msgs/Float32MultiArray[] data
+uint16 outer_start_index
+uint16 inner_start_index
+"""
+GRID_MAP_INFO_MSG = """float64 resolution
+float64 length_x
+float64 length_y
+geometry_msgs/Pose pose
+"""
+
+
+@pytest.fixture(scope="module")
+def store():
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+    ts = get_typestore(Stores.ROS2_JAZZY)
+    types = get_types_from_msg(GRID_MAP_INFO_MSG, "grid_map_msgs/msg/GridMapInfo")
+    types.update(get_types_from_msg(GRID_MAP_MSG, "grid_map_msgs/msg/GridMap"))
+    ts.register(types)
+    return ts
+
+
+def _fill(client: zenoh.Session, map_id: str) -> None:
+    rng = np.random.default_rng(3)
+    ix, iy = np.meshgrid(np.arange(2, 9), np.arange(-1, 5))
+    ix, iy = ix.ravel(), iy.ravel()
+    ones = np.ones(ix.size)
+    z = 0.02 * ix + 0.01 * iy  # a gentle plane: every cell passable
+    zero = np.zeros(ix.size)
+    layers = {
+        "elevation": {
+            "ix": ix,
+            "iy": iy,
+            "n": ones,
+            "sum": z,
+            "sumsq": z * z,
+            "sx": zero,
+            "sy": zero,
+            "sxx": zero,
+            "syy": zero,
+            "sxy": zero,
+            "sxz": zero,
+            "syz": zero,
+            "min": z,
+            "max": z,
+        },
+        "slip": {"ix": ix, "iy": iy, "n": 10 * ones, "events": rng.integers(0, 3, ix.size).astype(float)},
+        "cot": layer_cells("cot", ix, iy, rng, scale=1.0)
+        | {"work": rng.uniform(1.0, 3.0, ix.size), "dist": ones},
+    }
+    client.put(delta_key(map_id, "s1"), encode(CellDelta(map_id, "s1", 1, 0, 3.0, 0.4, layers)))
+    end = time.monotonic() + 10
+    while time.monotonic() < end:
+        for r in client.get(status_key(map_id), timeout=2.0):
+            if r.ok is not None and decode(r.ok.payload.to_bytes(), expected_type="status").merged >= 1:
+                return
+        time.sleep(0.1)
+    raise AssertionError("the delta was not merged")
+
+
+def test_bridge_publishes_grid_map_cost_and_path_as_rmw_zenoh_does(router, served_map, store) -> None:
+    map_id, box = "rosmap", (0.0, -1.0, 4.0, 2.4)
+    with served_map(map_id, 0.4) as (_, client):
+        _fill(client, map_id)
+        got: dict[str, list] = {}
+
+        def on(sample: zenoh.Sample) -> None:
+            att = sample.attachment.to_bytes() if sample.attachment is not None else None
+            got.setdefault(str(sample.key_expr), []).append((sample.payload.to_bytes(), att))
+
+        sub = client.declare_subscriber("0/psrmap/**", on)
+        stop = threading.Event()
+        cfg = BridgeConfig(map_id, box, (router,), plan_from=(1.0, -0.2), plan_to=(3.4, 1.8))
+        t = threading.Thread(target=lambda: run_bridge(cfg, stop, log=lambda *a: None), daemon=True)
+        t.start()
+        try:
+            end = time.monotonic() + 20
+            while time.monotonic() < end and len(got) < 3:
+                time.sleep(0.1)
+            tokens = [
+                str(r.ok.key_expr) for r in client.liveliness().get("@ros2_lv/0/**", timeout=3.0) if r.ok
+            ]
+        finally:
+            stop.set()
+            t.join(timeout=20)
+            sub.undeclare()
+        grid = query_region(client, map_id, box, ClientConfig(connect=(router,)))
+
+    expect = {
+        "psrmap/grid_map": "grid_map_msgs/msg/GridMap",
+        "psrmap/cost": "nav_msgs/msg/OccupancyGrid",
+        "psrmap/plan": "nav_msgs/msg/Path",
+    }
+    keys = {}
+    for topic, typename in expect.items():
+        pkg, _, name = typename.split("/")
+        key = f"0/{topic}/{pkg}::msg::dds_::{name}_/{store.hash_rihs01(typename)}"
+        assert key in got, (key, list(got))
+        keys[topic] = key
+        payload, att = got[key][0]
+        assert payload[:4] == b"\x00\x01\x00\x00"  # CDR little endian encapsulation
+        assert att is not None and len(att) == 32
+        seq, stamp, gid = struct.unpack("<qq16s", att)
+        assert seq == 1 and abs(stamp - time.time_ns()) < 60e9
+        # the publisher's liveliness token: MP entity, mangled names, same type and hash; its GID hashes it
+        token = next(tok for tok in tokens if f"/MP/%/%/psrmap_bridge/%{topic.replace('/', '%')}/" in tok)
+        assert (
+            token.startswith("@ros2_lv/0/")
+            and f"/{pkg}::msg::dds_::{name}_/{store.hash_rihs01(typename)}/" in token
+        )
+        h = xxhash.xxh3_128_intdigest(token.encode())
+        assert gid == (h & (2**64 - 1)).to_bytes(8, "little") + (h >> 64).to_bytes(8, "little")
+    assert any("/NN/%/%/psrmap_bridge" in tok for tok in tokens)
+
+    # GridMap: every layer's value and count, cell for cell, in grid_map's index convention
+    msg = store.deserialize_cdr(got[keys["psrmap/grid_map"]][0][0], "grid_map_msgs/msg/GridMap")
+    res, w, h = msg.info.resolution, grid.w, grid.h
+    assert res == pytest.approx(0.4) and msg.info.length_x == pytest.approx(w * res)
+    xa, ya, _, _ = grid.bounds_m()
+    assert msg.info.pose.position.x == pytest.approx(xa + w * res / 2)
+    for name, arr in zip(msg.layers, msg.data, strict=True):
+        assert [d.label for d in arr.layout.dim] == ["column_index", "row_index"]
+        m = np.asarray(arr.data, dtype=np.float32).reshape(arr.layout.dim[0].size, arr.layout.dim[1].size)
+        base = name.removesuffix("_count")
+        want = grid.count(base) if name.endswith("_count") else grid.value(base)
+        for iy in range(h):
+            for ix in range(w):
+                # cell (i, j): x = centre + length_x/2 - (i + .5) res  ->  i = w-1-ix, j = h-1-iy; column-major
+                i, j = w - 1 - ix, h - 1 - iy
+                v = m[j, i]
+                assert (np.isnan(v) and np.isnan(want[iy, ix])) or v == pytest.approx(want[iy, ix], rel=1e-6)
+    assert {"elevation", "elevation_count", "slip", "cot"} <= set(msg.layers)
+
+    occ = store.deserialize_cdr(got[keys["psrmap/cost"]][0][0], "nav_msgs/msg/OccupancyGrid")
+    assert (occ.info.width, occ.info.height) == (w, h) and occ.info.origin.position.x == pytest.approx(xa)
+    data = np.asarray(occ.data, dtype=np.int8).reshape(h, w)
+    costs = build_costs(grid)
+    assert ((data == -1) == (~costs.known & np.isfinite(costs.cost))).all()
+    assert ((data == 100) == ~np.isfinite(costs.cost)).all()
+    known = costs.known & np.isfinite(costs.cost)
+    assert (np.diff(data[known][np.argsort(costs.cost[known])]) >= 0).all()  # ordered like the costs
+
+    path = store.deserialize_cdr(got[keys["psrmap/plan"]][0][0], "nav_msgs/msg/Path")
+    pts = [(p.pose.position.x, p.pose.position.y) for p in path.poses]
+    assert (
+        len(pts) >= 2
+        and pts[0] == pytest.approx((1.0, -0.2), abs=0.3)
+        and pts[-1] == pytest.approx((3.4, 1.8), abs=0.3)
+    )
+
+
+def test_bridge_refuses_bad_options_with_the_valid_form(capsys) -> None:
+    from psrmap.cli import main
+
+    for argv, msg in (
+        (["--box", "1,1,0,0"], "x0 <= x1"),
+        (["--box", "0,0,1,1", "--rate", "0"], "positive"),
+        (["--box", "0,0,1,1", "--plan-from", "1,1"], "go together"),
+        (["--box", "0,0,1,1", "--prefix", "psrmap"], "starts with '/'"),
+    ):
+        with pytest.raises(SystemExit) as exc:
+            main(["ros2", "--map", "m", "--connect", "tcp/127.0.0.1:1", *argv])
+        assert exc.value.code == 2
+        assert msg in capsys.readouterr().err
+
+
+def test_query_out_writes_geotiff_and_mcap(router, served_map, tmp_path, capsys) -> None:
+    import rasterio
+    from rosbags.rosbag2 import Reader
+
+    from interop.ros2_messages import grid_map_layers, typestore
+    from psrmap.cli import main
+
+    map_id = "qmap"
+    with served_map(map_id, 0.4) as (_, client):
+        _fill(client, map_id)
+        grid = query_region(client, map_id, (0.0, -1.0, 4.0, 2.4), ClientConfig(connect=(router,)))
+        common = ["query", "--map", map_id, "--connect", router, "--box", "0,-1,4,2.4"]
+        assert main([*common, "--out", str(tmp_path / "q.tif"), "--origin=-89.5,10"]) == 0
+        assert main([*common, "--out", str(tmp_path / "bag"), "--format", "mcap"]) == 0
+        out = capsys.readouterr().out
+    assert '"format": "geotiff"' in out and '"format": "mcap"' in out
+    with rasterio.open(tmp_path / "q.tif") as ds:
+        bands = {d: i + 1 for i, d in enumerate(ds.descriptions)}
+        elev = ds.read(bands["elevation value"])[::-1]  # back to row = iy (south first)
+        np.testing.assert_allclose(elev, grid.value("elevation"), equal_nan=True, rtol=1e-6)
+        assert "South Polar" in ds.crs.to_wkt()
+    with Reader(tmp_path / "bag") as reader:
+        ((conn, _, raw),) = list(reader.messages())
+        layers = grid_map_layers(typestore().deserialize_cdr(raw, conn.msgtype))
+    np.testing.assert_allclose(layers["cot"], grid.value("cot"), equal_nan=True, rtol=1e-6)
