@@ -220,3 +220,41 @@ def test_query_out_writes_geotiff_and_mcap(router, served_map, tmp_path, capsys)
         ((conn, _, raw),) = list(reader.messages())
         layers = grid_map_layers(typestore().deserialize_cdr(raw, conn.msgtype))
     np.testing.assert_allclose(layers["cot"], grid.value("cot"), equal_nan=True, rtol=1e-6)
+
+
+def test_a_late_subscriber_gets_the_last_map_from_the_cache(router, served_map, store) -> None:
+    """Transient local: a subscriber that joins after the map was published (as RViz started later would,
+    through rmw_zenoh's advanced subscriber with history) still receives it."""
+    import zenoh.ext as zext
+
+    map_id = "latemap"
+    with served_map(map_id, 0.4) as (_, client):
+        _fill(client, map_id)
+        stop = threading.Event()
+        cfg = BridgeConfig(map_id, (0.0, -1.0, 4.0, 2.4), (router,))
+        done: list[dict] = []
+        t = threading.Thread(target=lambda: done.append(run_bridge(cfg, stop, log=lambda *a: None)), daemon=True)
+        t.start()
+        try:
+            time.sleep(3.0)  # the bridge has published by now; nobody was listening
+            got: list[bytes] = []
+            conf = zenoh.Config()
+            conf.insert_json5("mode", '"client"')
+            conf.insert_json5("connect/endpoints", f'["{router}"]')
+            conf.insert_json5("scouting/multicast/enabled", "false")
+            with zenoh.open(conf) as late:
+                key = f"0/psrmap/grid_map/grid_map_msgs::msg::dds_::GridMap_/{store.hash_rihs01('grid_map_msgs/msg/GridMap')}"
+                sub = zext.declare_advanced_subscriber(
+                    late, key, lambda s: got.append(s.payload.to_bytes()),
+                    history=zext.HistoryConfig(detect_late_publishers=True, max_samples=1),
+                )
+                end = time.monotonic() + 10
+                while not got and time.monotonic() < end:
+                    time.sleep(0.1)
+                sub.undeclare()
+        finally:
+            stop.set()
+            t.join(timeout=20)
+    assert got, "the late subscriber received nothing"
+    msg = store.deserialize_cdr(got[0], "grid_map_msgs/msg/GridMap")
+    assert "elevation" in msg.layers and done and done[0]["published"]["grid_map"] == 1
