@@ -10,29 +10,32 @@ weight = half the length of the steps entering and leaving it (`compare.cell_wei
 non-finite cost are impassable; diagonal steps may pass between two impassable cells that touch at a
 corner (the same graph as scikit-image's `MCP_Geometric`, `fully_connected=True`).
 
-The search runs in a small C kernel (`_native`, built on first use): an exact Dijkstra with a bucket
-queue whose bucket width is the cheapest possible step (res x min cost), so every cell of the lowest
-bucket is final and a push costs O(1); when cells may cost 0 or the cost range exceeds 2^20 buckets,
-A* on a 4-ary heap with the consistent heuristic `min(cost) x octile distance`. Both stop at the goal.
-Without a C compiler it falls back to scikit-image's `MCP_Geometric` (same optimum, ~6x slower).
+The search runs in compiled kernels (`kernels`, numba, cached on disk after the first compile): an
+exact Dijkstra with a bucket queue whose bucket width is the cheapest possible step (res x min cost), so
+every cell of the lowest bucket is final and a push costs O(1); when cells may cost 0 or the cost range
+needs more than 2^16 buckets, A* on a binary heap with the consistent heuristic `min(cost) x octile distance`.
+Both stop at the goal. Every argument is checked here before a kernel runs (the kernels do no bounds
+checks). `method="skimage"` runs scikit-image's `MCP_Geometric` instead (same optimum, ~6x slower), the
+independent reference the tests compare against.
 """
 
 from __future__ import annotations
 
-import ctypes
+import math
 from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
 
-from consumer_planner import _native
+from consumer_planner import kernels
 from consumer_planner.errors import PlannerError
 
 __all__ = ["GridPath", "METHODS", "nearest_passable", "plan_path", "step_lengths"]
 
-METHODS = ("auto", "native", "skimage")
-_MAX_BUCKETS = 1 << 20  # above this cost range (max/min cell cost) the heap search is used
-Method = Literal["auto", "native", "skimage"]
+METHODS = ("auto", "compiled", "skimage")
+_MAX_BUCKETS = 1 << 16  # above this many buckets (cost range max/min x 1.4) the heap search is used
+Method = Literal["auto", "compiled", "skimage"]
+_MAX_CELLS = (1 << 31) - 1  # the kernels keep parents as int32
 
 
 @dataclass(frozen=True, eq=False)
@@ -91,50 +94,50 @@ def plan_path(
         raise PlannerError(f"cost grid must be a non-empty 2-D array, got shape {cost.shape}")
     s = _check_cell(cost, start, "start")
     g = _check_cell(cost, goal, "goal")
-    finite = cost[np.isfinite(cost)]
-    if (finite < 0).any():
-        raise PlannerError(f"cell costs must be >= 0 (min {finite.min()}); use inf for impassable")
-    lib = _native.load() if method in ("auto", "native") else None
-    if method == "native" and lib is None:
-        raise PlannerError("the native search kernel cannot be built here (no C compiler); use 'skimage'")
-    if lib is not None:
-        return _native_path(lib, cost, s, g, res, float(finite.min()), float(finite.max()))
-    return _skimage_path(cost, start, goal, res)
+    try:
+        res = float(res)
+    except (TypeError, ValueError):
+        raise PlannerError(f"cell size res must be a number > 0 m, got {res!r}") from None
+    if not (math.isfinite(res) and res > 0):
+        raise PlannerError(f"cell size res must be a finite number > 0 m, got {res!r}")
+    if (cost.shape[0] + 2) * (cost.shape[1] + 2) > _MAX_CELLS:
+        raise PlannerError(f"cost grid of {cost.shape} cells is too large; at most {_MAX_CELLS} cells")
+    # the kernels want a border of impassable cells instead of bounds checks, impassable cells closed
+    flat, closed, cmin, cmax, neg = kernels.pad(cost)
+    if neg < 0:
+        raise PlannerError(f"cell costs must be >= 0 (min {neg}); use inf for impassable")
+    if method == "skimage":
+        return _skimage_path(cost, start, goal, res)
+    return _compiled_path(flat, closed, cost.shape, s, g, res, cmin, cmax)
 
 
-def _native_path(
-    lib: ctypes.CDLL, cost: np.ndarray, s: int, g: int, res: float, cmin: float, cmax: float
+def _compiled_path(
+    flat: np.ndarray,
+    closed: np.ndarray,
+    shape: tuple[int, int],
+    s: int,
+    g: int,
+    res: float,
+    cmin: float,
+    cmax: float,
 ) -> GridPath | None:
-    h, w = cost.shape
-    pw = w + 2  # the kernel wants a border of impassable cells instead of bounds checks
-    padded = np.full((h + 2, pw), np.inf)
-    padded[1:-1, 1:-1] = cost
-    n = padded.size
-    gbuf = np.empty(n, np.float64)
-    parent = np.empty(n, np.int64)
-    closed = np.empty(n, np.uint8)
-    out = np.empty(n, np.int64)
-    total = ctypes.c_double(0.0)
-    ptr = ctypes.c_void_p
+    h, w = shape
+    pw = w + 2
+    out = np.empty(flat.size, np.int64)
+    total = np.zeros(1)
     ps = (s // w + 1) * pw + s % w + 1
     pg = (g // w + 1) * pw + g % w + 1
-    bufs = (ptr(gbuf.ctypes.data), ptr(parent.ctypes.data), ptr(closed.ctypes.data), ptr(out.ctypes.data))
     delta = res * cmin * (1.0 - 1e-9)  # bucket width <= the cheapest step (a straight one)
     nbuckets = int(np.ceil(res * np.sqrt(2.0) * cmax / delta)) + 2 if delta > 0 else 0
     if 0 < nbuckets <= _MAX_BUCKETS:
-        m = lib.dial8(ptr(padded.ctypes.data), h + 2, pw, float(res), ps, pg, delta, nbuckets, *bufs,
-                      ctypes.byref(total))  # fmt: skip
+        m = kernels.dial8(flat, pw, res, ps, pg, delta, nbuckets, closed, out, total)
     else:  # zero-cost cells or a huge cost range: A* on a heap
-        m = lib.astar8(
-            ptr(padded.ctypes.data), h + 2, pw, float(res), ps, pg, cmin, *bufs, ctypes.byref(total)
-        )
-    if m < 0:
-        raise MemoryError("search heap allocation failed")
+        m = kernels.astar8(flat, pw, res, ps, pg, cmin, closed, out, total)
     if m == 0:
         return None
     idx = out[:m][::-1]
     cells = np.stack([idx // pw - 1, idx % pw - 1], axis=1)
-    return GridPath(cells, float(total.value), "native")
+    return GridPath(cells, float(total[0]), "compiled")
 
 
 def _skimage_path(

@@ -17,7 +17,7 @@ def _random_costs(seed, h, w, blocked, low=0.5):
     return cost
 
 
-@pytest.mark.parametrize("method", ["native", "skimage"])
+@pytest.mark.parametrize("method", ["compiled", "skimage"])
 @settings(max_examples=25, deadline=None)
 @given(
     seed=st.integers(0, 10_000),
@@ -60,7 +60,7 @@ def test_unreachable_goal_is_none_and_bad_endpoints_raise():
         plan_path(cost, (0, 2), (4, 4), 1.0)
     with pytest.raises(PlannerError, match="outside the grid of 5 x 5"):
         plan_path(cost, (0, 0), (9, 4), 1.0)
-    with pytest.raises(PlannerError, match="methods: auto, native, skimage"):
+    with pytest.raises(PlannerError, match="methods: auto, compiled, skimage"):
         plan_path(cost, (0, 0), (0, 1), 1.0, "dijkstra")  # type: ignore[arg-type]
 
 
@@ -84,7 +84,7 @@ def test_free_cells_use_the_heap_search_and_stay_optimal(seed, n):
     start, goal = (0, 0), (n - 1, n - 1)
     cost[start] = cost[goal] = 0.0
     ref, _ = reference_dijkstra(cost, start, goal, 1.0)
-    got = plan_path(cost, start, goal, 1.0, "native")
+    got = plan_path(cost, start, goal, 1.0, "compiled")
     assert (got is None) == (ref is None)
     if got is not None:
         assert got.cost == pytest.approx(ref, rel=1e-9, abs=1e-12)
@@ -108,3 +108,20 @@ def test_a_goal_on_an_impassable_cell_moves_to_the_nearest_passable_one_within_t
     r, c = nearest_passable(cost, (4, 4), 2.0)
     assert np.isfinite(cost[r, c]) and (r - 4) ** 2 + (c - 4) ** 2 == 4
     assert nearest_passable(cost, (0, 0), 3.0) == (0, 0)  # a passable goal stays put
+
+
+@pytest.mark.parametrize(
+    ("res", "why"),
+    [(0.0, "> 0"), (-1.0, "> 0"), (float("nan"), "finite"), (float("inf"), "finite"), ("a", "number")],
+)
+def test_bad_cell_size_is_a_planner_error_not_a_crash(res, why):
+    with pytest.raises(PlannerError, match=why):
+        plan_path(np.ones((4, 4)), (0, 0), (3, 3), res)
+
+
+def test_compiled_kernel_needs_no_compiler(monkeypatch):
+    # no C compiler on PATH and no CC: the compiled search still runs (numba ships its own LLVM)
+    monkeypatch.setenv("PATH", "/nonexistent")
+    monkeypatch.delenv("CC", raising=False)
+    got = plan_path(np.ones((6, 6)), (0, 0), (5, 5), 1.0, "compiled")
+    assert got is not None and got.method == "compiled" and got.cost == pytest.approx(5 * np.sqrt(2))

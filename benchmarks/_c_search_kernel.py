@@ -1,12 +1,7 @@
-"""Compiled search kernels for 8-connected cost grids, built on first use with the system C compiler.
-
-Plain numpy cannot run a priority-queue search fast enough (a label-correcting row sweep needed
-60-200 passes on terrain-like maps), scikit-image's MCP is a generic Cython Dijkstra, and numba is not
-a dependency. So ~150 lines of C: `dial8`, an exact Dijkstra on a bucket queue (bucket width <= the
-cheapest step), and `astar8`, A* on a 4-ary heap for grids where that width would be 0. The library is
-compiled once per source hash into a user cache directory ($PSRMAP_CACHE, else $XDG_CACHE_HOME/psrmap,
-else ~/.cache/psrmap) and loaded with ctypes; `load()` returns None when it cannot be built (or
-PSRMAP_NO_NATIVE is set), and `search.plan_path` then falls back to scikit-image.
+"""The planner's previous search kernel (C, compiled at run time with the system compiler, loaded with
+ctypes), kept only as the baseline of `benchmarks/plan.py`: the packaged numba kernels in
+`consumer_planner/kernels.py` replaced it (no compiler at run time, no segfault on bad input) and must
+stay within 1.5x of it. Needs `cc`; `load()` returns None without one.
 """
 
 from __future__ import annotations
@@ -219,7 +214,7 @@ def load() -> ctypes.CDLL | None:
             return None
         lib = ctypes.CDLL(str(target))
     except OSError as exc:
-        print(f"consumer_planner: native kernel unavailable ({exc}); using scikit-image", file=sys.stderr)
+        print(f"baseline C kernel unavailable ({exc})", file=sys.stderr)
         return None
     f = lib.astar8
     f.restype = ctypes.c_int64
