@@ -60,8 +60,9 @@ def publisher(pid: int, endpoint: str, rate: float, seconds: float, offset: int,
     """One scout process: send deltas at `rate` per s (0: as fast as acks allow) for `seconds`."""
     import zenoh
 
-    from protocol import DeltaPublisher, zenoh_config
-    from protocol.zenoh_transport import ScoutLink, ZenohTransport
+    from common.session import zenoh_config
+    from scout_agent.delivery import DeltaPublisher
+    from scout_agent.publisher import ScoutLink, ZenohTransport
 
     rng = np.random.default_rng(pid)
     wait = threading.Event()
@@ -122,7 +123,8 @@ def main() -> None:
     import zenoh
 
     from map_server.service import free_endpoint, wait_for_server
-    from protocol import decode, encode, zenoh_config
+    from common.session import zenoh_config
+    from protocol import decode, encode
     from protocol.keys import ack_key, delta_key, map_key, status_key
     from protocol.messages import CellDelta, RegionQuery
     from protocol.testing import layer_cells

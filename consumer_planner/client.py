@@ -20,7 +20,7 @@ from protocol.codec import decode
 from protocol.errors import ProtocolError
 from protocol.keys import map_key, status_key
 from protocol.messages import MapRegion, RegionQuery, Status
-from protocol.session import zenoh_config
+from common.session import zenoh_config
 
 __all__ = ["ClientConfig", "MapClient", "query_region", "trusted_servers"]
 

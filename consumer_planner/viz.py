@@ -1,6 +1,6 @@
 """Rerun logging of the cost grid and routes (the only module of consumer_planner that imports rerun).
 
-Entities, all at the plan's mission time on `sim_time` (see `protocol.recording`):
+Entities, all at the plan's mission time on `sim_time` (see `common.recording`):
 - `map/cost`: the cost grid as an RGBA GridMap — viridis over this plan's cost range (cheapest passable
   cell dark, dearest bright), impassable cells red, cells outside the fetched map transparent. Rerun puts
   the translation at the image's lower-left corner with row 0 drawn at the top, so rows are flipped.
@@ -20,7 +20,7 @@ import rerun as rr
 from consumer_planner.compare import Route
 from consumer_planner.costs import CostMap
 from consumer_planner.grid import LayerGrid
-from protocol.recording import TIMELINE, Scale, colorize, open_stream, scout_color
+from common.recording import TIMELINE, Scale, colorize, open_stream, scout_color
 
 __all__ = ["breakdown_markdown", "cost_image", "drape", "log_plan", "open_recording"]
 

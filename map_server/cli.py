@@ -54,7 +54,7 @@ def _conf(
     args: argparse.Namespace, connect: Sequence[str] = (), listen: Sequence[str] = (), mode: str = "client"
 ) -> Any:
     """The Zenoh config of a command, or a usage error naming what would have been valid."""
-    from protocol.session import zenoh_config
+    from common.session import zenoh_config
 
     file = getattr(args, "zenoh_config", None)
     try:

@@ -35,7 +35,7 @@ from protocol.keys import (
 )
 from protocol.layers import cell_index
 from protocol.messages import MapRegion, RegionQuery, ScoutStatus, Status
-from protocol.session import zenoh_config
+from common.session import zenoh_config
 
 __all__ = ["MapService", "ServerConfig"]
 

@@ -1,4 +1,9 @@
-"""protocol: the msgpack wire contract v1 shared by scouts, map servers and planners."""
+"""protocol: the msgpack wire contract v1 shared by scouts, map servers and planners, and nothing else.
+
+Keys (`keys`), messages (`messages`), their codec (`codec`), the layers and their merge rule (`layers`),
+errors and rejection reasons (`errors`), and builders of valid and broken messages for tests
+(`testing`). It imports no Zenoh, no Rerun and no service: the services import it, never each other.
+"""
 
 from __future__ import annotations
 
@@ -6,7 +11,7 @@ import importlib
 from typing import Any
 
 # name -> the module defining it; imported on first use (PEP 562), so `import protocol.keys` (or the CLI's
-# start-up) does not pay for numpy, msgpack and Zenoh
+# start-up) does not pay for numpy and msgpack
 _EXPORTS: dict[str, str] = {
     "DEFAULT_MAX_BYTES": "protocol.errors",
     "INDEX_LIMIT": "protocol.codec",
@@ -39,11 +44,6 @@ _EXPORTS: dict[str, str] = {
     "RegionQuery": "protocol.messages",
     "ScoutStatus": "protocol.messages",
     "Status": "protocol.messages",
-    "DeltaPublisher": "protocol.publisher",
-    "InMemoryTransport": "protocol.publisher",
-    "Transport": "protocol.publisher",
-    "UnackedBufferFull": "protocol.publisher",
-    "zenoh_config": "protocol.session",
 }
 
 
@@ -55,16 +55,12 @@ __all__ = [
     "VERSION",
     "Ack",
     "CellDelta",
-    "DeltaPublisher",
-    "InMemoryTransport",
     "Layer",
     "MapRegion",
     "ProtocolError",
     "RegionQuery",
     "ScoutStatus",
     "Status",
-    "Transport",
-    "UnackedBufferFull",
     "ack_key",
     "alive_key",
     "alive_pattern",
@@ -83,7 +79,6 @@ __all__ = [
     "parse_delta_key",
     "status_key",
     "validate_id",
-    "zenoh_config",
 ]
 
 

@@ -30,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from protocol.recording import use_viewer
+from common.recording import use_viewer
 from psrmap.agreement import elevation_agreement
 from psrmap.progress import progress as progress_bar
 
@@ -397,7 +397,7 @@ def run_mission(cfg: MissionConfig, run_dir: Path | None = None, progress: bool 
     """Run the mission, return its summary (also written to `<run_dir>/summary.json`)."""
     import zenoh
 
-    from protocol.session import zenoh_config
+    from common.session import zenoh_config
 
     validate(cfg)
     if run_dir is None:

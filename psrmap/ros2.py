@@ -58,7 +58,7 @@ def run_bridge(cfg: BridgeConfig, stop: threading.Event | None = None, log=print
         occupancy_grid_msg,
         path_msg,
     )
-    from protocol.session import zenoh_config
+    from common.session import zenoh_config
 
     stop = stop or threading.Event()
     conf = zenoh_config(cfg.connect, (), None if cfg.zenoh_config else "client", cfg.zenoh_config)

@@ -24,7 +24,7 @@ def default_outbox_path(map_id: str, scout_id: str) -> Path:
 
 
 class SQLiteOutbox:
-    """`protocol.publisher.Outbox` in one SQLite file (WAL, synchronous=FULL: a stored delta survives a crash of
+    """`scout_agent.delivery.Outbox` in one SQLite file (WAL, synchronous=FULL: a stored delta survives a crash of
     the process and of the machine). Thread-safe: acks arrive on the network thread."""
 
     def __init__(self, path: str | Path) -> None:

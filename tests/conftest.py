@@ -10,7 +10,7 @@ import pytest
 import zenoh
 
 from map_server.service import MapService, ServerConfig, free_endpoint, wait_for_server
-from protocol.session import zenoh_config
+from common.session import zenoh_config
 
 
 @pytest.fixture(autouse=True)

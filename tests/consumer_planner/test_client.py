@@ -13,7 +13,7 @@ from consumer_planner.errors import PlannerError
 from protocol.codec import encode
 from protocol.keys import map_key
 from protocol.messages import MapRegion
-from protocol.session import zenoh_config
+from common.session import zenoh_config
 
 
 def _free_port() -> int:

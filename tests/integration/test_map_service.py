@@ -18,11 +18,13 @@ import zenoh
 
 from map_server.service import free_endpoint, wait_for_server
 from map_server.tiles import TiledMap
-from protocol import DeltaPublisher, decode, encode, zenoh_config
+from common.session import zenoh_config
+from protocol import decode, encode
+from scout_agent.delivery import DeltaPublisher
 from protocol.keys import delta_key, map_key, status_key
 from protocol.messages import CellDelta, MapRegion, RegionQuery, Status
 from protocol.testing import layer_cells
-from protocol.zenoh_transport import ScoutLink, ZenohTransport
+from scout_agent.publisher import ScoutLink, ZenohTransport
 
 MAP, RES = "itest", 0.4
 LAYERS5 = ("elevation", "slip", "cot", "giim", "giam")

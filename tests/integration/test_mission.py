@@ -202,7 +202,7 @@ def test_every_blueprint_entity_has_data_on_sim_time(mission: tuple[dict, Path])
     """The default view (timeline sim_time) shows scouts, map, plans together: every entity the default
     blueprint shows has data on sim_time (or static data, shown on every timeline), and every view's
     contents match entities of the recording."""
-    from protocol.recording import TIMELINE
+    from common.recording import TIMELINE
     from psrmap.viz import default_blueprint
 
     summary, _ = mission

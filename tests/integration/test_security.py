@@ -18,7 +18,7 @@ from map_server.service import MapService, ServerConfig, free_endpoint, wait_for
 from protocol import encode
 from protocol.keys import ack_key, delta_key, map_key
 from protocol.messages import Ack, RegionQuery
-from protocol.session import zenoh_config
+from common.session import zenoh_config
 from protocol.testing import MAP, RES, make_delta
 from psrmap.secure import secure_init
 from scout_agent.publisher import ScoutPublisher

@@ -7,11 +7,12 @@ import threading
 import numpy as np
 import pytest
 
-from protocol import DeltaPublisher, decode, encode
+from protocol import decode, encode
+from scout_agent.delivery import DeltaPublisher
 from protocol.keys import delta_key, map_key, status_key
 from protocol.messages import MapRegion, RegionQuery, Status
 from protocol.testing import MAP, RES, broken, make_delta
-from protocol.zenoh_transport import ScoutLink, ZenohTransport
+from scout_agent.publisher import ScoutLink, ZenohTransport
 
 
 @pytest.fixture

@@ -11,12 +11,13 @@ import pytest
 from map_server.merge import Merger
 from map_server.store import MapStore
 from map_server.tiles import TiledMap
-from protocol import DeltaPublisher, decode, encode
+from protocol import decode, encode
+from scout_agent.delivery import DeltaPublisher
 from protocol.keys import delta_key, status_key
 from protocol.messages import Ack, Status
-from protocol.publisher import InMemoryTransport
+from scout_agent.delivery import InMemoryTransport
 from protocol.testing import MAP, RES, SCOUT, make_delta
-from protocol.zenoh_transport import ScoutLink, ZenohTransport
+from scout_agent.publisher import ScoutLink, ZenohTransport
 
 KEY = delta_key(MAP, SCOUT)
 

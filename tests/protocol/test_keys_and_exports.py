@@ -30,7 +30,7 @@ def test_keys():
         "protocol.keys",
         "protocol.layers",
         "protocol.messages",
-        "protocol.publisher",
+        "scout_agent.delivery",
         "protocol.errors",
     ],
 )
@@ -54,9 +54,26 @@ def test_package_exports_interface_names():
         "Status",
         "encode",
         "decode",
-        "DeltaPublisher",
-        "InMemoryTransport",
-        "zenoh_config",
         "elevation_slope_deg",
     ):
         assert name in protocol.__all__
+
+
+def test_the_contract_imports_no_transport_and_no_service():
+    # protocol is the wire contract only: importing every module of it in a fresh interpreter loads no
+    # Zenoh, no Rerun, and none of the services or their shared session code
+    import pkgutil
+    import subprocess
+    import sys
+
+    names = [f"protocol.{m.name}" for m in pkgutil.iter_modules(protocol.__path__)]
+    code = (
+        "import importlib, sys\n"
+        f"for n in {names!r}: importlib.import_module(n)\n"
+        "bad = sorted(m for m in sys.modules if m.split('.')[0] in "
+        "('zenoh', 'rerun', 'common', 'scout_agent', 'map_server', 'consumer_planner', 'psrmap', 'interop'))\n"
+        "print(','.join(bad))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert len(names) >= 5
+    assert out.stdout.strip() == "", f"protocol pulls in {out.stdout.strip()}"

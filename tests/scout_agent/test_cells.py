@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 
 from protocol.codec import decode
 from protocol.layers import LAYERS, layer_value
-from protocol.publisher import DeltaPublisher, InMemoryTransport
+from scout_agent.delivery import DeltaPublisher, InMemoryTransport
 from scout_agent.cells import CellAccumulator, LocalMap, load_npz
 
 

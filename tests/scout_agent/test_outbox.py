@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from map_server.service import MapService, ServerConfig, wait_for_server
-from protocol.publisher import DeltaPublisher, InMemoryTransport
+from scout_agent.delivery import DeltaPublisher, InMemoryTransport
 from protocol.testing import MAP, RES, make_delta
 from scout_agent.outbox import SQLiteOutbox
 
@@ -74,7 +74,7 @@ def test_kill_9_with_the_server_down_then_resume_loses_nothing(router, tmp_path)
     with MapService(cfg) as service:
         import zenoh
 
-        from protocol.session import zenoh_config
+        from common.session import zenoh_config
 
         with zenoh.open(zenoh_config(connect=[router], mode="client")) as client:
             assert wait_for_server(client, MAP)

@@ -1,7 +1,7 @@
 """Scout-side delta publishing: seq numbering, a bounded buffer of unacknowledged deltas, resend.
 
 The transport is anything with `put(key, payload)`; `InMemoryTransport` records puts for tests, the
-Zenoh one lives in `protocol.zenoh_transport`. Thread-safe: acks arrive on the network thread.
+Zenoh one lives in `scout_agent.publisher`. Thread-safe: acks arrive on the network thread.
 """
 
 from __future__ import annotations
