@@ -29,13 +29,13 @@ sys.path.insert(0, str(ROOT))
 import numpy as np  # noqa: E402
 import zenoh  # noqa: E402
 
+from common.session import zenoh_config  # noqa: E402
 from map_server.service import free_endpoint  # noqa: E402
 from map_server.tiles import TiledMap  # noqa: E402
 from protocol import decode  # noqa: E402
 from protocol.keys import status_key  # noqa: E402
-from scout_agent.delivery import DeltaPublisher  # noqa: E402
-from common.session import zenoh_config  # noqa: E402
 from protocol.testing import layer_cells  # noqa: E402
+from scout_agent.delivery import DeltaPublisher  # noqa: E402
 from scout_agent.publisher import ScoutLink, ZenohTransport  # noqa: E402
 
 MAP, RES = "faults", 0.4

@@ -170,9 +170,9 @@ def _live(samples: list[tuple[str, bytes]]) -> dict:
     merge of the same stream."""
     import zenoh
 
+    from common.session import zenoh_config
     from map_server.service import MapService, ServerConfig, free_endpoint, wait_for_server
     from protocol.keys import status_key
-    from common.session import zenoh_config
 
     ep = free_endpoint()
     ref = Merger(TiledMap(RES), MAP, limits=Limits(max_new_tiles_per_delta=8))

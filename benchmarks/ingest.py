@@ -122,8 +122,8 @@ def run_load(n: int, endpoint: str, rate_total: float, seconds: float, offset: i
 def main() -> None:
     import zenoh
 
-    from map_server.service import free_endpoint, wait_for_server
     from common.session import zenoh_config
+    from map_server.service import free_endpoint, wait_for_server
     from protocol import decode, encode
     from protocol.keys import ack_key, delta_key, map_key, status_key
     from protocol.messages import CellDelta, RegionQuery

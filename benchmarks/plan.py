@@ -152,7 +152,12 @@ def main() -> None:
     big = [r for r in results if r["cells"] == "2000x2000"]
     if big:
         goals["goal_total_2000_lt_1s"] = big[0]["total_plan_s"] < 1.0
-    head = {"benchmark": "plan", "c_kernel_available": c_lib is not None, "repeat": args.repeat, "timing": "median"}
+    head = {
+        "benchmark": "plan",
+        "c_kernel_available": c_lib is not None,
+        "repeat": args.repeat,
+        "timing": "median",
+    }
     print(json.dumps({**head, "results": results, **goals}))
 
 

@@ -28,8 +28,13 @@ def _loopback(endpoint: str) -> bool:
         return False
 
 
-def zenoh_config(connect: Sequence[str] = (), listen: Sequence[str] = (), mode: str | None = None,
-                 config_file: str | Path | None = None, insecure: bool = False):
+def zenoh_config(
+    connect: Sequence[str] = (),
+    listen: Sequence[str] = (),
+    mode: str | None = None,
+    config_file: str | Path | None = None,
+    insecure: bool = False,
+):
     """A `zenoh.Config`: from `config_file` (a Zenoh JSON5 config, e.g. one `psrmap secure init` wrote) if given,
     else empty; `mode` (default: the file's, else peer) and non-empty `connect`/`listen` override the file's.
 

@@ -14,13 +14,13 @@ from dataclasses import dataclass
 
 import zenoh
 
+from common.session import zenoh_config
 from consumer_planner.errors import PlannerError
 from consumer_planner.grid import LayerGrid, stitch
 from protocol.codec import decode
 from protocol.errors import ProtocolError
 from protocol.keys import map_key, status_key
 from protocol.messages import MapRegion, RegionQuery, Status
-from common.session import zenoh_config
 
 __all__ = ["ClientConfig", "MapClient", "query_region", "trusted_servers"]
 

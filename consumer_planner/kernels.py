@@ -123,7 +123,7 @@ def dial8(
                 if nv < g[v]:
                     g[v] = nv
                     parent[v] = u
-                    kv = np.int64(nv / delta)
+                    kv = int(nv / delta)
                     if kv <= k:
                         kv = k + 1
                     t = kv % nbuckets

@@ -72,7 +72,7 @@ def nearest_passable(cost: np.ndarray, cell: tuple[int, int], radius_cells: floa
     if 0 <= r0 < h and 0 <= c0 < w and np.isfinite(cost[r0, c0]):
         return r0, c0
     k = int(np.floor(radius_cells))
-    rr, cc = np.mgrid[max(0, r0 - k):min(h, r0 + k + 1), max(0, c0 - k):min(w, c0 + k + 1)]
+    rr, cc = np.mgrid[max(0, r0 - k) : min(h, r0 + k + 1), max(0, c0 - k) : min(w, c0 + k + 1)]
     d2 = (rr - r0) ** 2 + (cc - c0) ** 2
     ok = np.isfinite(cost[rr, cc]) & (d2 <= radius_cells**2)
     if not ok.any():

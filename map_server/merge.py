@@ -19,9 +19,9 @@ from dataclasses import dataclass, field
 import numpy as np
 import xxhash
 
+from map_server.decode import DeltaBatch, DeltaDecoder
 from map_server.limits import Limits
 from map_server.tiles import TiledMap
-from protocol.batch import DeltaBatch, decode_delta_batch
 from protocol.codec import DEFAULT_MAX_BYTES, decode
 from protocol.errors import ProtocolError
 from protocol.messages import Ack, CellDelta
@@ -117,7 +117,9 @@ class IngestResult:
     rejected: list[tuple[str, str]] = field(default_factory=list)  # (reason, message)
     acks: dict[tuple[str, int], Ack] = field(default_factory=dict)
     touched: set[tuple[str, int]] = field(default_factory=set)  # seq states changed
-    conflicts: dict[tuple[str, int], list[int]] = field(default_factory=dict)  # seqs merged with other content
+    conflicts: dict[tuple[str, int], list[int]] = field(
+        default_factory=dict
+    )  # seqs merged with other content
 
 
 class Merger:
@@ -137,6 +139,8 @@ class Merger:
         self.book = book or MergeBook()
         self.limits = limits or Limits(max_message_bytes=max_bytes)
         self.max_bytes = self.limits.max_message_bytes
+        self._decoder = DeltaDecoder(res=tiled.res, max_bytes=self.max_bytes)
+        self._replay_decoder = DeltaDecoder(res=tiled.res, max_bytes=2**62)  # the log holds accepted deltas
 
     def validate(self, key: str, payload: bytes) -> CellDelta:
         """Decode one sample as a delta for this map, or raise ProtocolError."""
@@ -162,7 +166,7 @@ class Merger:
 
     def decode(self, samples: list[tuple[str, bytes]]) -> DeltaBatch:
         """The stateless half of `ingest` (decode + validate): needs no lock on the map."""
-        return decode_delta_batch(samples, res=self.map.res, max_bytes=self.max_bytes, views=False)
+        return self._decoder.decode(samples)
 
     def apply(self, samples: list[tuple[str, bytes]], batch: DeltaBatch) -> IngestResult:
         """The half of `ingest` that reads and changes state: dedupe, book-keep, merge `decode(samples)`."""
@@ -210,8 +214,10 @@ class Merger:
                 known = st.digest(seq)
                 if known and known != dig:
                     book.rejected["seq_conflict"] += 1
-                    msg = (f"seq_conflict: {delta.scout} epoch {delta.epoch} seq {seq} was merged with other "
-                           "content; a restarted scout must use a new epoch")
+                    msg = (
+                        f"seq_conflict: {delta.scout} epoch {delta.epoch} seq {seq} was merged with other "
+                        "content; a restarted scout must use a new epoch"
+                    )
                     res.rejected.append(("seq_conflict", msg))
                     res.conflicts.setdefault(sk, []).append(seq)
                     touched.add(sk)  # the counters change: persist them with the batch
@@ -250,13 +256,20 @@ class Merger:
         cells = np.zeros(n, np.int64)
         sh = self.map.shift
         segs, tks = [], []
+        seen: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
         for c in batch.columns.values():
             cells += np.bincount(c.seg, minlength=n)[:n]
+            # the layers of a batch usually list the same cells of the same deltas: their tiles once
+            if any(s.shape == c.seg.shape and (s == c.seg).all() and (x == c.ix).all() and (y == c.iy).all()
+                   for s, x, y in seen):  # fmt: skip
+                continue
+            seen.append((c.seg, c.ix, c.iy))
             segs.append(c.seg)
             tks.append((c.ix.astype(np.int64) >> sh << 32) | ((c.iy.astype(np.int64) >> sh) & 0xFFFFFFFF))
         for i in np.flatnonzero(cells > lim.max_cells_per_delta).tolist():
             out[i] = ProtocolError(
-                "limit_cells", f"delta has {cells[i]} cells; limit max_cells_per_delta={lim.max_cells_per_delta}"
+                "limit_cells",
+                f"delta has {cells[i]} cells; limit max_cells_per_delta={lim.max_cells_per_delta}",
             )
         tk = np.concatenate(tks)
         known = self.map.gslots
@@ -264,7 +277,9 @@ class Merger:
         if not fresh_keys:  # the common case: every cell lands in a tile the map has
             return out
         fresh = np.isin(tk, np.fromiter(fresh_keys, np.int64, len(fresh_keys)))
-        seg_tile = np.unique(np.stack([np.concatenate(segs)[fresh], tk[fresh]]), axis=1)  # (2, K) (delta, new tile)
+        seg_tile = np.unique(
+            np.stack([np.concatenate(segs)[fresh], tk[fresh]]), axis=1
+        )  # (2, K) (delta, new tile)
         created: set[int] = set()
         for i in np.unique(seg_tile[0]).tolist():
             if i in out or i in already or type(batch.results[i]) is not CellDelta:
@@ -352,7 +367,7 @@ class Merger:
         ids: list[int],
         upto: dict[tuple[str, int, int], int] | None,
     ) -> int:
-        batch = decode_delta_batch(chunk, res=self.map.res, max_bytes=2**62, views=False)
+        batch = self._replay_decoder.decode(chunk)
         take = np.array([isinstance(r, CellDelta) for r in batch.results])
         if upto and ids:
             sh = self.map.shift
@@ -368,8 +383,6 @@ class Merger:
                 )
                 keep = id_of[c.seg] > lim[inv.reshape(-1)]
                 if not keep.all():
-                    batch.columns[name] = type(c)(
-                        c.layer, c.seg[keep], c.ix[keep], c.iy[keep], c.vals[:, keep]
-                    )
+                    batch.columns[name] = c.subset(keep)
         self._merge_columns(batch, take)
         return int(take.sum())

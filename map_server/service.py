@@ -17,6 +17,7 @@ from typing import Any
 
 import zenoh
 
+from common.session import zenoh_config
 from map_server.limits import Limits
 from map_server.merge import Merger
 from map_server.store import MapStore
@@ -35,7 +36,6 @@ from protocol.keys import (
 )
 from protocol.layers import cell_index
 from protocol.messages import MapRegion, RegionQuery, ScoutStatus, Status
-from common.session import zenoh_config
 
 __all__ = ["MapService", "ServerConfig"]
 

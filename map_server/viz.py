@@ -18,8 +18,8 @@ import time
 import numpy as np
 import rerun as rr
 
-from map_server.tiles import TiledMap
 from common.recording import COUNT_SCALE, LAYER_SCALES, TIMELINE, Scale, colorize, open_stream
+from map_server.tiles import TiledMap
 
 __all__ = ["MapViz", "grid_map"]
 

@@ -45,6 +45,7 @@ def run_bridge(cfg: BridgeConfig, stop: threading.Event | None = None, log=print
     """Run until `stop` (or SIGTERM/SIGINT via the CLI), `once`, or `max_seconds`; returns what was published."""
     import zenoh
 
+    from common.session import zenoh_config
     from consumer_planner.client import ClientConfig, query_region
     from consumer_planner.compare import plan_route
     from consumer_planner.costs import build_costs
@@ -58,7 +59,6 @@ def run_bridge(cfg: BridgeConfig, stop: threading.Event | None = None, log=print
         occupancy_grid_msg,
         path_msg,
     )
-    from common.session import zenoh_config
 
     stop = stop or threading.Event()
     conf = zenoh_config(cfg.connect, (), None if cfg.zenoh_config else "client", cfg.zenoh_config)

@@ -14,8 +14,8 @@ import argparse
 import json
 from dataclasses import replace
 
-from protocol.keys import id_arg
 from common.recording import use_viewer, viewer_url
+from protocol.keys import id_arg
 from scout_agent.evaluate import register_evaluate
 from scout_agent.mapping import add_mapping_arguments, attach_mapping
 from scout_agent.run import SCENES, ScoutRunConfig, build_world, run_scout

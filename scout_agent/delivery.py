@@ -116,7 +116,8 @@ class DeltaPublisher:
         # earlier epochs' unacked deltas: epoch -> seq -> pending (sent_at in the past: resent at once)
         self._old: dict[int, OrderedDict[int, _Pending]] = {
             int(e): OrderedDict((int(q), _Pending(p, now - resend_after_s)) for q, p in sorted(rows))
-            for e, rows in (resume or {}).items() if rows
+            for e, rows in (resume or {}).items()
+            if rows
         }
         if self.epoch in self._old:
             raise ValueError(f"epoch {self.epoch} has unacknowledged deltas to resume; a new epoch is needed")
@@ -171,13 +172,21 @@ class DeltaPublisher:
             return self._on_old_ack(ack)
         if ack.seq >= self.next_seq or any(c >= self.next_seq for c in ack.conflicts):
             self.acks_ignored += 1
-            log.warning("ignored an ack for seq %d of epoch %d: only seqs < %d were sent", ack.seq, ack.epoch,
-                        self.next_seq)
+            log.warning(
+                "ignored an ack for seq %d of epoch %d: only seqs < %d were sent",
+                ack.seq,
+                ack.epoch,
+                self.next_seq,
+            )
             return 0
         if ack.conflicts:
             self.conflicts.extend(ack.conflicts)
-            log.error("server rejected seqs %s of epoch %d as seq_conflict: other content was merged under "
-                      "them (was this epoch reused after a restart?)", list(ack.conflicts), ack.epoch)
+            log.error(
+                "server rejected seqs %s of epoch %d as seq_conflict: other content was merged under "
+                "them (was this epoch reused after a restart?)",
+                list(ack.conflicts),
+                ack.epoch,
+            )
         released = 0
         with self._lock:
             self.acked_seq = max(self.acked_seq, ack.seq)
@@ -202,8 +211,11 @@ class DeltaPublisher:
                 return 0
             if ack.conflicts:
                 self.conflicts.extend(ack.conflicts)
-                log.error("server rejected resumed seqs %s of epoch %d as seq_conflict", list(ack.conflicts),
-                          ack.epoch)
+                log.error(
+                    "server rejected resumed seqs %s of epoch %d as seq_conflict",
+                    list(ack.conflicts),
+                    ack.epoch,
+                )
             gone = [q for q in old if q <= ack.seq]
             for q in gone:
                 del old[q]

@@ -12,8 +12,8 @@ from __future__ import annotations
 import logging
 import threading
 from collections.abc import Mapping, Sequence
-from typing import Any
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import zenoh
@@ -78,8 +78,14 @@ class ScoutPublisher:
             ) from None
         self.transport = ZenohTransport(self._session)
         self.publisher = DeltaPublisher(
-            self.transport, map_id, scout_id, res, max_unacked=max_unacked, resend_after_s=resend_after_s,
-            outbox=box, resume=old,
+            self.transport,
+            map_id,
+            scout_id,
+            res,
+            max_unacked=max_unacked,
+            resend_after_s=resend_after_s,
+            outbox=box,
+            resume=old,
         )
         if old:
             log.info("resuming %d unacknowledged deltas of epoch(s) %s", self.resumed, list(old))

@@ -9,8 +9,8 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from map_server.service import MapService, ServerConfig, free_endpoint, wait_for_server
 from common.session import zenoh_config
+from map_server.service import MapService, ServerConfig, free_endpoint, wait_for_server
 
 
 @pytest.fixture(autouse=True)

@@ -16,14 +16,14 @@ import numpy as np
 import pytest
 import zenoh
 
+from common.session import zenoh_config
 from map_server.service import free_endpoint, wait_for_server
 from map_server.tiles import TiledMap
-from common.session import zenoh_config
 from protocol import decode, encode
-from scout_agent.delivery import DeltaPublisher
 from protocol.keys import delta_key, map_key, status_key
 from protocol.messages import CellDelta, MapRegion, RegionQuery, Status
 from protocol.testing import layer_cells
+from scout_agent.delivery import DeltaPublisher
 from scout_agent.publisher import ScoutLink, ZenohTransport
 
 MAP, RES = "itest", 0.4

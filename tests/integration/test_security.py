@@ -12,13 +12,13 @@ import numpy as np
 import pytest
 import zenoh
 
+from common.session import zenoh_config
 from consumer_planner.client import ClientConfig, query_region, trusted_servers
 from consumer_planner.errors import PlannerError
 from map_server.service import MapService, ServerConfig, free_endpoint, wait_for_server
 from protocol import encode
 from protocol.keys import ack_key, delta_key, map_key
 from protocol.messages import Ack, RegionQuery
-from common.session import zenoh_config
 from protocol.testing import MAP, RES, make_delta
 from psrmap.secure import secure_init
 from scout_agent.publisher import ScoutPublisher

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 from protocol import decode, encode
-from scout_agent.delivery import DeltaPublisher
 from protocol.keys import delta_key, map_key, status_key
 from protocol.messages import MapRegion, RegionQuery, Status
 from protocol.testing import MAP, RES, broken, make_delta
+from scout_agent.delivery import DeltaPublisher
 from scout_agent.publisher import ScoutLink, ZenohTransport
 
 

@@ -12,11 +12,10 @@ from map_server.merge import Merger
 from map_server.store import MapStore
 from map_server.tiles import TiledMap
 from protocol import decode, encode
-from scout_agent.delivery import DeltaPublisher
 from protocol.keys import delta_key, status_key
 from protocol.messages import Ack, Status
-from scout_agent.delivery import InMemoryTransport
 from protocol.testing import MAP, RES, SCOUT, make_delta
+from scout_agent.delivery import DeltaPublisher, InMemoryTransport
 from scout_agent.publisher import ScoutLink, ZenohTransport
 
 KEY = delta_key(MAP, SCOUT)

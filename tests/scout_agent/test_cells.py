@@ -9,8 +9,8 @@ from hypothesis import strategies as st
 
 from protocol.codec import decode
 from protocol.layers import LAYERS, layer_value
-from scout_agent.delivery import DeltaPublisher, InMemoryTransport
 from scout_agent.cells import CellAccumulator, LocalMap, load_npz
+from scout_agent.delivery import DeltaPublisher, InMemoryTransport
 
 
 def test_flush_reduces_per_cell_with_each_stats_merge_op():

@@ -3,8 +3,8 @@ from __future__ import annotations
 import pytest
 
 from protocol import Ack, decode
-from scout_agent.delivery import DeltaPublisher, InMemoryTransport, UnackedBufferFull
 from protocol.testing import MAP, RES, SCOUT, make_delta
+from scout_agent.delivery import DeltaPublisher, InMemoryTransport, UnackedBufferFull
 
 
 class Clock:

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from map_server.service import MapService, ServerConfig, wait_for_server
-from scout_agent.delivery import DeltaPublisher, InMemoryTransport
 from protocol.testing import MAP, RES, make_delta
+from scout_agent.delivery import DeltaPublisher, InMemoryTransport
 from scout_agent.outbox import SQLiteOutbox
 
 N_BEFORE_KILL = 30
