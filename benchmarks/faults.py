@@ -31,7 +31,7 @@ import zenoh  # noqa: E402
 
 from common.session import zenoh_config  # noqa: E402
 from map_server.service import free_endpoint  # noqa: E402
-from map_server.tiles import TiledMap  # noqa: E402
+from mapcore import TiledMap  # noqa: E402
 from protocol import decode  # noqa: E402
 from protocol.keys import status_key  # noqa: E402
 from protocol.testing import layer_cells  # noqa: E402

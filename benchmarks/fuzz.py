@@ -28,7 +28,7 @@ import numpy as np  # noqa: E402
 
 from map_server.limits import Limits  # noqa: E402
 from map_server.merge import Merger  # noqa: E402
-from map_server.tiles import TiledMap  # noqa: E402
+from mapcore import TiledMap  # noqa: E402
 from protocol import decode, encode  # noqa: E402
 from protocol.keys import delta_key  # noqa: E402
 from protocol.messages import CellDelta  # noqa: E402

@@ -27,7 +27,7 @@ def _run(limits_on: bool, deltas: int, cells: int, max_tiles: int, q: mp.Queue) 
 
     from map_server.limits import Limits
     from map_server.merge import Merger
-    from map_server.tiles import TiledMap
+    from mapcore import TiledMap
     from protocol import encode
     from protocol.keys import delta_key
     from protocol.messages import CellDelta

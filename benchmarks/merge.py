@@ -27,7 +27,7 @@ import time
 import numpy as np
 
 from map_server.merge import Merger
-from map_server.tiles import TiledMap
+from mapcore import TiledMap
 from protocol import LAYERS, encode
 from protocol.keys import delta_key
 from protocol.messages import CellDelta

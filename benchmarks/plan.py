@@ -29,8 +29,8 @@ from scipy import ndimage
 from skimage.graph import route_through_array
 
 from consumer_planner.costs import CostConfig, build_costs
-from consumer_planner.grid import LayerGrid
 from consumer_planner.search import plan_path
+from mapcore import LayerGrid
 
 
 def terrain_costs(n: int, seed: int = 0) -> np.ndarray:

@@ -5,7 +5,6 @@ from __future__ import annotations
 from consumer_planner.compare import Breakdown, Route, breakdown, evaluate_route, plan_route
 from consumer_planner.costs import CostConfig, CostMap, Limits, Weights, build_costs, parse_weights
 from consumer_planner.errors import PlannerError
-from consumer_planner.grid import LayerGrid, load_npz, stitch
 from consumer_planner.search import GridPath, plan_path
 
 __all__ = [
@@ -13,7 +12,6 @@ __all__ = [
     "CostConfig",
     "CostMap",
     "GridPath",
-    "LayerGrid",
     "Limits",
     "PlannerError",
     "Route",
@@ -21,9 +19,7 @@ __all__ = [
     "breakdown",
     "build_costs",
     "evaluate_route",
-    "load_npz",
     "parse_weights",
     "plan_path",
     "plan_route",
-    "stitch",
 ]

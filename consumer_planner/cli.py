@@ -23,7 +23,7 @@ import numpy as np
 from consumer_planner.compare import Route, evaluate_route, plan_route
 from consumer_planner.costs import TERMS, UNKNOWN_POLICIES, CostConfig, build_costs, parse_weights
 from consumer_planner.errors import PlannerError
-from consumer_planner.grid import LayerGrid, load_npz
+from mapcore import LayerGrid, MapFileError, read_npz
 from protocol.keys import id_arg
 
 __all__ = ["register"]
@@ -179,7 +179,10 @@ def _load(args: argparse.Namespace, points: list[Point]) -> LayerGrid:
     if (args.npz is None) == (not args.connect):
         args._parser.error("give either --connect ENDPOINT (with --map ID) or --npz FILE")
     if args.npz is not None:
-        return load_npz(args.npz, map_id=args.map or "local")
+        try:
+            return read_npz(args.npz, map_id=args.map or "local")
+        except MapFileError as exc:
+            raise PlannerError(str(exc)) from None
     if not args.map:
         args._parser.error("--connect needs --map ID")
     from consumer_planner.client import ClientConfig, MapClient  # zenoh only when a server is asked

@@ -16,7 +16,7 @@ import zenoh
 
 from common.session import zenoh_config
 from consumer_planner.errors import PlannerError
-from consumer_planner.grid import LayerGrid, stitch
+from mapcore import LayerGrid, MapCoreError, stitch
 from protocol.codec import decode
 from protocol.errors import ProtocolError
 from protocol.keys import map_key, status_key
@@ -110,7 +110,10 @@ def query_region(
             f"{', '.join(config.connect) or '(no endpoint)'}; is `psrmap server --map {map_id}` running "
             f"and reachable?"
         )
-    return stitch(regions, config.x0, config.y0)
+    try:
+        return stitch(regions, config.x0, config.y0)
+    except MapCoreError as exc:  # replies that cannot be one map (other map ids or cell sizes)
+        raise PlannerError(str(exc)) from None
 
 
 class MapClient:

@@ -25,8 +25,8 @@ from skimage.draw import line
 
 from consumer_planner.costs import CostMap
 from consumer_planner.errors import PlannerError
-from consumer_planner.grid import LayerGrid
 from consumer_planner.search import Method, nearest_passable, plan_path, step_lengths
+from mapcore import LayerGrid
 
 __all__ = ["Breakdown", "Route", "breakdown", "cell_weights", "evaluate_route", "plan_route", "route_cells"]
 

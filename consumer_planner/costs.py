@@ -59,7 +59,7 @@ import numpy as np
 from scipy import ndimage
 
 from consumer_planner.errors import PlannerError
-from consumer_planner.grid import LayerGrid
+from mapcore import LayerGrid
 
 __all__ = [
     "METRICS",

@@ -20,7 +20,7 @@ import rerun as rr
 from common.recording import TIMELINE, Scale, colorize, open_stream, scout_color
 from consumer_planner.compare import Route
 from consumer_planner.costs import CostMap
-from consumer_planner.grid import LayerGrid
+from mapcore import LayerGrid
 
 __all__ = ["breakdown_markdown", "cost_image", "drape", "log_plan", "open_recording"]
 

@@ -21,7 +21,7 @@ import xxhash
 
 from map_server.decode import DeltaBatch, DeltaDecoder
 from map_server.limits import Limits
-from map_server.tiles import TiledMap
+from mapcore import TiledMap
 from protocol.codec import DEFAULT_MAX_BYTES, decode
 from protocol.errors import ProtocolError
 from protocol.messages import Ack, CellDelta

@@ -21,7 +21,7 @@ from common.session import zenoh_config
 from map_server.limits import Limits
 from map_server.merge import Merger
 from map_server.store import MapStore
-from map_server.tiles import TiledMap, trim_heap
+from mapcore import TiledMap
 from protocol.codec import INDEX_LIMIT, encode
 from protocol.errors import ProtocolError
 from protocol.keys import (
@@ -320,8 +320,7 @@ class MapService:
     def _snapshot_step(self) -> None:
         assert self.store is not None
         self._last_step = time.monotonic()
-        if self.store.snapshot_step(self.map):
-            trim_heap()  # the round's blobs went through the heap
+        self.store.snapshot_step(self.map)
 
     def _checkpoint_loop(self) -> None:
         assert self.store is not None

@@ -24,7 +24,7 @@ from collections import Counter
 from pathlib import Path
 
 from map_server.merge import Accepted, MergeBook, Merger, SeqState
-from map_server.tiles import TiledMap
+from mapcore import TiledMap
 
 log = logging.getLogger(__name__)
 

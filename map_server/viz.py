@@ -19,7 +19,7 @@ import numpy as np
 import rerun as rr
 
 from common.recording import COUNT_SCALE, LAYER_SCALES, TIMELINE, Scale, colorize, open_stream
-from map_server.tiles import TiledMap
+from mapcore import TiledMap
 
 __all__ = ["MapViz", "grid_map"]
 

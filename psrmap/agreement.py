@@ -10,19 +10,19 @@ from typing import Any
 
 import numpy as np
 
+from mapcore import read_npz
 from protocol.layers import layer_value
-from scout_agent.cells import load_npz
 
 
 def _elevation_by_cell(path: Path) -> dict[tuple[int, int], float]:
-    meta, layers = load_npz(path)
-    elev = layers.get("elevation")
+    grid = read_npz(path)
+    elev = grid.layers.get("elevation")
     if elev is None:
         return {}
     n = elev["n"]
     ok = n > 0
     values = layer_value("elevation", elev)
-    ix0, iy0, w = int(meta["ix0"]), int(meta["iy0"]), int(meta["w"])
+    ix0, iy0, w = grid.ix0, grid.iy0, grid.w
     idx = np.flatnonzero(ok.ravel() & np.isfinite(values.ravel()))
     return {(ix0 + int(k % w), iy0 + int(k // w)): float(values.ravel()[k]) for k in idx}
 

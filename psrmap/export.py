@@ -155,14 +155,14 @@ def _cmd(args: argparse.Namespace) -> int:
 
 def _load(args: argparse.Namespace) -> Any:
     from consumer_planner.errors import PlannerError
-    from consumer_planner.grid import load_npz
+    from mapcore import MapFileError, read_npz
 
     if (args.npz is None) == (not args.connect):
         args.parser.error("give either --connect ENDPOINT (with --map ID and --box) or --npz FILE")
     if args.npz:
         try:
-            return load_npz(args.npz, map_id=args.map or "local")
-        except PlannerError as exc:
+            return read_npz(args.npz, map_id=args.map or "local")
+        except MapFileError as exc:
             args.parser.error(str(exc))
     if not args.map or not args.box:
         args.parser.error("--connect needs --map ID and --box X0,Y0,X1,Y1")

@@ -2,22 +2,22 @@
 
 `CellAccumulator` buffers per-sample statistics cheaply (one tuple append per `add`) and reduces them per
 cell at `flush()` into the `layers` dict of a `CellDelta` (DESIGN.md wire contract: `ix`, `iy` int32 and
-float64 stats, a cell at most once per layer). `LocalMap` merges such dicts with the server's rule
-(`protocol.layers.merge_op`), so a scout with no server holds, cell for cell, what a server would merge from
-the same deltas; `save_npz` writes it in the `map_region` layout.
+float64 stats, a cell at most once per layer). `LocalMap` merges such dicts into the map core's `TiledMap`,
+the server's own storage and merge, so a scout with no server holds, cell for cell, what a server would
+merge from the same deltas; `save_npz` writes it with `mapcore.npz` in the `map_region` layout.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
-from protocol.layers import LAYERS, cell_center, cell_index, empty_value, get_layer, layer_value, merge_op
+from mapcore import LayerGrid, TiledMap, write_npz
+from protocol.layers import LAYERS, cell_center, cell_index, empty_value, get_layer, merge_op
 
-__all__ = ["CellAccumulator", "LocalMap", "load_npz"]
+__all__ = ["CellAccumulator", "LocalMap"]
 
 LayersDict = dict[str, dict[str, np.ndarray]]
 
@@ -106,106 +106,39 @@ def reduce_cells(
 
 
 class LocalMap:
-    """A scout's own map: merged totals per cell and layer, same merge rule as the server."""
+    """A scout's own map: the map core's `TiledMap` (same merge as the server, vectorised) plus the count
+    of deltas merged and the scout's view of it (`cells`, `region`, `save_npz`)."""
 
     def __init__(self, res: float) -> None:
         self.res = float(res)
-        self._cells: dict[str, dict[tuple[int, int], np.ndarray]] = {name: {} for name in LAYERS}
+        self.map = TiledMap(self.res)
         self.merged = 0  # deltas merged
 
     def merge(self, layers: Mapping[str, Mapping[str, np.ndarray]]) -> None:
-        for name, cells in layers.items():
-            stats = get_layer(name).stats
-            ops = [merge_op(s) for s in stats]
-            table = self._cells[name]
-            cols = np.stack([np.asarray(cells[s], dtype=np.float64) for s in stats], axis=1)
-            for k, (i, j) in enumerate(zip(cells["ix"].tolist(), cells["iy"].tolist(), strict=True)):
-                row = cols[k]
-                cur = table.get((i, j))
-                if cur is None:
-                    table[(i, j)] = row.copy()
-                    continue
-                for c, op in enumerate(ops):
-                    if op == "add":
-                        cur[c] += row[c]
-                    elif op == "min":
-                        cur[c] = min(cur[c], row[c])
-                    else:
-                        cur[c] = max(cur[c], row[c])
+        self.map.merge(layers)
         self.merged += 1
 
     def cells(self, layer: str) -> dict[str, np.ndarray]:
-        """All cells of a layer as arrays: `ix`, `iy` and every stat (sorted by (iy, ix))."""
-        stats = get_layer(layer).stats
-        table = self._cells[layer]
-        keys = sorted(table, key=lambda k: (k[1], k[0]))
-        out = {
-            "ix": np.array([k[0] for k in keys], dtype=np.int32),
-            "iy": np.array([k[1] for k in keys], dtype=np.int32),
-        }
-        vals = np.array([table[k] for k in keys]).reshape(len(keys), len(stats))
-        for c, s in enumerate(stats):
-            out[s] = vals[:, c].copy()
-        return out
+        """All cells of a layer with data as arrays: `ix`, `iy` and every stat (sorted by (iy, ix))."""
+        return self.map.layer_cells(layer)
 
     def bounds(self) -> tuple[int, int, int, int] | None:
         """(ix0, iy0, ix1, iy1) inclusive over all layers, or None when empty."""
-        keys = [k for table in self._cells.values() for k in table]
-        if not keys:
-            return None
-        ixs, iys = zip(*keys, strict=True)
-        return min(ixs), min(iys), max(ixs), max(iys)
+        return self.map.bounds()
 
     def region(self, ix0: int, iy0: int, ix1: int, iy1: int) -> dict[str, dict[str, np.ndarray]]:
         """Dense (h, w) arrays per layer and stat (row = iy − iy0), plus `value`, as in `map_region`: empty
         cells have n = 0, sums 0, and NaN for value, min and max."""
-        w, h = ix1 - ix0 + 1, iy1 - iy0 + 1
-        out: dict[str, dict[str, np.ndarray]] = {}
-        for name, table in self._cells.items():
-            stats = get_layer(name).stats
-            grid = {s: np.full((h, w), empty_value(s)) for s in stats}
-            for (i, j), row in table.items():
-                if ix0 <= i <= ix1 and iy0 <= j <= iy1:
-                    for c, s in enumerate(stats):
-                        grid[s][j - iy0, i - ix0] = row[c]
-            empty = grid["n"] <= 0
-            for s in stats:
-                if merge_op(s) != "add":
-                    grid[s][empty] = np.nan
-            grid["value"] = layer_value(name, grid)
-            out[name] = grid
-        return out
+        return self.map.region(ix0, iy0, ix1, iy1, stats=("all", "value"))
 
     def save_npz(self, path: str | Path, cover: tuple[int, int, int, int] | None = None) -> Path:
-        """Write the whole map as `map_region` arrays: `<layer>/<stat>` (h, w) and res, ix0, iy0, w, h.
+        """Write the whole map as a `.npz` in `map_region` layout (`mapcore.npz`).
 
         `cover` (ix0, iy0, ix1, iy1, inclusive): a cell box the saved region must include besides the data."""
         b = self.bounds() or (cover if cover is not None else (0, 0, -1, -1))
         if cover is not None:
             b = (min(b[0], cover[0]), min(b[1], cover[1]), max(b[2], cover[2]), max(b[3], cover[3]))
         ix0, iy0, ix1, iy1 = b
-        arrays: dict[str, Any] = {
-            "res": np.float64(self.res),
-            "ix0": np.int64(ix0),
-            "iy0": np.int64(iy0),
-            "w": np.int64(ix1 - ix0 + 1),
-            "h": np.int64(iy1 - iy0 + 1),
-        }
-        for name, grid in self.region(ix0, iy0, ix1, iy1).items():
-            for s, a in grid.items():
-                arrays[f"{name}/{s}"] = a
-        path = Path(path)
-        np.savez_compressed(path, **arrays)
-        return path
-
-
-def load_npz(path: str | Path) -> tuple[dict[str, int | float], dict[str, dict[str, np.ndarray]]]:
-    """Read a map saved by `LocalMap.save_npz`: (header {res, ix0, iy0, w, h}, {layer: {stat: (h, w)}})."""
-    with np.load(path) as z:
-        header = {k: z[k].item() for k in ("res", "ix0", "iy0", "w", "h")}
-        layers: dict[str, dict[str, np.ndarray]] = {}
-        for key in z.files:
-            if "/" in key:
-                layer, stat = key.split("/", 1)
-                layers.setdefault(layer, {})[stat] = z[key]
-    return header, layers
+        if ix1 < ix0 or iy1 < iy0:  # an empty map and no cover: an empty box
+            return write_npz(path, LayerGrid("local", self.res, 0, 0, 0, 0, {}))
+        return write_npz(path, self.map.dense(ix0, iy0, ix1, iy1))

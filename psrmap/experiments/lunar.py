@@ -117,10 +117,10 @@ def save_region_npz(local: Any, path: Path, size_m: float = 20.0) -> Path:
 
 def merged_grid(runs: list[dict], npz_path: Path, map_id: str):
     """The merged map saved as `.npz` (map_region layout) and read back as the planner's `LayerGrid`."""
-    from consumer_planner.grid import load_npz
+    from mapcore import read_npz
 
     save_region_npz(merged_local_map(runs), npz_path)
-    return load_npz(npz_path, map_id=map_id)
+    return read_npz(npz_path, map_id=map_id)
 
 
 def dense(

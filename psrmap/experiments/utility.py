@@ -218,7 +218,7 @@ def experienced(args: argparse.Namespace, run: dict, waypoints: list) -> dict[st
     from consumer_planner.compare import evaluate_route
     from consumer_planner.costs import build_costs
     from consumer_planner.errors import PlannerError
-    from consumer_planner.grid import LayerGrid
+    from mapcore import LayerGrid
 
     s, sc = run["summary"], run["scores"]
     cot = sc.get("cot_whole_run")

@@ -24,7 +24,7 @@ from consumer_planner.costs import (
     Weights,
     build_costs,
 )
-from consumer_planner.grid import LayerGrid
+from mapcore import LayerGrid
 
 # --- the reference ------------------------------------------------------------------------------
 

@@ -10,7 +10,7 @@ from cp_helpers import make_grid, path_cost, reference_dijkstra
 from consumer_planner.compare import cell_weights, evaluate_route, plan_route
 from consumer_planner.costs import CostConfig, Limits, Weights, build_costs, parse_weights
 from consumer_planner.errors import PlannerError
-from consumer_planner.grid import load_npz, stitch
+from mapcore import MapFileError, read_npz, stitch
 from protocol.messages import MapRegion
 
 
@@ -149,11 +149,11 @@ def test_stitch_two_shards_and_npz_roundtrip(tmp_path):
         iy0=0,
         **{"cot/n": g.layers["cot"]["n"], "cot/value": g.layers["cot"]["value"]},
     )
-    back = load_npz(tmp_path / "m.npz")
+    back = read_npz(tmp_path / "m.npz")
     np.testing.assert_array_equal(back.layers["cot"]["n"], g.layers["cot"]["n"])
     assert back.cell_of(2.9, 0.1) == (0, 5) and back.cell_of(3.1, 0.1) is None
-    with pytest.raises(PlannerError, match="no map file"):
-        load_npz(tmp_path / "nope.npz")
+    with pytest.raises(MapFileError, match="no map file"):
+        read_npz(tmp_path / "nope.npz")
 
 
 def test_slope_term_and_limit_from_elevation_plane_fit():

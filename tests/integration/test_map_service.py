@@ -18,7 +18,7 @@ import zenoh
 
 from common.session import zenoh_config
 from map_server.service import free_endpoint, wait_for_server
-from map_server.tiles import TiledMap
+from mapcore import TiledMap
 from protocol import decode, encode
 from protocol.keys import delta_key, map_key, status_key
 from protocol.messages import CellDelta, MapRegion, RegionQuery, Status

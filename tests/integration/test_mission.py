@@ -74,7 +74,7 @@ def test_server_totals_equal_sum_of_scouts(mission: tuple[dict, Path]) -> None:
     _, run_dir = mission
     from map_server.merge import Merger
     from map_server.store import MapStore  # reopen the persisted map exactly as a new server would
-    from map_server.tiles import TiledMap
+    from mapcore import TiledMap
 
     cfg = load_config()
     tiled = TiledMap(cfg.res, 64)

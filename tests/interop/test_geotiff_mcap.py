@@ -116,8 +116,8 @@ def test_export_refuses_bad_origin_and_existing_bag(npz: Path, tmp_path: Path, c
 def test_mcap_export_reads_back_with_rosbags(npz: Path, tmp_path: Path, capsys) -> None:
     from rosbags.rosbag2 import Reader
 
-    from consumer_planner.grid import load_npz
     from interop.ros2_messages import grid_map_layers, typestore
+    from mapcore import read_npz
 
     run = tmp_path / "run"
     run.mkdir()
@@ -126,7 +126,7 @@ def test_mcap_export_reads_back_with_rosbags(npz: Path, tmp_path: Path, capsys) 
     (run / "summary.json").write_text(json.dumps(summary))
     bag = tmp_path / "bag"
     _run(["export", "--format", "mcap", "--npz", str(npz), "--out", str(bag), "--run-dir", str(run)], capsys)
-    grid = load_npz(npz)
+    grid = read_npz(npz)
     store = typestore()
     with Reader(bag) as reader:
         topics = {c.topic: c.msgtype for c in reader.connections}

@@ -26,7 +26,7 @@ def test_a_truncated_message_on_the_fast_path_is_rejected_not_a_crash():
     """Found by the fuzzer: a delta cut inside its `t` field made the batch decoder's learnt-header path raise
     struct.error, which stopped the merge worker."""
     from map_server.merge import Merger
-    from map_server.tiles import TiledMap
+    from mapcore import TiledMap
     from protocol import encode
     from protocol.keys import delta_key
     from protocol.testing import MAP, RES, make_delta
@@ -59,7 +59,7 @@ def test_hypothesis_arbitrary_msgpack_and_field_swaps_never_crash_the_merge():
     from hypothesis import strategies as st
 
     from map_server.merge import Merger
-    from map_server.tiles import TiledMap
+    from mapcore import TiledMap
     from protocol import encode
     from protocol.keys import delta_key
     from protocol.testing import MAP, RES, make_delta

@@ -7,7 +7,7 @@ from hypothesis import strategies as st
 
 from map_server.limits import Limits
 from map_server.merge import Merger
-from map_server.tiles import TiledMap
+from mapcore import TiledMap
 from protocol import encode
 from protocol.keys import delta_key
 from protocol.messages import CellDelta

@@ -6,7 +6,7 @@ import pytest
 
 from map_server.merge import Merger
 from map_server.store import MapStore
-from map_server.tiles import TiledMap
+from mapcore import TiledMap
 from protocol import encode
 from protocol.keys import delta_key
 from protocol.testing import MAP, RES, SCOUT, broken, make_delta

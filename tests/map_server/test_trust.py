@@ -10,7 +10,7 @@ import pytest
 
 from map_server.merge import Merger
 from map_server.store import MapStore
-from map_server.tiles import TiledMap
+from mapcore import TiledMap
 from protocol import decode, encode
 from protocol.keys import delta_key, status_key
 from protocol.messages import Ack, Status

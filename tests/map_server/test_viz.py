@@ -2,8 +2,8 @@ from __future__ import annotations
 
 import threading
 
-from map_server.tiles import TiledMap
 from map_server.viz import MapViz
+from mapcore import TiledMap
 from protocol.testing import layer_cells
 
 

@@ -7,9 +7,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from mapcore import read_npz
 from protocol.codec import decode
 from protocol.layers import LAYERS, layer_value
-from scout_agent.cells import CellAccumulator, LocalMap, load_npz
+from scout_agent.cells import CellAccumulator, LocalMap
 from scout_agent.delivery import DeltaPublisher, InMemoryTransport
 
 
@@ -89,7 +90,9 @@ def test_save_npz_has_the_map_region_layout(tmp_path):
     for d in _random_deltas(np.random.default_rng(4)):
         m.merge(d)
     path = m.save_npz(tmp_path / "map.npz")
-    header, layers = load_npz(path)
+    grid = read_npz(path)
+    header = {"res": grid.res, "ix0": grid.ix0, "iy0": grid.iy0, "w": grid.w, "h": grid.h}
+    layers = grid.layers
     ix0, iy0, ix1, iy1 = m.bounds()
     assert header == {"res": 0.4, "ix0": ix0, "iy0": iy0, "w": ix1 - ix0 + 1, "h": iy1 - iy0 + 1}
     for name, layer in LAYERS.items():
@@ -108,7 +111,7 @@ def test_save_npz_has_the_map_region_layout(tmp_path):
 @given(seed=st.integers(0, 10_000))
 def test_local_map_equals_what_a_server_merges_from_the_same_deltas(seed):
     """The deltas go through the wire codec into map_server's TiledMap; the local map sees the same dicts."""
-    from map_server.tiles import TiledMap
+    from mapcore import TiledMap
 
     rng = np.random.default_rng(seed)
     deltas = _random_deltas(rng, n_deltas=4)

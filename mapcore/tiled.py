@@ -1,156 +1,35 @@
-"""The map core: a tiled, multi-layer grid of sufficient statistics in pure numpy (no transport).
+"""TiledMap: a tiled, multi-layer map of sufficient statistics in pure numpy (no transport).
 
-Each layer keeps its tiles `(tx, ty) -> float64 (S, T*T)` (S = the layer's stats, T = tile side in
-cells) in one store, created where data lands, so memory follows the visited area. Merging is
-vectorised: one `ufunc.at` per merge operation over a whole batch (linear indices into the store),
-never a Python loop per cell or per tile.
+Tile addressing (a map-wide tile number per `(tx, ty)`, a dense directory over the tiles' bounding box),
+merging (`merge` of per-layer cell dicts, `merge_columns` of a decoded batch: one `ufunc.at` per stat
+over the whole batch, never a Python loop per cell or per tile, by the merge rule of
+`protocol.layers.merge_op`), region reads into dense arrays (`region`) and change tracking for
+persistence (`dirty`, `take_touched`, `tile_blob`/`load_tile`). Each layer's tiles live in a
+`layer_tiles.LayerTiles` store, so memory follows the visited area. Scouts, the map server, the planner
+and the experiments all merge and read maps through this class.
 """
 
 from __future__ import annotations
 
-import mmap
 from collections.abc import Iterable, Mapping, Sequence
-from typing import Any
 
 import numpy as np
 
-from protocol.errors import ProtocolError
-from protocol.layers import LAYERS, Layer, derived_names, empty_value, get_layer, layer_derived, merge_op
+from mapcore.dense import LayerGrid
+from mapcore.errors import MapRequestError
+from mapcore.layer_tiles import LayerTiles, TileKey
+from protocol.layers import LAYERS, derived_names, get_layer, layer_derived, merge_op
 
-__all__ = ["LayerGrid", "TiledMap", "trim_heap"]
-
-TileKey = tuple[int, int]
+__all__ = ["TiledMap"]
 
 _DIR_LIMIT = 1 << 22  # entries of the dense tile directory (int32) before falling back to a dict lookup
 _GROW_MIN = 16  # tiles added at least when the occupancy array grows
-RESERVE_TILES = 4096  # tiles of address space a layer's store reserves at first (pages come on use)
-
-
-def _reserve(shape: tuple[int, ...]) -> np.ndarray | None:
-    """float64 array of `shape` over reserved address space: anonymous memory mapped without reserving
-    swap, so a page becomes resident only when first written. The store never has to be copied to
-    grow (no stall, no transient double) until the reservation is used up. None if refused."""
-    size = int(np.prod(shape)) * 8
-    try:
-        flags = mmap.MAP_PRIVATE | mmap.MAP_ANONYMOUS | getattr(mmap, "MAP_NORESERVE", 0)
-        buf = mmap.mmap(-1, size, flags=flags, prot=mmap.PROT_READ | mmap.PROT_WRITE)
-    except (OSError, ValueError, AttributeError):
-        return None
-    return np.frombuffer(buf, dtype=np.float64).reshape(shape)
 
 
 def _unkey(k: int) -> TileKey:
     """(tx << 32) | (ty & 0xFFFFFFFF) -> (tx, ty)."""
     lo = k & 0xFFFFFFFF
     return k >> 32, lo - (1 << 32) if lo >= 1 << 31 else lo
-
-
-class _TileView(Mapping[TileKey, np.ndarray]):
-    """Read-only `(tx, ty) -> (S, T*T)` view of a layer's tiles (views into the layer's store)."""
-
-    def __init__(self, grid: LayerGrid) -> None:
-        self._g = grid
-
-    def __getitem__(self, key: TileKey) -> np.ndarray:
-        return self._g.store[self._g.slots[key]].T  # (S, T*T) view of the (T*T, S) block
-
-    def __iter__(self):  # type: ignore[no-untyped-def]
-        return iter(self._g.keys)
-
-    def __len__(self) -> int:
-        return len(self._g.keys)
-
-    def __contains__(self, key: object) -> bool:
-        return key in self._g.slots
-
-
-class LayerGrid:
-    """One layer's tiles, kept in one store `(capacity, T*T, S)` so a batch merges with one `ufunc.at`
-    per merge operation over linear indices. `slots[(tx, ty)]` is a tile's row in the store; `tiles`
-    is a `(tx, ty) -> (S, T*T)` mapping of (transposed) views. A cell's stats are adjacent, so a merge
-    touches one or two cache lines per cell. The store sits in reserved address space (`_reserve`):
-    pages of slots never used are never touched, so resident memory follows the tiles in use.
-    """
-
-    def __init__(self, layer: Layer, cells: int = 64 * 64) -> None:
-        self.layer = layer
-        ops = [merge_op(s) for s in layer.stats]
-        rows = {
-            op: np.array([i for i, o in enumerate(ops) if o == op], dtype=np.intp)
-            for op in ("add", "min", "max")
-        }
-        self.add_rows, self.min_rows, self.max_rows = rows["add"], rows["min"], rows["max"]
-        self.ops = [
-            (ufunc, rows[op].tolist())
-            for op, ufunc in (("add", np.add), ("min", np.minimum), ("max", np.maximum))
-            if rows[op].size
-        ]
-        self.empty = np.array([[empty_value(s)] for s in layer.stats])  # (S, 1) merge identities
-        self.n_row = layer.stats.index("n")
-        self.cells = cells
-        self.slots: dict[TileKey, int] = {}
-        self.keys: list[TileKey] = []
-        self.store = np.empty((0, cells, len(layer.stats)))
-        self.of_global = np.full(0, -1, dtype=np.int64)  # map-wide tile number -> slot (-1: none)
-        self.dirty = np.zeros(0, dtype=bool)  # per slot: changed since the last snapshot
-        self.touched = np.zeros(0, dtype=bool)  # per slot: changed since `take_touched`
-
-    @classmethod
-    def for_layer(cls, layer: Layer, cells: int = 64 * 64) -> LayerGrid:
-        return cls(layer, cells)
-
-    @property
-    def tiles(self) -> _TileView:
-        return _TileView(self)
-
-    def add_tiles(self, keys: Sequence[TileKey], gids: Sequence[int]) -> None:
-        """New tiles (identity values) for `keys`, whose map-wide numbers are `gids`."""
-        n0, k = len(self.keys), len(keys)
-        if n0 + k > self.store.shape[0]:
-            cap = max(n0 + k, 4 * self.store.shape[0], RESERVE_TILES)
-            store = _reserve((cap, *self.store.shape[1:]))
-            if store is None:  # no overcommit: grow geometrically with ordinary memory
-                cap = max(n0 + k, 2 * self.store.shape[0], _GROW_MIN)
-                store = np.empty((cap, *self.store.shape[1:]))
-            if n0:  # only when the reservation is exhausted (or could not be made)
-                store[:n0] = self.store[:n0]
-            self.store = store
-            for name in ("dirty", "touched"):
-                flags = np.zeros(cap, dtype=bool)
-                flags[:n0] = getattr(self, name)[:n0]
-                setattr(self, name, flags)
-            if n0:
-                trim_heap()
-        self.store[n0 : n0 + k] = self.empty.T[None, :, :]
-        for j, key in enumerate(keys):
-            self.slots[key] = n0 + j
-        self.keys.extend(keys)
-        top = max(gids) + 1 if k else 0
-        if top > self.of_global.size:
-            og = np.full(max(top, 2 * self.of_global.size), -1, dtype=np.int64)
-            og[: self.of_global.size] = self.of_global
-            self.of_global = og
-        self.of_global[np.asarray(gids, dtype=np.int64)] = np.arange(n0, n0 + k)
-
-    def used(self) -> np.ndarray:
-        return self.store[: len(self.keys)]
-
-
-def trim_heap() -> None:
-    """Give freed heap memory back to the OS after a store grew (glibc only; no-op elsewhere)."""
-    global _malloc_trim
-    if _malloc_trim is None:
-        try:
-            import ctypes
-
-            _malloc_trim = ctypes.CDLL("libc.so.6").malloc_trim
-        except (OSError, AttributeError):
-            _malloc_trim = False
-    if _malloc_trim:
-        _malloc_trim(0)
-
-
-_malloc_trim: Any = None
 
 
 class _Cells:
@@ -185,7 +64,7 @@ class TiledMap:
         self.tile = tile
         self.shift = tile.bit_length() - 1
         cells = tile * tile
-        self.grids = {name: LayerGrid(get_layer(name), cells) for name in (layers or LAYERS)}
+        self.grids = {name: LayerTiles(get_layer(name), cells) for name in (layers or LAYERS)}
         self.gslots: dict[TileKey, int] = {}  # map-wide tile number of every tile of any layer
         self.gkeys: list[TileKey] = []  # number -> (tx, ty)
         self.occ = np.zeros((0, cells), dtype=bool)  # per map-wide tile: cell holds data in some layer
@@ -203,11 +82,6 @@ class TiledMap:
         if self._cells is None:
             self._cells = int(np.count_nonzero(self.occ[: len(self.gslots)]))
         return self._cells
-
-    @property
-    def occupied(self) -> dict[TileKey, np.ndarray]:
-        """(tx, ty) -> (T*T,) bool: which cells of the tile hold data in some layer."""
-        return {k: self.occ[g] for k, g in self.gslots.items()}
 
     def _flagged(self, attr: str, clear: bool) -> set[tuple[str, int, int]]:
         out: set[tuple[str, int, int]] = set()
@@ -311,10 +185,10 @@ class TiledMap:
             done += self._merge_layer(name, grid, ix, iy, vals)
         return done
 
-    def _grid(self, name: str) -> LayerGrid:
+    def _grid(self, name: str) -> LayerTiles:
         grid = self.grids.get(name)
         if grid is None:
-            raise ProtocolError(
+            raise MapRequestError(
                 "unknown_layer", f"map has no layer {name!r}; layers: {', '.join(self.grids)}"
             )
         return grid
@@ -380,7 +254,7 @@ class TiledMap:
         return self._last_cells
 
     def _merge_layer(
-        self, name: str, grid: LayerGrid, ix: np.ndarray, iy: np.ndarray, vals: np.ndarray
+        self, name: str, grid: LayerTiles, ix: np.ndarray, iy: np.ndarray, vals: np.ndarray
     ) -> int:
         cells = self.tile * self.tile
         c = self._cell_ids(ix, iy)
@@ -435,7 +309,7 @@ class TiledMap:
         (every raw stat); names a layer lacks are skipped. Empty cells: n = 0, value/min/max = NaN.
         """
         if ix1 < ix0 or iy1 < iy0:
-            raise ProtocolError(
+            raise MapRequestError(
                 "bad_value", f"empty box [{ix0}..{ix1}] x [{iy0}..{iy1}]; need ix0 <= ix1, iy0 <= iy1"
             )
         names = list(self.grids) if layers is None else list(layers)
@@ -443,7 +317,7 @@ class TiledMap:
         for name in names:
             grid = self.grids.get(name)
             if grid is None:
-                raise ProtocolError(
+                raise MapRequestError(
                     "unknown_layer", f"map has no layer {name!r}; layers: {', '.join(self.grids)}"
                 )
             raw = self._raw_block(grid, ix0, iy0, ix1, iy1)  # (S, h, w)
@@ -467,7 +341,40 @@ class TiledMap:
             out[name] = layer_out
         return out
 
-    def _raw_block(self, grid: LayerGrid, ix0: int, iy0: int, ix1: int, iy1: int) -> np.ndarray:
+    def dense(
+        self, ix0: int, iy0: int, ix1: int, iy1: int, map_id: str = "local", x0: float = 0.0, y0: float = 0.0
+    ) -> LayerGrid:
+        """The inclusive cell box as a dense `LayerGrid` with every raw stat and `value` of every layer."""
+        layers = self.region(ix0, iy0, ix1, iy1, stats=("all", "value"))
+        return LayerGrid(map_id, self.res, ix0, iy0, iy1 - iy0 + 1, ix1 - ix0 + 1, layers, 0, x0, y0)
+
+    def bounds(self) -> tuple[int, int, int, int] | None:
+        """(ix0, iy0, ix1, iy1), inclusive, of the cells holding data in some layer; None when empty."""
+        g, local = np.nonzero(self.occ[: len(self.gkeys)])
+        if not g.size:
+            return None
+        keys = np.asarray(self.gkeys, dtype=np.int64)[g]  # (k, 2) tile (tx, ty) of each cell
+        ix = keys[:, 0] * self.tile + (local & (self.tile - 1))
+        iy = keys[:, 1] * self.tile + (local >> self.shift)
+        return int(ix.min()), int(iy.min()), int(ix.max()), int(iy.max())
+
+    def layer_cells(self, name: str) -> dict[str, np.ndarray]:
+        """Every cell of a layer with data (n > 0) as arrays: `ix`, `iy` (int32) and each raw stat,
+        sorted by (iy, ix)."""
+        grid = self._grid(name)
+        used = grid.used()  # (slots, T*T, S)
+        slot, local = np.nonzero(used[:, :, grid.n_row] > 0)
+        keys = np.asarray(grid.keys, dtype=np.int64).reshape(-1, 2)[slot]
+        ix = keys[:, 0] * self.tile + (local & (self.tile - 1))
+        iy = keys[:, 1] * self.tile + (local >> self.shift)
+        order = np.lexsort((ix, iy))
+        out = {"ix": ix[order].astype(np.int32), "iy": iy[order].astype(np.int32)}
+        vals = used[slot[order], local[order]]  # (k, S)
+        for r, stat in enumerate(grid.layer.stats):
+            out[stat] = vals[:, r].copy()
+        return out
+
+    def _raw_block(self, grid: LayerTiles, ix0: int, iy0: int, ix1: int, iy1: int) -> np.ndarray:
         T, sh = self.tile, self.shift
         h, w = iy1 - iy0 + 1, ix1 - ix0 + 1
         S = len(grid.layer.stats)
@@ -497,11 +404,6 @@ class TiledMap:
                 if merge_op(s) == "add":
                     out[name][s] = float(sum(float(t[i].sum()) for t in grid.tiles.values()))
         return out
-
-    def cell_stats(self, layer: str, ix: int, iy: int) -> dict[str, float]:
-        """Raw stats of one cell (identity values if it holds no data)."""
-        block = self.region(ix, iy, ix, iy, [layer], ["all"])[layer]
-        return {s: float(a[0, 0]) for s, a in block.items()}
 
     def nbytes(self) -> int:
         """Bytes of the tiles in use (statistics + occupancy); spare store capacity is never touched."""

@@ -3,7 +3,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from map_server.tiles import TiledMap
+from mapcore import TiledMap
 from protocol import LAYERS, ProtocolError, layer_value
 from protocol.testing import layer_cells
 
@@ -94,7 +94,9 @@ def _n_at(m: TiledMap, ix: int, iy: int) -> float:
     return float(m.region(ix, iy, ix, iy, ["slip"], ["n"])["slip"]["n"][0, 0])
 
 
-@pytest.mark.parametrize("order", [[(0, 0), (1400, 1400), (700, 700)], [(0, 0), (1400, 1400), (700, 700), (-900, 5)]])
+@pytest.mark.parametrize(
+    "order", [[(0, 0), (1400, 1400), (700, 700)], [(0, 0), (1400, 1400), (700, 700), (-900, 5)]]
+)
 def test_tiles_far_apart_land_in_their_own_place(order):
     """Issue 12: tiles 36–51 km apart (valid indices) broke the dense tile directory: an IndexError that
     stopped the merge worker, or a cell merged into another tile."""
@@ -102,8 +104,16 @@ def test_tiles_far_apart_land_in_their_own_place(order):
     cells = []
     for k, (tx, ty) in enumerate(order):
         ix, iy = tx * 64 + 3, ty * 64 + 5
-        m.merge({"slip": {"ix": np.array([ix], np.int32), "iy": np.array([iy], np.int32),
-                          "n": np.array([k + 1.0]), "events": np.array([0.0])}})
+        m.merge(
+            {
+                "slip": {
+                    "ix": np.array([ix], np.int32),
+                    "iy": np.array([iy], np.int32),
+                    "n": np.array([k + 1.0]),
+                    "events": np.array([0.0]),
+                }
+            }
+        )
         cells.append((ix, iy, k + 1.0))
     for ix, iy, n in cells:
         assert _n_at(m, ix, iy) == n
@@ -115,8 +125,16 @@ def test_extreme_valid_indices_merge_and_restore():
     m = TiledMap(0.4, tile=64)
     pts = [(-lim, -lim), (lim, lim), (0, 0), (-lim, lim), (12345, -67890)]
     for k, (ix, iy) in enumerate(pts):
-        m.merge({"slip": {"ix": np.array([ix], np.int32), "iy": np.array([iy], np.int32),
-                          "n": np.array([k + 1.0]), "events": np.array([1.0])}})
+        m.merge(
+            {
+                "slip": {
+                    "ix": np.array([ix], np.int32),
+                    "iy": np.array([iy], np.int32),
+                    "n": np.array([k + 1.0]),
+                    "events": np.array([1.0]),
+                }
+            }
+        )
     for k, (ix, iy) in enumerate(pts):
         assert _n_at(m, ix, iy) == k + 1.0
     # what the store does on restart: tiles loaded one by one from their blobs, in any order

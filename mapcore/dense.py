@@ -1,7 +1,8 @@
 """LayerGrid: a dense box of map layers (numpy, NaN = unknown) with map-frame <-> cell transforms.
 
-Built from one or several `protocol.MapRegion` replies (several map-server shards answer one query;
-`stitch` puts their boxes together) or from a scout's saved `.npz` map (same `map_region` layout).
+The dense view of the map core: built from a `TiledMap.region` read, from one or several
+`protocol.MapRegion` replies (several map-server shards answer one query; `stitch` puts their boxes
+together) or from a saved `.npz` map (`mapcore.npz`, the same `map_region` layout).
 Arrays are (h, w), row = iy - iy0, column = ix - ix0; a cell's centre is x0 + (ix + 0.5) * res.
 """
 
@@ -9,15 +10,14 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
-from consumer_planner.errors import PlannerError
+from mapcore.errors import MapCoreError
 from protocol.layers import LAYERS, elevation_slope_deg, empty_value, layer_value
 from protocol.messages import MapRegion
 
-__all__ = ["LayerGrid", "load_npz", "stitch"]
+__all__ = ["LayerGrid", "Layers", "stitch"]
 
 Layers = dict[str, dict[str, np.ndarray]]
 
@@ -70,13 +70,13 @@ class LayerGrid:
 
     # --- layers -----------------------------------------------------------------------------
     def stat(self, layer: str, stat: str) -> np.ndarray:
-        """The (h, w) array of `layer`/`stat`; PlannerError naming what the grid holds otherwise."""
+        """The (h, w) array of `layer`/`stat`; MapCoreError naming what the grid holds otherwise."""
         if layer not in self.layers:
             have = ", ".join(sorted(self.layers)) or "none"
-            raise PlannerError(f"no layer {layer!r} in map {self.map!r}; layers: {have}")
+            raise MapCoreError(f"no layer {layer!r} in map {self.map!r}; layers: {have}")
         stats = self.layers[layer]
         if stat not in stats:
-            raise PlannerError(f"layer {layer!r} has no stat {stat!r}; stats: {', '.join(sorted(stats))}")
+            raise MapCoreError(f"layer {layer!r} has no stat {stat!r}; stats: {', '.join(sorted(stats))}")
         return stats[stat]
 
     def count(self, layer: str) -> np.ndarray:
@@ -101,7 +101,7 @@ class LayerGrid:
             return layer_value(layer, stats)
         if "value" in stats:
             return stats["value"]
-        raise PlannerError(
+        raise MapCoreError(
             f"layer {layer!r} has neither 'value' nor all raw stats; stats: {', '.join(stats)}"
         )
 
@@ -128,11 +128,11 @@ def stitch(regions: Iterable[MapRegion], x0: float = 0.0, y0: float = 0.0) -> La
     `value` NaN, exactly like an empty cell on the wire. All replies must share map id and `res`."""
     regions = [r for r in regions]
     if not regions:
-        raise PlannerError("no map_region to stitch")
+        raise MapCoreError("no map_region to stitch")
     first = regions[0]
     for r in regions[1:]:
         if r.map != first.map or r.res != first.res:
-            raise PlannerError(
+            raise MapCoreError(
                 f"cannot stitch map {r.map!r} res {r.res} with map {first.map!r} res {first.res}"
             )
     if len(regions) == 1:
@@ -161,33 +161,3 @@ def stitch(regions: Iterable[MapRegion], x0: float = 0.0, y0: float = 0.0) -> La
             n_best[rows, cols][take] = np.asarray(n_here, dtype=np.float64)[take]
     version = max(r.version for r in regions)
     return LayerGrid(first.map, first.res, ix0, iy0, h, w, layers, version, x0, y0)
-
-
-def load_npz(path: str | Path, map_id: str = "local", x0: float = 0.0, y0: float = 0.0) -> LayerGrid:
-    """A LayerGrid from a `.npz` in `map_region` layout (as `scout_agent.cells.LocalMap.save_npz`
-    writes): arrays `<layer>/<stat>` (h, w) and scalars res, ix0, iy0 (w, h optional)."""
-    path = Path(path)
-    if not path.is_file():
-        raise PlannerError(f"no map file {str(path)!r}")
-    try:
-        z = np.load(path)
-    except (OSError, ValueError) as exc:
-        raise PlannerError(f"{path} is not a readable .npz map: {exc}") from None
-    with z:
-        missing = [k for k in ("res", "ix0", "iy0") if k not in z.files]
-        if missing:
-            raise PlannerError(
-                f"{path} lacks {', '.join(missing)}; need res, ix0, iy0 and <layer>/<stat> arrays"
-            )
-        layers: Layers = {}
-        for key in z.files:
-            if "/" in key:
-                layer, stat = key.split("/", 1)
-                layers.setdefault(layer, {})[stat] = np.asarray(z[key], dtype=np.float64)
-        if not layers:
-            raise PlannerError(f"{path} holds no <layer>/<stat> arrays; files: {', '.join(z.files)}")
-        shapes = {a.shape for st in layers.values() for a in st.values()}
-        if len(shapes) != 1 or len(next(iter(shapes))) != 2:
-            raise PlannerError(f"{path}: layer arrays must share one (h, w) shape, got {sorted(shapes)}")
-        h, w = next(iter(shapes))
-        return LayerGrid(map_id, float(z["res"]), int(z["ix0"]), int(z["iy0"]), h, w, layers, 0, x0, y0)
