@@ -23,6 +23,7 @@ import numpy as np
 from consumer_planner.compare import Route, evaluate_route, plan_route
 from consumer_planner.costs import TERMS, UNKNOWN_POLICIES, CostConfig, build_costs, parse_weights
 from consumer_planner.errors import PlannerError
+from consumer_planner.table import route_table, term_lines
 from mapcore import LayerGrid, MapFileError, read_npz
 from protocol.keys import id_arg
 
@@ -212,37 +213,9 @@ def _load(args: argparse.Namespace, points: list[Point]) -> LayerGrid:
         return grid
 
 
-_COLUMNS = (
-    ("route", "name", "{}"),
-    ("length m", "length_m", "{:.2f}"),
-    ("cost", "cost", "{:.2f}"),
-    ("slips", "expected_slip_events", "{:.1f}"),
-    ("CoT", "mean_cot", "{:.2f}"),
-    ("GIIM min/mean", ("min_giim", "mean_giim"), "{:.2f}/{:.2f}"),
-    ("GIAM min/mean", ("min_giam", "mean_giam"), "{:.2f}/{:.2f}"),
-    ("slope max", "max_slope_deg", "{:.1f}"),
-    ("unknown", "unknown_fraction", "{:.0%}"),
-    ("inferred", "inferred_fraction", "{:.0%}"),
-)
-
-
 def _table(routes: list[Route]) -> str:
-    rows = [[h for h, _, _ in _COLUMNS]]
-    for r in routes:
-        b = {"name": r.name, **asdict(r.breakdown)}
-        row = []
-        for _, key, fmt in _COLUMNS:
-            vals = [b[k] for k in (key if isinstance(key, tuple) else (key,))]
-            ok = all(not isinstance(v, float) or math.isfinite(v) for v in vals)
-            row.append(fmt.format(*vals) if ok else "-")
-        rows.append(row)
-    widths = [max(len(row[i]) for row in rows) for i in range(len(_COLUMNS))]
-    lines = ["  ".join(c.rjust(w) for c, w in zip(row, widths, strict=True)) for row in rows]
-    terms = ["", "cost by term (per route): "]
-    for r in routes:
-        parts = ", ".join(f"{k} {v:.2f}" for k, v in r.breakdown.terms.items() if v)
-        terms.append(f"  {r.name}: {parts}")
-    return "\n".join(lines + terms)
+    rows = [{"name": r.name, "breakdown": asdict(r.breakdown)} for r in routes]
+    return "\n".join([route_table(rows), "", *term_lines(rows)])
 
 
 def _finish(args: argparse.Namespace, grid: LayerGrid, costs, routes: list[Route], single: bool) -> int:

@@ -1,8 +1,9 @@
 """The planner's only Zenoh module: region queries of the `map` queryable, fanned out to every shard.
 
-`get(psr/<map>/map?x0=..;y0=..;x1=..;y1=..;stats=all)` goes out with `target=ALL` and no
-consolidation, so every map-server shard that owns part of the box answers; the replies are decoded
-with `protocol.codec.decode` (validated) and stitched into one `LayerGrid` (`grid.stitch`). Raw stats
+`get(psr/<map>/map?x0=..;y0=..;x1=..;y1=..;stats=all)` goes out through `common.query` with
+`fan_out=True` (target ALL, no consolidation), so every map-server shard that owns part of the box
+answers; the replies are decoded with `protocol.codec.decode` (validated) and stitched into one
+`LayerGrid` (`mapcore.stitch`). Raw stats
 (`all`) are asked for so the planner recomputes values and the elevation plane-fit slope itself.
 """
 
@@ -14,6 +15,7 @@ from dataclasses import dataclass
 
 import zenoh
 
+from common.query import get_replies
 from common.session import zenoh_config
 from consumer_planner.errors import PlannerError
 from mapcore import LayerGrid, MapCoreError, stitch
@@ -69,39 +71,18 @@ def query_region(
     q = RegionQuery(*box, layers=tuple(layers) if layers is not None else None, stats=tuple(stats))
     key = map_key(map_id)
     regions: list[MapRegion] = []
-    errors: list[str] = []
-    replies = session.get(
-        f"{key}?{q.to_parameters()}",
-        target=zenoh.QueryTarget.ALL,
-        consolidation=zenoh.ConsolidationMode.NONE,
-        timeout=config.timeout_s,
+    replies = get_replies(
+        session, f"{key}?{q.to_parameters()}", config.timeout_s, fan_out=True, trusted=config.trusted_servers
     )
-    trusted = set(config.trusted_servers)
-    for reply in replies:
-        if trusted:
-            rid = reply.replier_id
-            zid = str(rid.zid) if rid is not None else None
-            if zid not in trusted:
-                errors.append(f"ignored a reply from {zid}, not a trusted map server")
-                log.warning(
-                    "ignored a map reply from %s: not one of the trusted servers %s", zid, sorted(trusted)
-                )
-                continue
-        if reply.ok is not None:
-            try:
-                msg = decode(
-                    reply.ok.payload.to_bytes(), expected_type="map_region", max_bytes=config.max_bytes
-                )
-            except ProtocolError as exc:
-                errors.append(f"undecodable reply: {exc}")
-                continue
-            assert isinstance(msg, MapRegion)
-            regions.append(msg)
-        else:
-            err = reply.err
-            errors.append(
-                err.payload.to_bytes().decode(errors="replace") if err is not None else "empty reply"
-            )
+    errors = replies.errors
+    for payload in replies.ok:
+        try:
+            msg = decode(payload, expected_type="map_region", max_bytes=config.max_bytes)
+        except ProtocolError as exc:
+            errors.append(f"undecodable reply: {exc}")
+            continue
+        assert isinstance(msg, MapRegion)
+        regions.append(msg)
     if not regions:
         if errors:
             raise PlannerError(f"map servers refused {key!r}: {'; '.join(errors)}")
@@ -150,20 +131,14 @@ class MapClient:
         where the recording logs a plan made now), None when no server answers."""
         if self._session is None:
             raise RuntimeError("MapClient used outside its `with` block")
-        trusted = set(self.config.trusted_servers)
         best: float | None = None
-        replies = self._session.get(
-            status_key(map_id),
-            target=zenoh.QueryTarget.ALL,
-            consolidation=zenoh.ConsolidationMode.NONE,
-            timeout=self.config.timeout_s,
-        )
-        for reply in replies:
-            rid = reply.replier_id
-            if trusted and (rid is None or str(rid.zid) not in trusted) or reply.ok is None:
-                continue
+        replies = get_replies(
+            self._session, status_key(map_id), self.config.timeout_s, fan_out=True,
+            trusted=self.config.trusted_servers,
+        )  # fmt: skip
+        for payload in replies.ok:
             try:
-                st = decode(reply.ok.payload.to_bytes(), expected_type="status")
+                st = decode(payload, expected_type="status")
             except ProtocolError as exc:
                 log.warning("undecodable status reply: %s", exc)
                 continue

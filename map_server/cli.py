@@ -166,13 +166,15 @@ def cmd_server(args: argparse.Namespace) -> int:
 
 
 def _get_one(args: argparse.Namespace, selector: str) -> bytes:
+    """The first good reply (`common.query`), or exit 1 saying why there is none."""
+    from common.query import QueryError, get_one
+
     with _open(_conf(args, _endpoints(args.connect)), args) as s:
-        for reply in s.get(selector, timeout=args.timeout):
-            if reply.ok is not None:
-                return reply.ok.payload.to_bytes()
-            assert reply.err is not None
-            raise SystemExit(f"error from server: {reply.err.payload.to_bytes().decode(errors='replace')}")
-    raise SystemExit(f"no reply on {selector} within {args.timeout} s (is a server for this map up?)")
+        try:
+            return get_one(s, selector, args.timeout)
+        except QueryError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            raise SystemExit(1) from None
 
 
 def cmd_status(args: argparse.Namespace) -> int:

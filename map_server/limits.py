@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from map_server.errors import MapServerConfigError
 from protocol.errors import DEFAULT_MAX_BYTES
 
 
@@ -25,7 +26,7 @@ class Limits:
     def __post_init__(self) -> None:
         for name, v in self.__dict__.items():
             if not isinstance(v, int) or v < 1:
-                raise ValueError(f"limit {name}={v!r}; need an integer >= 1")
+                raise MapServerConfigError(f"limit {name}={v!r}; need an integer >= 1")
 
 
 __all__ = ["Limits"]

@@ -431,12 +431,6 @@ class MapService:
         return MapRegion(self.config.map_id, res, ix0, iy0, ix1 - ix0 + 1, iy1 - iy0 + 1, version, layers)
 
 
-def run_server(config: ServerConfig, stop: threading.Event) -> None:
-    """Run until `stop` is set (the CLI sets it from SIGINT/SIGTERM)."""
-    with MapService(config):
-        stop.wait()
-
-
 def free_endpoint(host: str = "127.0.0.1") -> str:
     """A `tcp/<host>:<port>` endpoint on a port that was free a moment ago (tests, benchmarks)."""
     import socket

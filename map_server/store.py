@@ -23,6 +23,7 @@ import time
 from collections import Counter
 from pathlib import Path
 
+from map_server.errors import MapServerConfigError
 from map_server.merge import Accepted, MergeBook, Merger, SeqState
 from mapcore import TiledMap
 
@@ -80,7 +81,7 @@ class MapStore:
             for k, v in want.items():
                 if have.get(k) != v:
                     self.db.close()
-                    raise ValueError(
+                    raise MapServerConfigError(
                         f"{self.path} holds map={have.get('map')} res={have.get('res')} "
                         f"tile={have.get('tile')}; asked for map={map_id} res={res} tile={tile}"
                     )

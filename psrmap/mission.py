@@ -329,13 +329,9 @@ def scout_argv(cfg: MissionConfig, s: ScoutPlan, endpoint: str, run_dir: Path) -
 
 
 def _status(session: Any, map_id: str, timeout: float = 2.0) -> Any | None:
-    from protocol.codec import decode
-    from protocol.keys import status_key
+    from common.query import get_status
 
-    for reply in session.get(status_key(map_id), timeout=timeout):
-        if reply.ok is not None:
-            return decode(reply.ok.payload.to_bytes(), expected_type="status")
-    return None
+    return get_status(session, map_id, timeout)
 
 
 def _wait_for_server(session: Any, map_id: str, procs: Sequence[_Proc], deadline: float) -> Any:
@@ -638,38 +634,6 @@ def _json_default(o: Any) -> Any:
     return str(o)
 
 
-_COLUMNS = (
-    ("route", "name", "{}"),
-    ("length m", "length_m", "{:.1f}"),
-    ("cost", "cost", "{:.1f}"),
-    ("exp. slips", "expected_slip_events", "{:.1f}"),
-    ("CoT", "mean_cot", "{:.2f}"),
-    ("GIIM min/mean rad", ("min_giim", "mean_giim"), "{:.2f}/{:.2f}"),
-    ("GIAM min/mean m/s²", ("min_giam", "mean_giam"), "{:.2f}/{:.2f}"),
-    ("max slope °", "max_slope_deg", "{:.1f}"),
-    ("unknown %", "unknown_fraction", "{:.0%}"),
-)
-
-
-def route_table(routes: Sequence[dict[str, Any]]) -> str:
-    """The route comparison as a fixed-width table (the paper's table of trajectories, from the shared map)."""
-
-    def cell(r: dict[str, Any], key: Any, fmt: str) -> str:
-        b = {"name": r.get("name"), **r.get("breakdown", {})}
-        vals = [b.get(k) for k in key] if isinstance(key, tuple) else [b.get(key)]
-        if any(v is None for v in vals):
-            return "—"
-        return fmt.format(*vals)
-
-    rows = [[h for h, _, _ in _COLUMNS]]
-    rows += [[cell(r, k, f) for _, k, f in _COLUMNS] for r in routes]
-    widths = [max(len(row[i]) for row in rows) for i in range(len(_COLUMNS))]
-    lines = [
-        "  ".join(v.rjust(w) if i else v.ljust(w) for i, (v, w) in enumerate(zip(row, widths, strict=True)))
-        for row in rows
-    ]
-    lines.insert(1, "-" * len(lines[0]))
-    return "\n".join(lines)
 
 
 def _print_report(summary: dict[str, Any]) -> None:
@@ -710,6 +674,8 @@ def _print_report(summary: dict[str, Any]) -> None:
     comparison = summary.get("comparison") or {}
     if comparison.get("routes"):
         print()
+        from consumer_planner.table import route_table
+
         print(route_table(comparison["routes"]))
         print(
             "(routes costed on the slip layer as the map holds it; the planner itself spreads slip rates over "

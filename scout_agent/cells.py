@@ -16,6 +16,7 @@ import numpy as np
 
 from mapcore import LayerGrid, TiledMap, write_npz
 from protocol.layers import LAYERS, cell_center, cell_index, empty_value, get_layer, merge_op
+from scout_agent.errors import ScoutConfigError
 
 __all__ = ["CellAccumulator", "LocalMap"]
 
@@ -27,7 +28,7 @@ class CellAccumulator:
 
     def __init__(self, res: float, x0: float = 0.0, y0: float = 0.0) -> None:
         if not res > 0:
-            raise ValueError(f"res={res}; need a cell size > 0 [m]")
+            raise ScoutConfigError(f"res={res}; need a cell size > 0 [m]")
         self.res, self.x0, self.y0 = float(res), float(x0), float(y0)
         self._order = {name: layer.stats for name, layer in LAYERS.items()}
         self._ident = {name: tuple(empty_value(s) for s in st) for name, st in self._order.items()}
@@ -41,7 +42,7 @@ class CellAccumulator:
             return
         unknown = stats.keys() - set(order)
         if unknown:
-            raise ValueError(f"layer {layer!r} has no stat {sorted(unknown)}; stats: {', '.join(order)}")
+            raise ScoutConfigError(f"layer {layer!r} has no stat {sorted(unknown)}; stats: {', '.join(order)}")
         ident = self._ident[layer]
         self._rows[layer].append((x, y, *(stats.get(s, ident[i]) for i, s in enumerate(order))))
 

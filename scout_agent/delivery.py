@@ -19,6 +19,7 @@ import numpy as np
 from protocol.codec import encode
 from protocol.keys import delta_key, validate_id
 from protocol.messages import Ack, CellDelta
+from scout_agent.errors import ScoutConfigError, ScoutError
 
 log = logging.getLogger(__name__)
 
@@ -53,7 +54,7 @@ class Outbox(Protocol):
     def pending(self) -> dict[int, list[tuple[int, bytes]]]: ...
 
 
-class UnackedBufferFull(RuntimeError):
+class UnackedBufferFull(ScoutError, RuntimeError):
     """`send` was called while `max_unacked` deltas await an ack; keep accumulating and retry later."""
 
 
@@ -93,9 +94,9 @@ class DeltaPublisher:
         deltas of earlier epochs (an outbox's `pending()` after a crash), resent under their original epoch
         and seq until acked; this publisher's own deltas go under a new epoch."""
         if max_unacked < 1:
-            raise ValueError(f"max_unacked={max_unacked}; need >= 1")
+            raise ScoutConfigError(f"max_unacked={max_unacked}; need >= 1")
         if not res > 0:
-            raise ValueError(f"res={res}; need a cell size > 0 [m]")
+            raise ScoutConfigError(f"res={res}; need a cell size > 0 [m]")
         self.transport = transport
         self.map_id = validate_id(map_id, "map")
         self.scout_id = validate_id(scout_id, "scout")
@@ -120,7 +121,7 @@ class DeltaPublisher:
             if rows
         }
         if self.epoch in self._old:
-            raise ValueError(f"epoch {self.epoch} has unacknowledged deltas to resume; a new epoch is needed")
+            raise ScoutConfigError(f"epoch {self.epoch} has unacknowledged deltas to resume; a new epoch is needed")
         self._lock = threading.Lock()
         self._resend_cutoff: float | None = None  # resend all sent at or before this clock time
 

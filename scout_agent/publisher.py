@@ -24,6 +24,7 @@ from protocol.errors import ProtocolError
 from protocol.keys import ack_key, alive_key
 from protocol.messages import Ack
 from scout_agent.delivery import DeltaPublisher, UnackedBufferFull
+from scout_agent.errors import ScoutConfigError, ScoutLinkError
 from scout_agent.outbox import SQLiteOutbox
 
 __all__ = ["ScoutLink", "ScoutPublisher", "ZenohTransport"]
@@ -54,15 +55,15 @@ class ScoutPublisher:
         import zenoh
 
         if not connect:
-            raise ValueError("no endpoint to connect to; give one like tcp/127.0.0.1:7447")
+            raise ScoutConfigError("no endpoint to connect to; give one like tcp/127.0.0.1:7447")
         box = SQLiteOutbox(outbox) if outbox is not None else None
         if resume and box is None:
-            raise ValueError("--resume needs an outbox (--outbox PATH) to resume from")
+            raise ScoutConfigError("--resume needs an outbox (--outbox PATH) to resume from")
         old = box.pending() if box is not None else {}
         if old and not resume:
             n = sum(len(v) for v in old.values())
             box.close()  # type: ignore[union-attr]
-            raise ValueError(
+            raise ScoutConfigError(
                 f"outbox {outbox} holds {n} unacknowledged deltas of epoch(s) {', '.join(map(str, old))} from an "
                 "earlier run; give --resume to send them, or move the file away to discard them"
             )
@@ -72,7 +73,7 @@ class ScoutPublisher:
             conf = zenoh_config(list(connect), (), None if zenoh_config_file else mode, zenoh_config_file)
             self._session = zenoh.open(conf)
         except zenoh.ZError as exc:
-            raise ConnectionError(
+            raise ScoutLinkError(
                 f"cannot reach the map service's router at {', '.join(connect)} ({exc}); "
                 "is `psrmap router --listen ...` (or `psrmap server --listen ...`) running there?"
             ) from None

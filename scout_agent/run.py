@@ -15,6 +15,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from scout_agent.control.follower import FollowerConfig, PathFollower
+from scout_agent.errors import ScoutConfigError
 from scout_agent.robot import constants as C
 from scout_agent.signals import GroundTruth, ProprioSample
 from scout_agent.sim.dem import DemWindow, read_dem_window
@@ -72,7 +73,7 @@ class World:
 
 def build_world(cfg: ScoutRunConfig) -> World:
     if cfg.dem is not None and cfg.scene != "lunar":
-        raise ValueError("--dem builds the lunar scene: use it with --scene lunar")
+        raise ScoutConfigError("--dem builds the lunar scene: use it with --scene lunar")
     if cfg.scene == "ramps":
         terrain = make_ramps(replace(cfg.ramp, slope_deg=cfg.slope_deg))
     elif cfg.scene == "lunar":
@@ -80,28 +81,28 @@ def build_world(cfg: ScoutRunConfig) -> World:
         if cfg.dem is not None:
             base, info = read_dem_window(cfg.dem, lunar.res) if cfg.dem.size_m == lunar.size_m else (None, {})
             if base is None:
-                raise ValueError(
+                raise ScoutConfigError(
                     f"DEM window size {cfg.dem.size_m:g} m: the lunar scene is {lunar.size_m:g} m"
                 )
             lunar = replace(lunar, base=base, base_info=info)
         terrain = make_lunar(lunar)
     else:
-        raise ValueError(f"unknown scene {cfg.scene!r}; valid: {', '.join(SCENES)}")
+        raise ScoutConfigError(f"unknown scene {cfg.scene!r}; valid: {', '.join(SCENES)}")
     patches: list[Patch] = []
     if cfg.slippery_mu is not None:
         if cfg.scene != "ramps":
-            raise ValueError("slippery_mu applies to the ramps scene; use slippery_patches on lunar")
+            raise ScoutConfigError("slippery_mu applies to the ramps scene; use slippery_patches on lunar")
         patches.append(ramp_slippery_patch(terrain, cfg.slippery_mu))
     if cfg.slippery_patches:
         if cfg.scene != "lunar":
-            raise ValueError("slippery_patches applies to the lunar scene; use slippery_mu on ramps")
+            raise ScoutConfigError("slippery_patches applies to the lunar scene; use slippery_mu on ramps")
         patches.extend(lunar_slippery_patches(terrain, cfg.slippery_patches, seed=cfg.seed))
     patches.extend(cfg.patches)
     friction = FrictionMap(cfg.friction_default, tuple(patches))
     start_xy: tuple[float, ...]
     if cfg.route is not None:
         if cfg.scene != "lunar" or cfg.route not in LUNAR_ROUTES:
-            raise ValueError(f"unknown route {cfg.route!r}; valid (lunar): {', '.join(LUNAR_ROUTES)}")
+            raise ScoutConfigError(f"unknown route {cfg.route!r}; valid (lunar): {', '.join(LUNAR_ROUTES)}")
         pts = LUNAR_ROUTES[cfg.route]
         start_xy, via, goal = pts[0], pts[1:-1], pts[-1]
     else:
@@ -116,7 +117,7 @@ def build_world(cfg: ScoutRunConfig) -> World:
     xa, ya, xb, yb = terrain.extent
     for p in waypoints:
         if not (xa <= p[0] <= xb and ya <= p[1] <= yb):
-            raise ValueError(
+            raise ScoutConfigError(
                 f"waypoint {tuple(float(v) for v in p)} outside the terrain [{xa}, {xb}] × [{ya}, {yb}]"
             )
     if cfg.start is not None and len(cfg.start) == 3:

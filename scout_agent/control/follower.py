@@ -11,6 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from scout_agent.errors import ScoutConfigError
+
 
 @dataclass(frozen=True)
 class FollowerConfig:
@@ -29,7 +31,7 @@ class PathFollower:
         self.config = config
         self.points = np.asarray(waypoints, dtype=float)[:, :2]
         if len(self.points) < 2:
-            raise ValueError("a path needs at least a start and a goal")
+            raise ScoutConfigError("a path needs at least a start and a goal")
         self.segment = 0
         self.integral = 0.0
         self.reached = False

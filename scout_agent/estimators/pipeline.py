@@ -32,6 +32,7 @@ from typing import Any, NamedTuple, Protocol
 
 import numpy as np
 
+from scout_agent.errors import ScoutConfigError
 from scout_agent.robot import kinematics as K
 from scout_agent.sensors import leg_forces_from_torques
 from scout_agent.signals import ProprioSample
@@ -72,7 +73,7 @@ class PipelineConfig:
 
     def __post_init__(self) -> None:
         if self.gia_source not in ("forces", "imu"):
-            raise ValueError(f"gia_source {self.gia_source!r} unknown; sources: forces, imu")
+            raise ScoutConfigError(f"gia_source {self.gia_source!r} unknown; sources: forces, imu")
 
 
 class TickEstimates(NamedTuple):

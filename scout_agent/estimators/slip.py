@@ -67,6 +67,8 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from scout_agent.errors import ScoutConfigError
+
 __all__ = ["SlipConfig", "SlipDetector", "SlipTick", "delta_p_paper", "delta_p_vector", "delta_v"]
 
 
@@ -88,7 +90,7 @@ class SlipConfig:
 
     def __post_init__(self) -> None:
         if self.form not in ("default", "paper"):
-            raise ValueError(f"slip form {self.form!r} unknown; forms: default, paper")
+            raise ScoutConfigError(f"slip form {self.form!r} unknown; forms: default, paper")
 
 
 def delta_v(vel_des: np.ndarray, vel: np.ndarray, h: float) -> np.ndarray:

@@ -27,6 +27,8 @@ import math
 
 import numpy as np
 
+from scout_agent.errors import ScoutConfigError
+
 __all__ = [
     "gia_from_forces",
     "gia_from_imu",
@@ -92,7 +94,7 @@ def margins(
     elif variant == "paper":
         pts = points
     else:
-        raise ValueError(f"margin variant {variant!r} unknown; variants: correct, paper")
+        raise ScoutConfigError(f"margin variant {variant!r} unknown; variants: correct, paper")
     giim, giam = margins_per_face(pts, p_g, gia)
     if np.isnan(giim).all():
         return math.nan, math.nan

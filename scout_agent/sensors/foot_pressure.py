@@ -19,6 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from scout_agent.errors import ScoutConfigError
+
 CONTACT_SOURCES = ("pressure", "torques")
 
 
@@ -33,9 +35,9 @@ class ContactConfig:
 
     def __post_init__(self) -> None:
         if self.source not in CONTACT_SOURCES:
-            raise ValueError(f"contact source {self.source!r} unknown; sources: {', '.join(CONTACT_SOURCES)}")
+            raise ScoutConfigError(f"contact source {self.source!r} unknown; sources: {', '.join(CONTACT_SOURCES)}")
         if not self.off_n < self.on_n:
-            raise ValueError(f"contact thresholds need off_n < on_n (got {self.off_n}, {self.on_n})")
+            raise ScoutConfigError(f"contact thresholds need off_n < on_n (got {self.off_n}, {self.on_n})")
 
 
 def leg_forces_from_torques(jacobians: np.ndarray, tau: np.ndarray, tau_gravity: np.ndarray) -> np.ndarray:

@@ -18,6 +18,8 @@ from pathlib import Path
 import numpy as np
 from scipy.ndimage import map_coordinates
 
+from scout_agent.errors import ScoutConfigError
+
 __all__ = ["DemWindow", "read_dem_window"]
 
 
@@ -32,7 +34,7 @@ class DemWindow:
     size_m: float = 20.0
 
 
-class DemError(ValueError):
+class DemError(ScoutConfigError):
     """A DEM that cannot make a scene; the message says what would."""
 
 

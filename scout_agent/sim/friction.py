@@ -11,6 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from scout_agent.errors import ScoutConfigError
 from scout_agent.sim.terrain import LUNAR_ROUTES, Terrain
 
 DEFAULT_MU = 0.7  # regolith (internal friction angle 35–39°, Apollo 12)
@@ -28,16 +29,16 @@ class Patch:
 
     def __post_init__(self) -> None:
         if not (self.x1 > self.x0 and self.y1 > self.y0):
-            raise ValueError(f"patch needs x0 < x1 and y0 < y1, got {self}")
+            raise ScoutConfigError(f"patch needs x0 < x1 and y0 < y1, got {self}")
         if not 0.0 < self.mu <= 2.0:
-            raise ValueError(f"patch friction {self.mu} out of range; valid: 0 < mu <= 2")
+            raise ScoutConfigError(f"patch friction {self.mu} out of range; valid: 0 < mu <= 2")
 
     @classmethod
     def parse(cls, text: str) -> Patch:
         """From 'x0,y0,x1,y1,MU'."""
         parts = [float(v) for v in text.split(",")]
         if len(parts) != 5:
-            raise ValueError(f"patch {text!r}: expected x0,y0,x1,y1,MU (5 numbers)")
+            raise ScoutConfigError(f"patch {text!r}: expected x0,y0,x1,y1,MU (5 numbers)")
         return cls(*parts)
 
 
@@ -56,9 +57,6 @@ class FrictionMap:
             inside = (x >= p.x0) & (x <= p.x1) & (y >= p.y0) & (y <= p.y1)
             mu = np.where(inside, p.mu, mu)
         return mu
-
-    def with_patches(self, *patches: Patch) -> FrictionMap:
-        return FrictionMap(self.default, self.patches + tuple(patches))
 
     def grid(self, terrain: Terrain, res: float = 0.1) -> tuple[np.ndarray, tuple[float, float, float]]:
         """(ny, nx) friction raster over the terrain and its (x0, y0, res) for export/logging."""

@@ -21,6 +21,7 @@ import mujoco
 import numpy as np
 
 from scout_agent.control.controller import ControllerConfig, ControlOutput, RobotState, TrotController
+from scout_agent.errors import ScoutConfigError
 from scout_agent.robot import constants as C
 from scout_agent.robot import kinematics as K
 from scout_agent.sensors import SensorConfig, SensorSuite
@@ -49,7 +50,7 @@ class SimConfig:
 
     def __post_init__(self) -> None:
         if self.state_source not in STATE_SOURCES:
-            raise ValueError(f"state source {self.state_source!r} unknown; sources: {', '.join(STATE_SOURCES)}")
+            raise ScoutConfigError(f"state source {self.state_source!r} unknown; sources: {', '.join(STATE_SOURCES)}")
 
 
 def _quat_to_mat(q: np.ndarray) -> np.ndarray:

@@ -19,6 +19,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.ndimage import gaussian_filter, zoom
 
+from scout_agent.errors import ScoutConfigError
+
 # The paper's three corner-to-corner routes on the 20 m lunar field: direct, and two via landmarks.
 LUNAR_ROUTES: dict[str, tuple[tuple[float, float], ...]] = {
     "direct": ((1.5, 1.5), (18.5, 18.5)),
@@ -163,7 +165,7 @@ def ramp_profile(cfg: RampConfig) -> tuple[np.ndarray, np.ndarray]:
 
 def make_ramps(cfg: RampConfig = RampConfig()) -> Terrain:
     if not 0.0 <= cfg.slope_deg <= 25.0:
-        raise ValueError(f"ramp slope {cfg.slope_deg}° out of range; valid: 0–25°")
+        raise ScoutConfigError(f"ramp slope {cfg.slope_deg}° out of range; valid: 0–25°")
     xs, zs = ramp_profile(cfg)
     nx = int(round(xs[-1] / cfg.res)) + 1
     ny = int(round(cfg.width_m / cfg.res)) + 1
@@ -237,7 +239,7 @@ def make_lunar(cfg: LunarConfig = LunarConfig()) -> Terrain:
     coarse = rng.uniform(-0.5, 0.5, (cfg.relief_cells, cfg.relief_cells))  # drawn either way: same detail
     if cfg.base is not None:
         if cfg.base.shape != (n, n):
-            raise ValueError(f"base relief {cfg.base.shape}: need ({n}, {n}) at res {cfg.res} m")
+            raise ScoutConfigError(f"base relief {cfg.base.shape}: need ({n}, {n}) at res {cfg.res} m")
         z = np.array(cfg.base, dtype=np.float64)
     else:
         z = zoom(coarse, (n - 1) / (cfg.relief_cells - 1) + 1e-9, order=3, mode="nearest")[:n, :n]
