@@ -16,15 +16,13 @@ import argparse
 import json
 import math
 from dataclasses import asdict, replace
-from pathlib import Path
 
-import numpy as np
-
-from consumer_planner.compare import Route, evaluate_route, plan_route
-from consumer_planner.costs import TERMS, UNKNOWN_POLICIES, CostConfig, build_costs, parse_weights
+from consumer_planner import component
+from consumer_planner.compare import Route
+from consumer_planner.component import CompareConfig, MapSource, PlanConfig, PlanSummary
+from consumer_planner.costs import TERMS, UNKNOWN_POLICIES, CostConfig, parse_weights
 from consumer_planner.errors import PlannerError
 from consumer_planner.table import route_table, term_lines
-from mapcore import LayerGrid, MapFileError, read_npz
 from protocol.keys import id_arg
 
 __all__ = ["register"]
@@ -176,41 +174,13 @@ def _config(args: argparse.Namespace) -> CostConfig:
         raise  # unreachable: error() exits
 
 
-def _load(args: argparse.Namespace, points: list[Point]) -> LayerGrid:
+def _source(args: argparse.Namespace) -> MapSource:
     if (args.npz is None) == (not args.connect):
         args._parser.error("give either --connect ENDPOINT (with --map ID) or --npz FILE")
-    if args.npz is not None:
-        try:
-            return read_npz(args.npz, map_id=args.map or "local")
-        except MapFileError as exc:
-            raise PlannerError(str(exc)) from None
-    if not args.map:
+    if args.connect and not args.map:
         args._parser.error("--connect needs --map ID")
-    from consumer_planner.client import ClientConfig, MapClient  # zenoh only when a server is asked
-
-    xs, ys = [p[0] for p in points], [p[1] for p in points]
-    m = args.margin
-    box = (min(xs) - m, min(ys) - m, max(xs) + m, max(ys) + m)
-    from consumer_planner.client import trusted_servers
-
-    trust = args.trust_servers or (
-        str(Path(args.zenoh_config).with_name("servers.json")) if args.zenoh_config else None
-    )
-    try:
-        ids = trusted_servers(trust, required=bool(args.trust_servers))
-    except ValueError as exc:
-        args._parser.error(str(exc))
-    cfg = ClientConfig(
-        connect=tuple(args.connect),
-        timeout_s=args.timeout,
-        zenoh_config=args.zenoh_config,
-        trusted_servers=ids,
-    )
-    with MapClient(cfg) as client:
-        grid = client.region(args.map, box)
-        if args.rrd and args.sim_time is None:
-            args.sim_time = client.newest_sample_t(args.map)
-        return grid
+    return MapSource(map_id=args.map, connect=tuple(args.connect), npz=args.npz, timeout_s=args.timeout,
+                     zenoh_config=args.zenoh_config, trust_servers=args.trust_servers, margin_m=args.margin)  # fmt: skip
 
 
 def _table(routes: list[Route]) -> str:
@@ -218,69 +188,39 @@ def _table(routes: list[Route]) -> str:
     return "\n".join([route_table(rows), "", *term_lines(rows)])
 
 
-def _finish(args: argparse.Namespace, grid: LayerGrid, costs, routes: list[Route], single: bool) -> int:
-    if args.rrd:
-        from consumer_planner.viz import log_plan, open_recording
-
-        rec = open_recording(args.rrd)
-        log_plan(rec, grid, costs, routes, sim_time=args.sim_time or 0.0)
-        rec.flush()
-    head = {
-        "map": grid.map,
-        "version": grid.version,
-        "unknown": costs.config.unknown,
-        "slip_spread_m": costs.config.slip_spread_m,
-        "weights": asdict(costs.config.weights),
-    }
-    if single and getattr(args, "goal", None) is not None:
-        end = routes[0].path[-1]
-        goal_cell = grid.cell_of(float(args.goal[0]), float(args.goal[1]))
-        gx, gy = grid.centers(np.array([goal_cell]))[0] if goal_cell is not None else args.goal
-        head["goal_moved_m"] = round(math.hypot(end[0] - gx, end[1] - gy), 3)  # cell centre to cell centre
+def _print(args: argparse.Namespace, summary: PlanSummary) -> int:
     if args.json:
-        body = routes[0].as_dict() if single else {"routes": [r.as_dict() for r in routes]}
-        print(json.dumps({**head, **body}))
+        print(json.dumps(summary.to_json()))
     else:
-        size = f"{grid.w}x{grid.h} cells of {grid.res:g} m"
+        h, w = summary.grid_shape
         print(
-            f"map {grid.map} v{grid.version}, {size}, unknown={head['unknown']}, "
-            f"slip spread {head['slip_spread_m']:g} m"
+            f"map {summary.map} v{summary.version}, {w}x{h} cells of {summary.res:g} m, "
+            f"unknown={summary.cost.unknown}, slip spread {summary.cost.slip_spread_m:g} m"
         )
-        print(_table(routes))
+        print(_table(list(summary.routes)))
     return 0
 
 
 def _run_plan(args: argparse.Namespace) -> int:
-    cfg = _config(args)
+    if args.goal_tolerance < 0:
+        args._parser.error(f"--goal-tolerance {args.goal_tolerance}: need >= 0 metres")
+    cfg = PlanConfig(_source(args), args.start, args.goal, _config(args), args.goal_tolerance, args.rrd,
+                     args.sim_time)  # fmt: skip
     try:
-        grid = _load(args, [args.start, args.goal])
-        costs = build_costs(grid, cfg)
-        if args.goal_tolerance < 0:
-            args._parser.error(f"--goal-tolerance {args.goal_tolerance}: need >= 0 metres")
-        route = plan_route(grid, costs, args.start, args.goal, goal_tolerance_m=args.goal_tolerance)
+        return _print(args, component.plan(cfg))
     except PlannerError as exc:
         raise SystemExit(f"psrmap plan: {exc}") from None
-    if route is None:
-        raise SystemExit(
-            f"psrmap plan: no passable route from {args.start} to {args.goal} "
-            f"(unknown={cfg.unknown}; try --unknown penalty or relax the limits)"
-        )
-    return _finish(args, grid, costs, [route], single=True)
 
 
 def _run_compare(args: argparse.Namespace) -> int:
-    cfg = _config(args)
     if len(args.name) > len(args.route):
         args._parser.error(
             f"{len(args.name)} --name for {len(args.route)} --route: give at most one name per route"
         )
     names = [*args.name, *(f"route{i}" for i in range(len(args.name), len(args.route)))]
+    routes = tuple((name, tuple(pts)) for name, pts in zip(names, args.route, strict=True))
+    cfg = CompareConfig(_source(args), routes, _config(args), args.rrd, args.sim_time)
     try:
-        grid = _load(args, [p for r in args.route for p in r])
-        costs = build_costs(grid, cfg)
-        routes = [
-            evaluate_route(grid, costs, pts, name=name) for name, pts in zip(names, args.route, strict=True)
-        ]
+        return _print(args, component.compare(cfg))
     except PlannerError as exc:
         raise SystemExit(f"psrmap compare: {exc}") from None
-    return _finish(args, grid, costs, routes, single=False)

@@ -6,9 +6,7 @@ import argparse
 import dataclasses
 import json
 import logging
-import signal
 import sys
-import threading
 import time
 from collections.abc import Sequence
 from dataclasses import replace
@@ -20,19 +18,6 @@ from protocol.keys import id_arg
 __all__ = ["main", "register"]
 
 log = logging.getLogger("map_server")
-
-
-def _stop_on_signals() -> threading.Event:
-    """An event set by SIGINT / SIGTERM (the main thread just waits on it)."""
-    stop = threading.Event()
-
-    def handler(signum: int, _frame: Any) -> None:
-        log.info("signal %d: shutting down", signum)
-        stop.set()
-
-    signal.signal(signal.SIGINT, handler)
-    signal.signal(signal.SIGTERM, handler)
-    return stop
 
 
 def add_security_arguments(p: argparse.ArgumentParser, listens: bool = False) -> None:
@@ -97,7 +82,9 @@ def _open(conf: Any, args: argparse.Namespace) -> Any:
 def cmd_router(args: argparse.Namespace) -> int:
     _logging(args)
     listen = _endpoints(args.listen)
-    stop = _stop_on_signals()
+    from map_server.component import stop_on_signals
+
+    stop = stop_on_signals()
     with _open(_conf(args, _endpoints(args.connect), listen, "router"), args):
         print(json.dumps({"router": "up", "listen": list(listen)}), flush=True)
         stop.wait()
@@ -114,15 +101,11 @@ def _positive_int(text: str) -> int:
     return v
 
 
-def cmd_server(args: argparse.Namespace) -> int:
-    from map_server.service import MapService, ServerConfig
+def server_config(args: argparse.Namespace) -> Any:
+    """The parsed `psrmap server` options as a ServerConfig."""
+    from map_server.service import ServerConfig
 
-    _logging(args)
-    if not args.connect and not args.listen:
-        args.parser.error("give --connect tcp/HOST:PORT (a router) and/or --listen tcp/HOST:PORT")
-    if not args.res > 0:
-        args.parser.error(f"--res {args.res}: need a cell size > 0 [m]")
-    cfg = replace(
+    return replace(
         ServerConfig(),
         map_id=args.map,
         res=args.res,
@@ -136,33 +119,28 @@ def cmd_server(args: argparse.Namespace) -> int:
         insecure=args.insecure,
         limits=Limits(**{f.name: getattr(args, f"limit_{f.name}") for f in dataclasses.fields(Limits)}),
     )
-    stop = _stop_on_signals()
-    import zenoh
+
+
+def cmd_server(args: argparse.Namespace) -> int:
+    from map_server import component
+    from map_server.errors import MapServerConfigError
+
+    _logging(args)
+    if not args.connect and not args.listen:
+        args.parser.error("give --connect tcp/HOST:PORT (a router) and/or --listen tcp/HOST:PORT")
+    if not args.res > 0:
+        args.parser.error(f"--res {args.res}: need a cell size > 0 [m]")
+    cfg = server_config(args)
+
+    def up(service: Any) -> None:
+        print(json.dumps({"server": "up", "map": cfg.map_id, "cells": service.map.cells,
+                          "replayed": service.replayed}), flush=True)  # fmt: skip
 
     try:
-        service = MapService(cfg)
-        service.start()
-    except (ValueError, zenoh.ZError) as exc:
+        summary = component.run(cfg, on_up=up)
+    except MapServerConfigError as exc:
         args.parser.error(str(exc))
-    with service:
-        print(
-            json.dumps(
-                {"server": "up", "map": cfg.map_id, "cells": service.map.cells, "replayed": service.replayed}
-            ),
-            flush=True,
-        )
-        while not stop.wait(0.2):
-            if service.failed.is_set():
-                log.error(
-                    "merge worker failed (%s); exiting non-zero so a supervisor restarts the server "
-                    "from its store",
-                    service.worker_error,
-                )
-                break
-    if service.failed.is_set():
-        return 70  # EX_SOFTWARE
-    log.info("stopped cleanly")
-    return 0
+    return summary.exit_code
 
 
 def _get_one(args: argparse.Namespace, selector: str) -> bytes:

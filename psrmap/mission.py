@@ -26,7 +26,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -261,22 +261,31 @@ def free_port() -> int:
         return int(s.getsockname()[1])
 
 
-def _run_cli(argv: list[str], log_path: str, out_path: str | None, env: dict[str, str]) -> None:
-    """Process target: run one `psrmap` subcommand with stdout/stderr sent to files (at the fd level)."""
+def _run_component(target: Any, config: Any, conn: Any, log_path: str, env: dict[str, str]) -> None:
+    """Process target: `target(config)` with stdout/stderr sent to a log file (at the fd level); its typed
+    result (or the error that stopped it) goes back through `conn`."""
     os.environ.update(env)
     log = os.open(log_path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+    os.dup2(log, 1)
     os.dup2(log, 2)
-    if out_path:
-        out = os.open(out_path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
-        os.dup2(out, 1)
-    else:
-        os.dup2(log, 1)
     sys.stdout = open(1, "w", buffering=1, closefd=False)  # noqa: SIM115
     sys.stderr = open(2, "w", buffering=1, closefd=False)  # noqa: SIM115
-    from psrmap.cli import main
+    import logging
+    import traceback
 
-    code = main(argv)
-    sys.stdout.flush()
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    code = 0
+    try:
+        result = target(config)
+        code = int(getattr(result, "exit_code", 0))
+        conn.send(("ok", result))
+    except Exception as exc:  # reported to the mission, which names the log
+        traceback.print_exc()
+        conn.send(("error", f"{type(exc).__name__}: {exc}"))
+        code = 1
+    finally:
+        conn.close()
+        sys.stdout.flush()
     sys.exit(code)
 
 
@@ -285,47 +294,58 @@ class _Proc:
     name: str
     proc: Any
     log: Path
-    out: Path | None
+    conn: Any  # the parent's end of the result pipe
+
+    def result(self, timeout: float | None = None) -> tuple[str, Any]:
+        """("ok", typed result) or ("error", why), once the component finished (or it died)."""
+        if self.conn.poll(timeout):
+            try:
+                return self.conn.recv()  # type: ignore[no-any-return]
+            except EOFError:
+                pass
+        self.proc.join(timeout=5)
+        return "error", f"exit code {self.proc.exitcode}; see {self.log}"
 
 
-def _spawn(ctx: Any, name: str, argv: list[str], run_dir: Path, env: dict[str, str], json_out: bool) -> _Proc:
+def _spawn(ctx: Any, name: str, target: Any, config: Any, run_dir: Path, env: dict[str, str]) -> _Proc:
+    """Start `target(config)` (a component's typed entry point) in a spawned process."""
     log = run_dir / "logs" / f"{name}.log"
-    out = run_dir / "logs" / f"{name}.json" if json_out else None
-    p = ctx.Process(
-        target=_run_cli, args=(argv, str(log), str(out) if out else None, env), name=name, daemon=False
-    )
+    parent, child = ctx.Pipe(duplex=False)
+    p = ctx.Process(target=_run_component, args=(target, config, child, str(log), env), name=name, daemon=False)
     p.start()
-    return _Proc(name, p, log, out)
+    child.close()
+    return _Proc(name, p, log, parent)
 
 
-def scout_argv(cfg: MissionConfig, s: ScoutPlan, endpoint: str, run_dir: Path) -> list[str]:
-    argv = [
-        "scout",
-        "--scout-id", s.id,
-        "--map", cfg.map,
-        "--res", str(cfg.res),
-        "--connect", endpoint,
-        "--scene", cfg.scene,
-        "--speed", str(cfg.speed),
-        "--sim-seconds", str(cfg.sim_seconds),
-        "--delta-hz", str(cfg.rate_hz),
-        "--save-map", str(run_dir / f"{s.id}_local.npz"),
-        "--outbox", str(run_dir / f"{s.id}_outbox.db"),
-        "--json",
-    ]  # fmt: skip
-    if cfg.scene == "lunar":
-        argv += ["--seed", str(cfg.seed), "--slippery-patches", str(cfg.slippery_patches)]
-        # `--opt=value` so that negative coordinates are not taken for options
-        argv += [
-            "--start=" + ",".join(f"{v:g}" for v in s.start),
-            "--goal=" + ",".join(f"{v:g}" for v in s.goal),
-        ]
-        argv += ["--via=" + ",".join(f"{v:g}" for v in p) for p in s.via]
-    else:
-        argv += ["--slope", str(cfg.slope)]
-    if cfg.rrd:  # the terrain is in the mission's own recording, once
-        argv += ["--rrd", str(run_dir / "recordings" / f"{s.id}.rrd"), "--no-rrd-terrain"]
-    return argv
+def scout_config(cfg: MissionConfig, s: ScoutPlan, endpoint: str, run_dir: Path, zenoh_file: str | None) -> Any:
+    """The ScoutConfig of one of the mission's scouts."""
+    from scout_agent.component import ScoutConfig
+    from scout_agent.mapping import LinkConfig
+    from scout_agent.run import ScoutRunConfig
+
+    lunar = cfg.scene == "lunar"
+    run = ScoutRunConfig(
+        scene=cfg.scene,
+        slope_deg=15.0 if lunar else cfg.slope,
+        seed=cfg.seed if lunar else 0,
+        start=tuple(s.start) if lunar else None,
+        goal=tuple(s.goal) if lunar else None,  # type: ignore[arg-type]
+        via=tuple(tuple(v) for v in s.via) if lunar else (),  # type: ignore[misc]
+        speed=cfg.speed,
+        sim_seconds=cfg.sim_seconds,
+        slippery_patches=cfg.slippery_patches if lunar else 0,
+        scout_id=s.id,
+    )
+    link = LinkConfig(cfg.map, (endpoint,), str(run_dir / f"{s.id}_outbox.db"), zenoh_config=zenoh_file)
+    return ScoutConfig(
+        run=run,
+        res=cfg.res,
+        delta_hz=cfg.rate_hz,
+        link=link,
+        save_map=str(run_dir / f"{s.id}_local.npz"),
+        rrd=str(run_dir / "recordings" / f"{s.id}.rrd") if cfg.rrd else None,
+        rrd_terrain=False,  # the terrain is in the mission's own recording, once
+    )
 
 
 def _status(session: Any, map_id: str, timeout: float = 2.0) -> Any | None:
@@ -346,18 +366,6 @@ def _wait_for_server(session: Any, map_id: str, procs: Sequence[_Proc], deadline
     raise RuntimeError(
         f"the map server did not answer within the mission's start-up time; see {procs[0].log}"
     )
-
-
-def _read_json(path: Path | None) -> dict[str, Any] | None:
-    if path is None or not path.exists():
-        return None
-    text = path.read_text().strip()
-    if not text:
-        return None
-    try:
-        return json.loads(text.splitlines()[-1])
-    except json.JSONDecodeError:
-        return None
 
 
 def rerun_exe() -> list[str]:
@@ -394,6 +402,9 @@ def run_mission(cfg: MissionConfig, run_dir: Path | None = None, progress: bool 
     import zenoh
 
     from common.session import zenoh_config
+    from map_server.component import run as run_server
+    from map_server.service import ServerConfig
+    from scout_agent.component import run as run_scout_component
 
     validate(cfg)
     if run_dir is None:
@@ -417,18 +428,18 @@ def run_mission(cfg: MissionConfig, run_dir: Path | None = None, progress: bool 
     say = print if progress else (lambda *a, **k: None)
     procs: list[_Proc] = []
     server: _Proc | None = None
-    creds: dict[str, list[str]] = {}  # component -> its --zenoh-config argv
+    creds: dict[str, str] = {}  # component -> its Zenoh config file (credentials)
     router_file = None
     if cfg.zenoh_config:
         router_file = Path(cfg.zenoh_config)
-        creds = {n: ["--zenoh-config", str(p)] for n, p in _credential_files(cfg).items()}
+        creds = {n: str(p) for n, p in _credential_files(cfg).items()}
     elif cfg.secure:
         from psrmap.secure import secure_init
 
         lay = secure_init(
             run_dir / "secure", cfg.map, [s.id for s in cfg.scouts], ["planner"], ["server"], endpoint
         )
-        creds = {name: ["--zenoh-config", str(path)] for name, path in lay.agents.items()}
+        creds = {name: str(path) for name, path in lay.agents.items()}
         router_file = lay.router
     with zenoh.open(zenoh_config(listen=[endpoint], mode="router", config_file=router_file)) as session:
         say(
@@ -437,35 +448,21 @@ def run_mission(cfg: MissionConfig, run_dir: Path | None = None, progress: bool 
             + f"; run folder {run_dir}"
         )
         try:
-            server_argv = [
-                "server",
-                "--map",
-                cfg.map,
-                "--res",
-                str(cfg.res),
-                "--db",
-                str(run_dir / "map.db"),
-                "--connect",
-                endpoint,
-            ]
-            server_argv += creds.get("server", [])
-            if cfg.rrd:
-                server_argv += ["--rrd", str(run_dir / "recordings" / "server.rrd")]
-            server = _spawn(ctx, "server", server_argv, run_dir, env, json_out=False)
+            server_cfg = ServerConfig(
+                map_id=cfg.map,
+                res=cfg.res,
+                db=str(run_dir / "map.db"),
+                connect=(endpoint,),
+                rrd=str(run_dir / "recordings" / "server.rrd") if cfg.rrd else None,
+                zenoh_config=creds.get("server"),
+            )
+            server = _spawn(ctx, "server", run_server, server_cfg, run_dir, env)
             _wait_for_server(session, cfg.map, [server], min(deadline, time.monotonic() + 60))
             say(f"[mission] map server up (map {cfg.map!r}, res {cfg.res} m, db {run_dir / 'map.db'})")
             _log_context(cfg, run_dir, recording_id)
             for s in cfg.scouts:
-                procs.append(
-                    _spawn(
-                        ctx,
-                        s.id,
-                        scout_argv(cfg, s, endpoint, run_dir) + creds.get(s.id, []),
-                        run_dir,
-                        env,
-                        json_out=True,
-                    )
-                )
+                sc = scout_config(cfg, s, endpoint, run_dir, creds.get(s.id))
+                procs.append(_spawn(ctx, s.id, run_scout_component, sc, run_dir, env))
             say(
                 f"[mission] {len(procs)} scouts walking (≤ {cfg.sim_seconds:g} s each): "
                 + ", ".join(p.name for p in procs)
@@ -492,11 +489,9 @@ def run_mission(cfg: MissionConfig, run_dir: Path | None = None, progress: bool 
             bar.close()
             scouts: dict[str, Any] = {}
             for p in procs:
-                p.proc.join()
-                res = _read_json(p.out)
-                scouts[p.name] = (
-                    res if res is not None else {"error": f"exit code {p.proc.exitcode}; see {p.log}"}
-                )
+                kind, res = p.result(timeout=30)
+                p.proc.join(timeout=10)
+                scouts[p.name] = res.to_json() if kind == "ok" else {"error": f"{res}; see {p.log}"}
             summary["scouts"] = scouts
             # each scout's state-estimate drift at its goal, and how its own map agrees with the others'
             summary["drift"] = {
@@ -510,7 +505,7 @@ def run_mission(cfg: MissionConfig, run_dir: Path | None = None, progress: bool 
                 f"[mission] scouts done; server merged {summary['status']['merged']} deltas into {summary['status']['cells']} cells"
             )
             summary["plan"], summary["comparison"] = _plan_and_compare(
-                ctx, cfg, endpoint, run_dir, env, creds.get("planner", [])
+                ctx, cfg, endpoint, run_dir, env, creds.get("planner")
             )
             summary["map_png"] = _plot(session, cfg, run_dir, summary)
         finally:
@@ -519,8 +514,10 @@ def run_mission(cfg: MissionConfig, run_dir: Path | None = None, progress: bool 
                     p.proc.terminate()
                 p.proc.join(timeout=10)
             if server is not None:
-                server.proc.terminate()  # SIGTERM: the server flushes and closes its session
-                server.proc.join(timeout=20)
+                server.proc.terminate()  # SIGTERM: the server flushes, closes its session, reports
+                kind, res = server.result(timeout=20)
+                summary["server"] = dataclasses.asdict(res) if kind == "ok" else {"error": res}
+                server.proc.join(timeout=5)
                 if server.proc.is_alive():
                     server.proc.kill()
     merged = merge_recordings(run_dir) if cfg.rrd else None
@@ -560,36 +557,27 @@ def _status_json(st: Any) -> dict[str, Any]:
 
 
 def _plan_and_compare(
-    ctx: Any, cfg: MissionConfig, endpoint: str, run_dir: Path, env: dict[str, str], creds: list[str]
+    ctx: Any, cfg: MissionConfig, endpoint: str, run_dir: Path, env: dict[str, str], creds: str | None
 ) -> tuple[Any, Any]:
-    common = ["--map", cfg.map, "--connect", endpoint, "--json", *creds]
-    weights = ",".join(f"{k}={v:g}" for k, v in cfg.weights.items())
-    plan_argv = [
-        "plan",
-        *common,
-        "--from={:g},{:g}".format(*cfg.plan_from),
-        "--to={:g},{:g}".format(*cfg.plan_to),
-    ]
-    plan_argv += ["--unknown", cfg.unknown]
-    if weights:
-        plan_argv += ["--weights", weights]
-    if cfg.rrd:
-        plan_argv += ["--rrd", str(run_dir / "recordings" / "planner.rrd")]
-    p = _spawn(ctx, "plan", plan_argv, run_dir, env, json_out=True)
-    p.proc.join(timeout=300)
-    plan = _read_json(p.out) or {"error": f"plan failed (exit {p.proc.exitcode}); see {p.log}"}
+    from consumer_planner.component import CompareConfig, MapSource, PlanConfig, compare, plan
+    from consumer_planner.costs import CostConfig, parse_weights
+
+    source = MapSource(map_id=cfg.map, connect=(endpoint,), zenoh_config=creds)
+    cost = dataclasses.replace(CostConfig(), weights=parse_weights(",".join(f"{k}={v:g}" for k, v in cfg.weights.items())),
+                               unknown=cast(Any, cfg.unknown))  # fmt: skip
+    rrd = str(run_dir / "recordings" / "planner.rrd") if cfg.rrd else None
+    p = _spawn(ctx, "plan", plan, PlanConfig(source, cfg.plan_from, cfg.plan_to, cost, rrd=rrd), run_dir, env)
+    kind, res = p.result(timeout=300)
+    plan_json = res.to_json() if kind == "ok" else {"error": f"plan failed ({res}); see {p.log}"}
     # the comparison reads the slip layer as the map holds it (no spread): the paper's table of trajectories
-    cmp_argv = ["compare", *common, "--unknown", cfg.unknown, "--slip-spread", "0"]
-    if weights:
-        cmp_argv += ["--weights", weights]
-    for s in cfg.scouts:
-        cmp_argv += ["--route", " ".join(f"{x:g},{y:g}" for x, y in s.route()), "--name", s.id]
-    if isinstance(plan, dict) and plan.get("path"):
-        cmp_argv += ["--route", " ".join(f"{x:g},{y:g}" for x, y in plan["path"]), "--name", "planned"]
-    c = _spawn(ctx, "compare", cmp_argv, run_dir, env, json_out=True)
-    c.proc.join(timeout=300)
-    comparison = _read_json(c.out) or {"error": f"compare failed (exit {c.proc.exitcode}); see {c.log}"}
-    return plan, comparison
+    routes = [(s.id, tuple(tuple(pt) for pt in s.route())) for s in cfg.scouts]
+    if plan_json.get("path"):
+        routes.append(("planned", tuple((float(x), float(y)) for x, y in cast(list, plan_json["path"]))))
+    cmp_cfg = CompareConfig(source, tuple(routes), dataclasses.replace(cost, slip_spread_m=0.0))  # type: ignore[arg-type]
+    c = _spawn(ctx, "compare", compare, cmp_cfg, run_dir, env)
+    kind, res = c.result(timeout=300)
+    comparison = res.to_json() if kind == "ok" else {"error": f"compare failed ({res}); see {c.log}"}
+    return plan_json, comparison
 
 
 def _plot(session: Any, cfg: MissionConfig, run_dir: Path, summary: dict[str, Any]) -> str | None:

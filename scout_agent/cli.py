@@ -14,11 +14,13 @@ import argparse
 import json
 from dataclasses import replace
 
-from common.recording import use_viewer, viewer_url
 from protocol.keys import id_arg
+from scout_agent import component
+from scout_agent.component import ScoutConfig
+from scout_agent.errors import ScoutConfigError, ScoutLinkError
 from scout_agent.evaluate import register_evaluate
-from scout_agent.mapping import add_mapping_arguments, attach_mapping
-from scout_agent.run import SCENES, ScoutRunConfig, build_world, run_scout
+from scout_agent.mapping import add_mapping_arguments, link_from_args
+from scout_agent.run import SCENES, ScoutRunConfig, build_world
 from scout_agent.sensors import IMU_PRESETS
 from scout_agent.sensors.foot_pressure import CONTACT_SOURCES
 from scout_agent.sim.dem import DemWindow
@@ -198,33 +200,36 @@ def _dem(args: argparse.Namespace, parser: argparse.ArgumentParser) -> DemWindow
     return DemWindow(args.dem, (b.left + b.right) / 2 - 10.0, (b.bottom + b.top) / 2 - 10.0)
 
 
-def cmd_scout(args: argparse.Namespace) -> int:
-    cfg = config_from_args(args, args._parser)
-    world = build_world(cfg)
-    on_tick = None
-    logger = None
+def scout_config(args: argparse.Namespace, parser: argparse.ArgumentParser) -> ScoutConfig:
+    """The parsed options as a ScoutConfig, or a usage error naming what would be valid."""
+    run_cfg = config_from_args(args, parser)
     try:
-        use_viewer(args.viewer, args.connect_viewer)
-    except ValueError as exc:
-        args._parser.error(str(exc))
-    if args.rrd or viewer_url():
-        from scout_agent import viz
+        link = link_from_args(args)
+    except ScoutConfigError as exc:
+        parser.error(str(exc))
+    return ScoutConfig(
+        run=run_cfg,
+        res=args.res,
+        delta_hz=args.delta_hz,
+        link=link,
+        save_map=args.save_map,
+        mapping=not args.no_map,
+        rrd=args.rrd,
+        rrd_terrain=not args.no_rrd_terrain,
+        viewer=args.viewer,
+        connect_viewer=args.connect_viewer,
+        progress=not args.quiet,
+    )
 
-        rec = viz.open_recording(args.rrd)
-        if not args.no_rrd_terrain:  # a mission logs the terrain once in its own recording
-            viz.log_terrain(rec, world.terrain)
-            viz.log_friction(rec, world.friction, world.terrain)
-        logger = viz.ScoutLogger(rec, cfg.scout_id, height=world.terrain.height)
-        on_tick = lambda sample, truth, sim: logger.log_tick(sample, truth)  # noqa: E731
-    on_estimates = logger.log_estimates if logger is not None else None
-    with attach_mapping(
-        args, cfg, on_tick, on_estimates
-    ) as mapping:  # estimators + cell deltas (scout_agent.mapping)
-        summary = run_scout(cfg, on_tick=mapping.on_tick, progress=not args.quiet, world=world)
-    summary["map"] = mapping.summary
-    if logger is not None:
-        logger.finish()
-        logger.rec.flush()
+
+def cmd_scout(args: argparse.Namespace) -> int:
+    try:
+        result = component.run(scout_config(args, args._parser))
+    except ScoutConfigError as exc:
+        args._parser.error(str(exc))
+    except ScoutLinkError as exc:
+        args._parser.error(str(exc))
+    summary = result.report
     if args.json:
         print(json.dumps(summary))
     else:
@@ -240,7 +245,7 @@ def cmd_scout(args: argparse.Namespace) -> int:
             f"({summary.get('drift_xy_pct')} % of distance), {summary.get('drift_z_m')} m vertical, "
             f"{summary.get('drift_yaw_deg')}° yaw"
         )
-    return 1 if summary["fell"] else 0
+    return 1 if result.fell else 0
 
 
 def register(subparsers) -> argparse.ArgumentParser:
@@ -272,4 +277,4 @@ def register(subparsers) -> argparse.ArgumentParser:
     return p
 
 
-__all__ = ["add_scout_arguments", "cmd_scout", "config_from_args", "register"]
+__all__ = ["add_scout_arguments", "cmd_scout", "config_from_args", "register", "scout_config"]

@@ -5,9 +5,9 @@ and every `1/delta_hz` seconds of scout time flushes them as one delta: merged i
 `LocalMap`, and published to the map service when a `ScoutPublisher` is given. The local map is therefore,
 cell for cell, what a server merges from the same deltas.
 
-`add_mapping_arguments(parser)` and `attach_mapping(args, run_config)` are what `psrmap scout` calls:
-`--map ID --connect ENDPOINT` publishes while walking; without `--connect` the scout keeps a local map,
-`--save-map PATH.npz` writes it (map_region layout, `scout_agent.cells.load_npz` reads it back).
+`open_mapping(...)` (with a `LinkConfig` to publish) is what `scout_agent.component.run` calls; the CLI's
+`--map ID --connect ENDPOINT` (`add_mapping_arguments`, `link_from_args`) publishes while walking; without
+`--connect` the scout keeps a local map, `--save-map PATH.npz` writes it (`mapcore.npz` reads it back).
 """
 
 from __future__ import annotations
@@ -20,6 +20,7 @@ from typing import Any
 
 from protocol.keys import id_arg
 from scout_agent.cells import CellAccumulator, LocalMap
+from scout_agent.errors import ScoutConfigError
 from scout_agent.estimators import EstimatorPipeline, PipelineConfig, TickEstimates, record
 from scout_agent.estimators.feet import PinocchioFeet
 from scout_agent.signals import ProprioSample
@@ -28,8 +29,10 @@ __all__ = [
     "Mapper",
     "MapperConfig",
     "MappingSession",
+    "LinkConfig",
     "add_mapping_arguments",
-    "attach_mapping",
+    "link_from_args",
+    "open_mapping",
     "default_pipeline_config",
 ]
 
@@ -148,7 +151,7 @@ def add_mapping_arguments(p: argparse.ArgumentParser) -> None:
 
 
 class MappingSession:
-    """What `attach_mapping` returns: a context manager whose `on_tick` feeds `run_scout` (after any other
+    """What `open_mapping` returns: a context manager whose `on_tick` feeds `run_scout` (after any other
     callback it chains), and whose exit flushes the last delta, waits for acks, saves the map and closes
     the Zenoh link; `summary` then holds the mapping figures (None without a map)."""
 
@@ -195,41 +198,58 @@ class MappingSession:
         self.finish()
 
 
-def attach_mapping(
-    args: argparse.Namespace, run_config: Any, on_tick: Any | None = None, on_estimates: Any | None = None
+@dataclass(frozen=True)
+class LinkConfig:
+    """Publishing to the map service: map id, router endpoints, the SQLite outbox (a path, "none" for
+    memory only, None for the default path), resend what an earlier run left unacked, credentials."""
+
+    map_id: str
+    connect: tuple[str, ...]
+    outbox: str | None = None
+    resume: bool = False
+    zenoh_config: str | None = None
+
+
+def open_mapping(
+    scout_id: str,
+    res: float,
+    delta_hz: float,
+    link: LinkConfig | None = None,
+    save_map: str | None = None,
+    on_tick: Any | None = None,
+    on_estimates: Any | None = None,
 ) -> MappingSession:
-    """Build the scout's mapping from parsed `add_mapping_arguments` options; `on_tick` (optional) is an
-    existing per-tick callback to chain, `on_estimates` receives each tick's estimates. With `--no-map` the
-    session only forwards to `on_tick`."""
-    if getattr(args, "no_map", False):
-        return MappingSession(None, None, None, on_tick)
-    parser = getattr(args, "_parser", None)
-
-    def err(msg: str) -> None:
-        if parser is not None:
-            parser.error(msg)
-        raise SystemExit(f"error: {msg}")
-
-    if args.connect and not args.map:
-        err("--connect needs --map ID (the map to publish to)")
-    if args.map and not args.connect:
-        err("--map needs --connect ENDPOINT (the map service's router), e.g. tcp/127.0.0.1:7447")
-    if not args.res > 0:
-        err(f"--res {args.res}: need a cell size > 0 [m]")
-    if not args.delta_hz > 0:
-        err(f"--delta-hz {args.delta_hz}: need > 0")
+    """The scout's mapping: estimators, cell deltas every 1/delta_hz s into the local map, published
+    when `link` is given; `on_tick` (optional) is an existing per-tick callback to chain, `on_estimates`
+    receives each tick's estimates. Raises ScoutConfigError / ScoutLinkError naming what would work."""
+    if not res > 0:
+        raise ScoutConfigError(f"res {res}: need a cell size > 0 [m]")
+    if not delta_hz > 0:
+        raise ScoutConfigError(f"delta_hz {delta_hz}: need > 0")
     publisher = None
-    if args.connect:
+    if link is not None:
+        if not link.connect:
+            raise ScoutConfigError(
+                f"map {link.map_id!r} needs an endpoint of the map service's router, e.g. tcp/127.0.0.1:7447"
+            )
         from scout_agent.outbox import default_outbox_path
         from scout_agent.publisher import ScoutPublisher
 
-        box = getattr(args, "outbox", None)
-        outbox = None if box == "none" else (box or default_outbox_path(args.map, run_config.scout_id))
-        try:
-            publisher = ScoutPublisher(args.map, run_config.scout_id, args.res, args.connect, outbox=outbox,
-                                       resume=getattr(args, "resume", False),
-                                       zenoh_config_file=getattr(args, "zenoh_config", None))
-        except (ConnectionError, ValueError) as exc:
-            err(str(exc))
-    mapper = Mapper(MapperConfig(res=args.res, delta_hz=args.delta_hz), publisher=publisher)
-    return MappingSession(mapper, publisher, args.save_map, on_tick, on_estimates)
+        outbox = None if link.outbox == "none" else (link.outbox or default_outbox_path(link.map_id, scout_id))
+        publisher = ScoutPublisher(link.map_id, scout_id, res, link.connect, outbox=outbox, resume=link.resume,
+                                   zenoh_config_file=link.zenoh_config)  # fmt: skip
+    mapper = Mapper(MapperConfig(res=res, delta_hz=delta_hz), publisher=publisher)
+    return MappingSession(mapper, publisher, save_map, on_tick, on_estimates)
+
+
+def link_from_args(args: argparse.Namespace) -> LinkConfig | None:
+    """The `--map/--connect/--outbox/--resume/--zenoh-config` options as a LinkConfig (None: no --connect);
+    raises ScoutConfigError when they do not go together."""
+    if args.connect and not args.map:
+        raise ScoutConfigError("--connect needs --map ID (the map to publish to)")
+    if args.map and not args.connect:
+        raise ScoutConfigError("--map needs --connect ENDPOINT (the map service's router), e.g. tcp/127.0.0.1:7447")
+    if not args.connect:
+        return None
+    return LinkConfig(args.map, tuple(args.connect), getattr(args, "outbox", None), getattr(args, "resume", False),
+                      getattr(args, "zenoh_config", None))  # fmt: skip
