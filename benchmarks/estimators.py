@@ -43,7 +43,9 @@ def loop_cpu_seconds(state_source: str, seconds: float, slope: float) -> float:
     t0 = time.process_time()
     for _ in range(int(round(seconds / sim.control_dt))):
         st = sim.robot_state()
-        v, w = follower.command(st.pos[:2], float(np.arctan2(st.R[1, 0], st.R[0, 0])), st.vel[:2], sim.control_dt)
+        v, w = follower.command(
+            st.pos[:2], float(np.arctan2(st.R[1, 0], st.R[0, 0])), st.vel[:2], sim.control_dt
+        )
         sim.step(v, w)
     return time.process_time() - t0
 
@@ -63,7 +65,9 @@ def main() -> None:
     ap.add_argument("--seconds", type=float, default=6.0, help="simulated trot to record [s]")
     ap.add_argument("--slope", type=float, default=10.0, help="ramp slope [deg]")
     ap.add_argument("--repeats", type=int, default=5)
-    ap.add_argument("--loop-seconds", type=float, default=8.0, help="simulated walk per scout-loop timing [s]")
+    ap.add_argument(
+        "--loop-seconds", type=float, default=8.0, help="simulated walk per scout-loop timing [s]"
+    )
     args = ap.parse_args()
 
     sim = ScoutSim(make_ramps(RampConfig(slope_deg=args.slope)))
@@ -101,8 +105,10 @@ def main() -> None:
         for s, r, (p, v) in zip(samples, rots, fk, strict=True):
             det.update(s.t, s.stance_planned, s.contact, p, v, r, s.base.vel, s.base.omega)
 
-    ticks = [SensorTick(s.imu_acc, s.imu_gyro, s.q, s.dq, s.tau, s.joint_energy_j, s.foot_pressure, s.contact)
-             for s in samples]
+    ticks = [
+        SensorTick(s.imu_acc, s.imu_gyro, s.q, s.dq, s.tau, s.joint_energy_j, s.foot_pressure, s.contact)
+        for s in samples
+    ]
 
     def state_estimator() -> None:
         est = StateEstimator(sim.launch, samples[0].q, feet=feet)
@@ -133,11 +139,14 @@ def main() -> None:
     u = out["us_per_tick"]
     out["meets_goal"] = u["all_estimators"] < 50.0
     out["share_of_scout_loop"] = round(
-        u["all_estimators_plus_cells"] / (u["all_estimators_plus_cells"]
-                                          + u["sim_step_with_sensors_estimator_controller"]), 4
+        u["all_estimators_plus_cells"]
+        / (u["all_estimators_plus_cells"] + u["sim_step_with_sensors_estimator_controller"]),
+        4,
     )
-    loop = {src: min(loop_cpu_seconds(src, args.loop_seconds, args.slope) for _ in range(3))
-            for src in ("exact", "estimate")}
+    loop = {
+        src: min(loop_cpu_seconds(src, args.loop_seconds, args.slope) for _ in range(3))
+        for src in ("exact", "estimate")
+    }
     out["scout_loop"] = {
         "sim_seconds": args.loop_seconds,
         "real_time_factor_cpu_exact_state": round(args.loop_seconds / loop["exact"], 2),

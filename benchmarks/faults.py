@@ -42,8 +42,13 @@ MAP, RES = "faults", 0.4
 
 
 def _spawn(*args: str) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "psrmap", *args], stdout=subprocess.PIPE,
-                            stderr=subprocess.DEVNULL, env={**os.environ, "PYTHONPATH": str(ROOT)}, cwd=ROOT)
+    return subprocess.Popen(
+        [sys.executable, "-m", "psrmap", *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        env={**os.environ, "PYTHONPATH": str(ROOT)},
+        cwd=ROOT,
+    )
 
 
 def _ready(proc: subprocess.Popen, word: str, timeout_s: float = 60.0) -> None:
@@ -108,7 +113,9 @@ def main() -> None:
                 _ready(router, "router")
                 router_restarted = True
             if i % 200 == 0:
-                print(f"[faults] {i}/{args.deltas} sent, {kills} kills, {pub.unacked} unacked", file=sys.stderr)
+                print(
+                    f"[faults] {i}/{args.deltas} sent, {kills} kills, {pub.unacked} unacked", file=sys.stderr
+                )
         deadline = time.monotonic() + 300
         while pub.unacked and time.monotonic() < deadline:
             pub.poll()
@@ -130,14 +137,24 @@ def main() -> None:
     for p in (server, router):
         p.kill()
         p.wait()
-    print(json.dumps({
-        "benchmark": "faults", "deltas": args.deltas, "server_kills": kills, "server_restarts": restarts_ok,
-        "router_restarted": router_restarted, "unacked_at_end": pub.unacked,
-        "merged": st.merged if st else None, "duplicates": st.duplicates if st else None,
-        "lost": args.deltas - (st.merged if st else 0), "totals_exact": exact,
-        "doubled": 0 if exact and st and st.merged == args.deltas else "see totals",
-        "wall_seconds": round(time.monotonic() - t0, 1),
-    }))
+    print(
+        json.dumps(
+            {
+                "benchmark": "faults",
+                "deltas": args.deltas,
+                "server_kills": kills,
+                "server_restarts": restarts_ok,
+                "router_restarted": router_restarted,
+                "unacked_at_end": pub.unacked,
+                "merged": st.merged if st else None,
+                "duplicates": st.duplicates if st else None,
+                "lost": args.deltas - (st.merged if st else 0),
+                "totals_exact": exact,
+                "doubled": 0 if exact and st and st.merged == args.deltas else "see totals",
+                "wall_seconds": round(time.monotonic() - t0, 1),
+            }
+        )
+    )
 
 
 if __name__ == "__main__":

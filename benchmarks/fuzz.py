@@ -34,16 +34,36 @@ from protocol.keys import delta_key  # noqa: E402
 from protocol.messages import CellDelta  # noqa: E402
 from protocol.testing import MAP, RES, layer_cells  # noqa: E402
 
-MUTATIONS = ("valid", "resend", "flip_byte", "truncate", "drop_field", "wrong_type", "nan", "inf", "negative",
-             "short_array", "index_range", "repeat_cell", "many_tiles", "wrong_map", "wrong_res", "garbage")
+MUTATIONS = (
+    "valid",
+    "resend",
+    "flip_byte",
+    "truncate",
+    "drop_field",
+    "wrong_type",
+    "nan",
+    "inf",
+    "negative",
+    "short_array",
+    "index_range",
+    "repeat_cell",
+    "many_tiles",
+    "wrong_map",
+    "wrong_res",
+    "garbage",
+)
 
 
 def _valid(rng: np.random.Generator, scout: str, seq: int) -> CellDelta:
     n = int(rng.integers(1, 30))
     flat = rng.choice(400, size=n, replace=False)
     ix, iy = flat % 20 - 10, flat // 20 - 10
-    names = rng.choice(["elevation", "slip", "cot", "giim", "giam"], size=int(rng.integers(1, 4)), replace=False)
-    return CellDelta(MAP, scout, 1, seq, float(seq), RES, {str(k): layer_cells(str(k), ix, iy, rng) for k in names})
+    names = rng.choice(
+        ["elevation", "slip", "cot", "giim", "giam"], size=int(rng.integers(1, 4)), replace=False
+    )
+    return CellDelta(
+        MAP, scout, 1, seq, float(seq), RES, {str(k): layer_cells(str(k), ix, iy, rng) for k in names}
+    )
 
 
 def _mutate(rng: np.random.Generator, payload: bytes, how: str) -> bytes:
@@ -150,15 +170,24 @@ def main() -> None:
     wall = time.perf_counter() - t0
     book = m.book
     totals = m.map.totals()
-    exact = all(abs(totals[n][s] - v) <= 1e-6 * max(1.0, abs(v)) for n, e in expected.items() for s, v in e.items())
+    exact = all(
+        abs(totals[n][s] - v) <= 1e-6 * max(1.0, abs(v)) for n, e in expected.items() for s, v in e.items()
+    )
     counted = book.merged + book.duplicates + sum(book.rejected.values())
     out = {
-        "benchmark": "fuzz", "messages": done, "seconds": round(wall, 1), "messages_per_s": round(done / wall),
-        "crashes": crashes, "merged": book.merged, "duplicates": book.duplicates,
-        "rejected_by_reason": dict(sorted(book.rejected.items())), "counted": counted,
+        "benchmark": "fuzz",
+        "messages": done,
+        "seconds": round(wall, 1),
+        "messages_per_s": round(done / wall),
+        "crashes": crashes,
+        "merged": book.merged,
+        "duplicates": book.duplicates,
+        "rejected_by_reason": dict(sorted(book.rejected.items())),
+        "counted": counted,
         "every_message_counted": counted == done and crashes == 0,
         "partial_merges": 0 if exact else "totals differ from the accepted deltas' sums",
-        "totals_exact": exact, "mutations": dict(sorted(kinds.items())),
+        "totals_exact": exact,
+        "mutations": dict(sorted(kinds.items())),
     }
     if args.live:
         out["live"] = _live(sent_live)
@@ -177,12 +206,15 @@ def _live(samples: list[tuple[str, bytes]]) -> dict:
     ep = free_endpoint()
     ref = Merger(TiledMap(RES), MAP, limits=Limits(max_new_tiles_per_delta=8))
     for i in range(0, len(samples), 128):
-        ref.ingest(samples[i:i + 128])
+        ref.ingest(samples[i : i + 128])
     with zenoh.open(zenoh_config(listen=[ep], mode="router")):
         cfg = ServerConfig(map_id=MAP, res=RES, connect=(ep,), limits=Limits(max_new_tiles_per_delta=8))
         with MapService(cfg) as service, zenoh.open(zenoh_config(connect=[ep], mode="client")) as c:
             assert wait_for_server(c, MAP)
-            pubs = {k: c.declare_publisher(k, congestion_control=zenoh.CongestionControl.BLOCK) for k, _ in samples}
+            pubs = {
+                k: c.declare_publisher(k, congestion_control=zenoh.CongestionControl.BLOCK)
+                for k, _ in samples
+            }
             for k, p in samples:
                 pubs[k].put(p)
             target = len(samples)
@@ -194,10 +226,15 @@ def _live(samples: list[tuple[str, bytes]]) -> dict:
                 time.sleep(0.1)
             reply = next(iter(c.get(status_key(MAP), timeout=5)))
             st = decode(reply.ok.payload.to_bytes())
-            return {"messages": target, "still_answers_status": st.merged == service.merger.book.merged,
-                    "merged": st.merged, "rejected": sum(st.rejected.values()), "duplicates": st.duplicates,
-                    "same_as_in_process": service.map.equals(ref.map) and st.merged == ref.book.merged,
-                    "worker": st.health.get("worker")}
+            return {
+                "messages": target,
+                "still_answers_status": st.merged == service.merger.book.merged,
+                "merged": st.merged,
+                "rejected": sum(st.rejected.values()),
+                "duplicates": st.duplicates,
+                "same_as_in_process": service.map.equals(ref.map) and st.merged == ref.book.merged,
+                "worker": st.health.get("worker"),
+            }
 
 
 if __name__ == "__main__":

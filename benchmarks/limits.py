@@ -35,15 +35,20 @@ def _run(limits_on: bool, deltas: int, cells: int, max_tiles: int, q: mp.Queue) 
 
     logging.disable(logging.WARNING)  # one warning per rejected delta otherwise
     big = 1 << 40
-    limits = Limits(max_tiles=max_tiles) if limits_on else Limits(max_cells_per_delta=big, max_new_tiles_per_delta=big,
-                                                 max_tiles=big)
+    limits = (
+        Limits(max_tiles=max_tiles)
+        if limits_on
+        else Limits(max_cells_per_delta=big, max_new_tiles_per_delta=big, max_tiles=big)
+    )
     m = Merger(TiledMap(0.4), "m", limits=limits)
     rng = np.random.default_rng(0)
     payloads = []
     for seq in range(deltas):
-        ix = rng.integers(-10**6, 10**6, cells)
-        iy = rng.integers(-10**6, 10**6, cells)
-        layers = {name: layer_cells(name, ix, iy, rng) for name in ("elevation", "slip", "cot", "giim", "giam")}
+        ix = rng.integers(-(10**6), 10**6, cells)
+        iy = rng.integers(-(10**6), 10**6, cells)
+        layers = {
+            name: layer_cells(name, ix, iy, rng) for name in ("elevation", "slip", "cot", "giim", "giam")
+        }
         payloads.append((delta_key("m", "s1"), encode(CellDelta("m", "s1", 1, seq, 0.0, 0.4, layers))))
     proc = psutil.Process()
     rss0 = proc.memory_info().rss
@@ -53,13 +58,21 @@ def _run(limits_on: bool, deltas: int, cells: int, max_tiles: int, q: mp.Queue) 
         m.ingest([p])
         worst = max(worst, proc.memory_info().rss - before)
     tile_bytes = sum(g.store.shape[1] * g.store.shape[2] * 8 for g in m.map.grids.values())
-    q.put({"rss_growth_mib": round((proc.memory_info().rss - rss0) / 2**20, 1),
-           "worst_single_delta_mib": round(worst / 2**20, 1), "tiles": len(m.map.gslots),
-           "rejected": dict(m.book.rejected), "merged": m.book.merged, "wire_mib": round(
-               sum(len(p[1]) for p in payloads) / 2**20, 3),
-           "bytes_per_tile_all_layers_mib": round(tile_bytes / 2**20, 3),
-           "bound_per_delta_mib": round(limits.max_new_tiles_per_delta * tile_bytes / 2**20, 1) if limits_on else None,
-           "bound_map_mib": round(limits.max_tiles * tile_bytes / 2**20, 1) if limits_on else None})
+    q.put(
+        {
+            "rss_growth_mib": round((proc.memory_info().rss - rss0) / 2**20, 1),
+            "worst_single_delta_mib": round(worst / 2**20, 1),
+            "tiles": len(m.map.gslots),
+            "rejected": dict(m.book.rejected),
+            "merged": m.book.merged,
+            "wire_mib": round(sum(len(p[1]) for p in payloads) / 2**20, 3),
+            "bytes_per_tile_all_layers_mib": round(tile_bytes / 2**20, 3),
+            "bound_per_delta_mib": round(limits.max_new_tiles_per_delta * tile_bytes / 2**20, 1)
+            if limits_on
+            else None,
+            "bound_map_mib": round(limits.max_tiles * tile_bytes / 2**20, 1) if limits_on else None,
+        }
+    )
 
 
 def main() -> None:
@@ -77,7 +90,8 @@ def main() -> None:
         out[name] = q.get()
         p.join()
     out["rss_ratio_limits_vs_none"] = round(
-        out["limits"]["rss_growth_mib"] / max(out["no_limits"]["rss_growth_mib"], 1e-9), 4)
+        out["limits"]["rss_growth_mib"] / max(out["no_limits"]["rss_growth_mib"], 1e-9), 4
+    )
     print(json.dumps(out))
 
 

@@ -49,18 +49,31 @@ def main() -> int:
     cpu = time.process_time() - c0
     rate, rate_cpu = raw_step_rate(world, 20000)
     dt = 0.002
-    print(json.dumps({
-        "scene": world.terrain.name, "hfield": list(world.terrain.shape), "res_m": world.terrain.res,
-        "control_hz": round(1.0 / (dt * cfg.sim.decimation), 1), "physics_hz": 1.0 / dt,
-        "scout_loop_real_time_factor": summary["real_time_factor"], "scout_sim_seconds": summary["sim_seconds"],
-        "scout_wall_seconds": summary["wall_seconds"], "scout_cpu_seconds": round(cpu, 2),
-        "scout_loop_real_time_factor_cpu": round(summary["sim_seconds"] / cpu, 2), "fell": summary["fell"],
-        "raw_mj_steps_per_s": round(rate), "raw_real_time_factor": round(rate * dt, 1),
-        "raw_mj_steps_per_cpu_s": round(rate_cpu), "raw_real_time_factor_cpu": round(rate_cpu * dt, 1),
-        "goal_real_time_factor": 8.0, "meets_goal": bool(summary["real_time_factor"] >= 8.0),
-        "meets_goal_per_cpu_second": bool(summary["sim_seconds"] / cpu >= 8.0),
-        "cpu_load_1min": round(float(np.loadtxt("/proc/loadavg", usecols=0)), 2),
-    }))
+    print(
+        json.dumps(
+            {
+                "scene": world.terrain.name,
+                "hfield": list(world.terrain.shape),
+                "res_m": world.terrain.res,
+                "control_hz": round(1.0 / (dt * cfg.sim.decimation), 1),
+                "physics_hz": 1.0 / dt,
+                "scout_loop_real_time_factor": summary["real_time_factor"],
+                "scout_sim_seconds": summary["sim_seconds"],
+                "scout_wall_seconds": summary["wall_seconds"],
+                "scout_cpu_seconds": round(cpu, 2),
+                "scout_loop_real_time_factor_cpu": round(summary["sim_seconds"] / cpu, 2),
+                "fell": summary["fell"],
+                "raw_mj_steps_per_s": round(rate),
+                "raw_real_time_factor": round(rate * dt, 1),
+                "raw_mj_steps_per_cpu_s": round(rate_cpu),
+                "raw_real_time_factor_cpu": round(rate_cpu * dt, 1),
+                "goal_real_time_factor": 8.0,
+                "meets_goal": bool(summary["real_time_factor"] >= 8.0),
+                "meets_goal_per_cpu_second": bool(summary["sim_seconds"] / cpu >= 8.0),
+                "cpu_load_1min": round(float(np.loadtxt("/proc/loadavg", usecols=0)), 2),
+            }
+        )
+    )
     return 0
 
 

@@ -63,7 +63,9 @@ def get_replies(
             out.ok.append(reply.ok.payload.to_bytes())
         else:
             err = reply.err
-            out.errors.append(err.payload.to_bytes().decode(errors="replace") if err is not None else "empty reply")
+            out.errors.append(
+                err.payload.to_bytes().decode(errors="replace") if err is not None else "empty reply"
+            )
     return out
 
 

@@ -88,7 +88,9 @@ class PlanSummary:
         return {**self.head(), "routes": [r.as_dict() for r in self.routes]}
 
 
-def load_map(source: MapSource, points: list[Point], want_time: bool = False) -> tuple[LayerGrid, float | None]:
+def load_map(
+    source: MapSource, points: list[Point], want_time: bool = False
+) -> tuple[LayerGrid, float | None]:
     """The map around `points` and (want_time) the newest merged sample's time; PlannerError naming the
     problem when no map can be had."""
     if (source.npz is None) == (not source.connect):
@@ -120,7 +122,9 @@ def load_map(source: MapSource, points: list[Point], want_time: bool = False) ->
     return grid, t
 
 
-def _log(rrd: str | None, grid: LayerGrid, costs: CostMap, routes: list[Route], sim_time: float | None) -> None:
+def _log(
+    rrd: str | None, grid: LayerGrid, costs: CostMap, routes: list[Route], sim_time: float | None
+) -> None:
     if rrd:
         from consumer_planner.viz import log_plan, open_recording
 

@@ -23,8 +23,16 @@ from scout_agent.run import ScoutRunConfig, run_scout  # noqa: E402
 from scout_agent.sim.terrain import LUNAR_ROUTES, LunarConfig, make_lunar, route_slope_stats  # noqa: E402
 
 RAMP_GOAL_X = 10.7  # default testbed: flat exit ends at 11.5 m
-KEEP = ("fell", "fall_xy", "reached_goal", "distance_m", "mean_speed_mps", "sim_seconds", "real_time_factor",
-        "nonfoot_contact_ticks")
+KEEP = (
+    "fell",
+    "fall_xy",
+    "reached_goal",
+    "distance_m",
+    "mean_speed_mps",
+    "sim_seconds",
+    "real_time_factor",
+    "nonfoot_contact_ticks",
+)
 
 
 def main() -> int:
@@ -43,21 +51,39 @@ def main() -> int:
             for run in range(args.runs):
                 rng = np.random.default_rng(run)
                 y0, yaw0 = rng.uniform(-0.3, 0.3), rng.uniform(-0.1, 0.1)
-                cfg = ScoutRunConfig(scene="ramps", slope_deg=a, seed=run, speed=args.speed, start=(0.6, y0, yaw0),
-                                     goal=(RAMP_GOAL_X, y0))
+                cfg = ScoutRunConfig(
+                    scene="ramps",
+                    slope_deg=a,
+                    seed=run,
+                    speed=args.speed,
+                    start=(0.6, y0, yaw0),
+                    goal=(RAMP_GOAL_X, y0),
+                )
                 s = run_scout(cfg, progress=False)
-                rows.append({"slope_deg": a, "run": run, "start": [0.6, round(y0, 3), round(yaw0, 3)],
-                             **{k: s[k] for k in KEEP}})
+                rows.append(
+                    {
+                        "slope_deg": a,
+                        "run": run,
+                        "start": [0.6, round(y0, 3), round(yaw0, 3)],
+                        **{k: s[k] for k in KEEP},
+                    }
+                )
                 print(json.dumps(rows[-1]), file=sys.stderr)
-        ok = [r for r in rows if not r["fell"] and r["reached_goal"]
-              and abs(r["mean_speed_mps"] - args.speed) <= 0.1 * args.speed]
+        ok = [
+            r
+            for r in rows
+            if not r["fell"]
+            and r["reached_goal"]
+            and abs(r["mean_speed_mps"] - args.speed) <= 0.1 * args.speed
+        ]
         out["ramps"] = {"runs": rows, "passed": len(ok), "total": len(rows)}
     if "lunar" in sets:
         rows = []
         for seed in [int(v) for v in args.seeds.split(",")]:
             for route in LUNAR_ROUTES:
-                s = run_scout(ScoutRunConfig(scene="lunar", seed=seed, route=route, speed=args.speed),
-                              progress=False)
+                s = run_scout(
+                    ScoutRunConfig(scene="lunar", seed=seed, route=route, speed=args.speed), progress=False
+                )
                 rows.append({"seed": seed, "route": route, **{k: s[k] for k in KEEP}})
                 print(json.dumps(rows[-1]), file=sys.stderr)
         ok = [r for r in rows if not r["fell"] and r["reached_goal"]]
@@ -67,10 +93,14 @@ def main() -> int:
             st = route_slope_stats(t)
             terrains[seed] = {
                 "relief_m": round(st["all"]["relief_m"], 2),
-                "slope_deg": {k: {kk: round(vv, 1) for kk, vv in v.items() if kk != "relief_m"} for k, v in st.items()},
-                "craters": len(t.info["craters"]), "hazard_craters": sum(c["hazard"] for c in t.info["craters"]),
+                "slope_deg": {
+                    k: {kk: round(vv, 1) for kk, vv in v.items() if kk != "relief_m"} for k, v in st.items()
+                },
+                "craters": len(t.info["craters"]),
+                "hazard_craters": sum(c["hazard"] for c in t.info["craters"]),
                 "deepest_crater_m": round(max(c["depth"] for c in t.info["craters"]), 2),
-                "rocks": len(t.info["rocks"]), "hazard_rocks": sum(r["hazard"] for r in t.info["rocks"]),
+                "rocks": len(t.info["rocks"]),
+                "hazard_rocks": sum(r["hazard"] for r in t.info["rocks"]),
             }
         out["lunar"] = {"runs": rows, "passed": len(ok), "total": len(rows), "terrain": terrains}
     print(json.dumps(out))

@@ -61,7 +61,9 @@ def run(
     import zenoh
 
     if not config.connect and not config.listen:
-        raise MapServerConfigError("give connect endpoints (a router) and/or listen endpoints, e.g. tcp/127.0.0.1:7447")
+        raise MapServerConfigError(
+            "give connect endpoints (a router) and/or listen endpoints, e.g. tcp/127.0.0.1:7447"
+        )
     if not config.res > 0:
         raise MapServerConfigError(f"res {config.res}: need a cell size > 0 [m]")
     stop = stop if stop is not None else stop_on_signals()

@@ -146,9 +146,7 @@ def _shaped_decoder(shape: tuple[int, ...]) -> Any:
             gc=False,
         )
         fields.append((name, cells, msgspec.NODEFAULT))
-    layers = msgspec.defstruct(
-        "Layers_shaped", fields, forbid_unknown_fields=True, gc=False, kw_only=True
-    )
+    layers = msgspec.defstruct("Layers_shaped", fields, forbid_unknown_fields=True, gc=False, kw_only=True)
     delta = msgspec.defstruct(
         "Delta_shaped",
         [(f.name, f.type if f.name != "layers" else layers) for f in msgspec.structs.fields(_Delta)],

@@ -47,6 +47,8 @@ CREATE TABLE IF NOT EXISTS digests (scout TEXT, epoch INTEGER, seq INTEGER, dige
 def _signed(d: int) -> int:
     """uint64 digest as SQLite's signed 64-bit INTEGER."""
     return d - (1 << 64) if d >= 1 << 63 else d
+
+
 SNAPSHOT_SLICE_BYTES = 512 << 10  # tile bytes written per `snapshot_step`
 PAGE_SIZE = 16384
 DELETE_SLICE = 250  # log rows deleted per `snapshot_step` (a delta's blob spans overflow pages)
@@ -96,7 +98,9 @@ class MapStore:
         self.last_id = max(int(self._meta("last_id", "0")), int(max_id))
         self.since_snapshot = 0
         self.last_commit_unix: float | None = None
-        self.last_error: str | None = None  # the original error of the last failed commit (None after a good one)
+        self.last_error: str | None = (
+            None  # the original error of the last failed commit (None after a good one)
+        )
         self.last_error_unix: float | None = None
         self._pending: list[tuple[str, int, int]] = []  # tiles of the snapshot round under way
         self._cut = 0  # the round deletes the log up to this id when its tiles are written
@@ -184,8 +188,11 @@ class MapStore:
 
     def health(self) -> dict[str, str | float | None]:
         """`ok` or `error` (the last commit failed: its original error), and when the last commit landed."""
-        return {"store": "error" if self.last_error else "ok", "store_error": self.last_error,
-                "last_commit_unix": self.last_commit_unix}
+        return {
+            "store": "error" if self.last_error else "ok",
+            "store_error": self.last_error,
+            "last_commit_unix": self.last_commit_unix,
+        }
 
     def snapshot(self, tiled: TiledMap) -> int:
         """Write every changed tile and truncate the whole log, atomically; returns tiles written."""

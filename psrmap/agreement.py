@@ -37,8 +37,11 @@ def elevation_agreement(local_maps: dict[str, Path], min_cells: int = 3) -> dict
         if len(shared) < min_cells:
             continue
         d = np.array([cells[a][k] - cells[b][k] for k in shared])
-        out[f"{a}-{b}"] = {"cells": len(shared), "mean_diff_m": round(float(d.mean()), 4),
-                           "rms_diff_m": round(float(np.sqrt(np.mean(d**2))), 4)}
+        out[f"{a}-{b}"] = {
+            "cells": len(shared),
+            "mean_diff_m": round(float(d.mean()), 4),
+            "rms_diff_m": round(float(np.sqrt(np.mean(d**2))), 4),
+        }
     return out
 
 

@@ -311,13 +311,17 @@ def _spawn(ctx: Any, name: str, target: Any, config: Any, run_dir: Path, env: di
     """Start `target(config)` (a component's typed entry point) in a spawned process."""
     log = run_dir / "logs" / f"{name}.log"
     parent, child = ctx.Pipe(duplex=False)
-    p = ctx.Process(target=_run_component, args=(target, config, child, str(log), env), name=name, daemon=False)
+    p = ctx.Process(
+        target=_run_component, args=(target, config, child, str(log), env), name=name, daemon=False
+    )
     p.start()
     child.close()
     return _Proc(name, p, log, parent)
 
 
-def scout_config(cfg: MissionConfig, s: ScoutPlan, endpoint: str, run_dir: Path, zenoh_file: str | None) -> Any:
+def scout_config(
+    cfg: MissionConfig, s: ScoutPlan, endpoint: str, run_dir: Path, zenoh_file: str | None
+) -> Any:
     """The ScoutConfig of one of the mission's scouts."""
     from scout_agent.component import ScoutConfig
     from scout_agent.mapping import LinkConfig
@@ -620,8 +624,6 @@ def _json_default(o: Any) -> Any:
     if hasattr(o, "tolist"):
         return o.tolist()
     return str(o)
-
-
 
 
 def _print_report(summary: dict[str, Any]) -> None:

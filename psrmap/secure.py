@@ -37,7 +37,9 @@ def _rule(rid: str, messages: list[str], keys: list[str]) -> dict[str, Any]:
     return {"id": rid, "messages": messages, "flows": _BOTH, "permission": "allow", "key_exprs": keys}
 
 
-def acl(map_id: str, scouts: Sequence[str], planners: Sequence[str], servers: Sequence[str]) -> dict[str, Any]:
+def acl(
+    map_id: str, scouts: Sequence[str], planners: Sequence[str], servers: Sequence[str]
+) -> dict[str, Any]:
     """The router's `access_control` section for one map."""
     base = f"psr/{map_id}"
     rules, subjects, policies = [], [], []
@@ -46,32 +48,73 @@ def acl(map_id: str, scouts: Sequence[str], planners: Sequence[str], servers: Se
         rules.append(_rule(f"{rid}_writes", ["put"], [f"{base}/delta/{s}"]))
         # the router must tell the scout that the server subscribes to the deltas (egress only: the scout may
         # not subscribe itself), or Zenoh's write filter stops sending after the first put
-        rules.append({**_rule(f"{rid}_server_listens", ["declare_subscriber"], [f"{base}/delta/**"]),
-                      "flows": ["egress"]})
+        rules.append(
+            {
+                **_rule(f"{rid}_server_listens", ["declare_subscriber"], [f"{base}/delta/**"]),
+                "flows": ["egress"],
+            }
+        )
         rules.append(_rule(f"{rid}_token", ["liveliness_token"], [f"{base}/alive/{s}"]))
         rules.append(_rule(f"{rid}_acks", ["declare_subscriber", "put"], [f"{base}/ack/{s}"]))
-        rules.append(_rule(f"{rid}_server_up", ["declare_liveliness_subscriber", "liveliness_token",
-                                                 "liveliness_query"], [f"{base}/alive/server"]))
+        rules.append(
+            _rule(
+                f"{rid}_server_up",
+                ["declare_liveliness_subscriber", "liveliness_token", "liveliness_query"],
+                [f"{base}/alive/server"],
+            )
+        )
         subjects.append({"id": rid, "usernames": [s]})
-        policies.append({"rules": [f"{rid}_writes", f"{rid}_server_listens", f"{rid}_token", f"{rid}_acks",
-                                   f"{rid}_server_up"],
-                         "subjects": [rid]})
+        policies.append(
+            {
+                "rules": [
+                    f"{rid}_writes",
+                    f"{rid}_server_listens",
+                    f"{rid}_token",
+                    f"{rid}_acks",
+                    f"{rid}_server_up",
+                ],
+                "subjects": [rid],
+            }
+        )
     for s in servers:
         rid = f"server_{s}"
-        rules.append(_rule(rid, ["put", "declare_subscriber", "declare_queryable", "query", "reply",
-                                 "liveliness_token", "liveliness_query", "declare_liveliness_subscriber"],
-                           [f"{base}/**"]))
+        rules.append(
+            _rule(
+                rid,
+                [
+                    "put",
+                    "declare_subscriber",
+                    "declare_queryable",
+                    "query",
+                    "reply",
+                    "liveliness_token",
+                    "liveliness_query",
+                    "declare_liveliness_subscriber",
+                ],
+                [f"{base}/**"],
+            )
+        )
         subjects.append({"id": rid, "usernames": [s]})
         policies.append({"rules": [rid], "subjects": [rid]})
     for p in planners:
         rid = f"planner_{p}"
         rules.append(_rule(rid, ["query", "reply", "declare_queryable"], [f"{base}/map", f"{base}/status"]))
-        rules.append(_rule(f"{rid}_server_up", ["declare_liveliness_subscriber", "liveliness_token",
-                                                 "liveliness_query"], [f"{base}/alive/server"]))
+        rules.append(
+            _rule(
+                f"{rid}_server_up",
+                ["declare_liveliness_subscriber", "liveliness_token", "liveliness_query"],
+                [f"{base}/alive/server"],
+            )
+        )
         subjects.append({"id": rid, "usernames": [p]})
         policies.append({"rules": [rid, f"{rid}_server_up"], "subjects": [rid]})
-    return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects,
-            "policies": policies}
+    return {
+        "enabled": True,
+        "default_permission": "deny",
+        "rules": rules,
+        "subjects": subjects,
+        "policies": policies,
+    }
 
 
 @dataclass(frozen=True)
@@ -115,18 +158,31 @@ def _write_tls(folder: Path, names: Sequence[str], host: str, days: int) -> dict
     def save(cn: str, cert: x509.Certificate, key: ec.EllipticCurvePrivateKey) -> tuple[Path, Path]:
         c, k = folder / f"{cn}.pem", folder / f"{cn}.key"
         c.write_bytes(cert.public_bytes(serialization.Encoding.PEM))
-        k.write_bytes(key.private_bytes(serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8,
-                                        serialization.NoEncryption()))
+        k.write_bytes(
+            key.private_bytes(
+                serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8, serialization.NoEncryption()
+            )
+        )
         k.chmod(0o600)
         return c, k
 
     ca_key = ec.generate_private_key(ec.SECP256R1())
-    ca = (x509.CertificateBuilder().subject_name(name("psrmap-ca")).issuer_name(name("psrmap-ca"))
-          .public_key(ca_key.public_key()).serial_number(x509.random_serial_number())
-          .not_valid_before(life[0]).not_valid_after(life[1])
-          .add_extension(x509.BasicConstraints(ca=True, path_length=0), critical=True).sign(ca_key, hashes.SHA256()))
+    ca = (
+        x509.CertificateBuilder()
+        .subject_name(name("psrmap-ca"))
+        .issuer_name(name("psrmap-ca"))
+        .public_key(ca_key.public_key())
+        .serial_number(x509.random_serial_number())
+        .not_valid_before(life[0])
+        .not_valid_after(life[1])
+        .add_extension(x509.BasicConstraints(ca=True, path_length=0), critical=True)
+        .sign(ca_key, hashes.SHA256())
+    )
     out = {"ca": save("ca", ca, ca_key)}
-    alt: list[x509.GeneralName] = [x509.DNSName("localhost"), x509.IPAddress(ipaddress.ip_address("127.0.0.1"))]
+    alt: list[x509.GeneralName] = [
+        x509.DNSName("localhost"),
+        x509.IPAddress(ipaddress.ip_address("127.0.0.1")),
+    ]
     try:
         alt.append(x509.IPAddress(ipaddress.ip_address(host)))
     except ValueError:
@@ -134,18 +190,32 @@ def _write_tls(folder: Path, names: Sequence[str], host: str, days: int) -> dict
             alt.append(x509.DNSName(host))
     for cn in ["router", *names]:
         key = ec.generate_private_key(ec.SECP256R1())
-        b = (x509.CertificateBuilder().subject_name(name(cn)).issuer_name(ca.subject).public_key(key.public_key())
-             .serial_number(x509.random_serial_number()).not_valid_before(life[0]).not_valid_after(life[1])
-             .add_extension(x509.BasicConstraints(ca=False, path_length=None), critical=True))
+        b = (
+            x509.CertificateBuilder()
+            .subject_name(name(cn))
+            .issuer_name(ca.subject)
+            .public_key(key.public_key())
+            .serial_number(x509.random_serial_number())
+            .not_valid_before(life[0])
+            .not_valid_after(life[1])
+            .add_extension(x509.BasicConstraints(ca=False, path_length=None), critical=True)
+        )
         if cn == "router":
             b = b.add_extension(x509.SubjectAlternativeName(alt), critical=False)
         out[cn] = save(cn, b.sign(ca_key, hashes.SHA256()), key)
     return out
 
 
-def secure_init(folder: str | Path, map_id: str, scouts: Sequence[str], planners: Sequence[str],
-                servers: Sequence[str] = ("server",), endpoint: str = "tcp/127.0.0.1:7447", tls: bool = False,
-                days: int = 365) -> SecureLayout:
+def secure_init(
+    folder: str | Path,
+    map_id: str,
+    scouts: Sequence[str],
+    planners: Sequence[str],
+    servers: Sequence[str] = ("server",),
+    endpoint: str = "tcp/127.0.0.1:7447",
+    tls: bool = False,
+    days: int = 365,
+) -> SecureLayout:
     """Write the router's and every agent's Zenoh config into `folder` (created; files readable by the owner
     only). Ids must be valid map/agent ids and distinct."""
     validate_id(map_id, "map")
@@ -169,15 +239,26 @@ def secure_init(folder: str | Path, map_id: str, scouts: Sequence[str], planners
         "mode": "router",
         "listen": {"endpoints": [endpoint]},
         "scouting": {"multicast": {"enabled": False}},
-        "transport": {"auth": {"usrpwd": {"user": "router", "password": passwords["router"],
-                                          "dictionary_file": str(cred.resolve())}}},
+        "transport": {
+            "auth": {
+                "usrpwd": {
+                    "user": "router",
+                    "password": passwords["router"],
+                    "dictionary_file": str(cred.resolve()),
+                }
+            }
+        },
         "access_control": acl(map_id, scouts, planners, servers),
     }
     if tls:
-        router_conf["transport"]["link"] = {"tls": {
-            "root_ca_certificate": str(certs["ca"][0].resolve()), "enable_mtls": True,
-            "listen_certificate": str(certs["router"][0].resolve()),
-            "listen_private_key": str(certs["router"][1].resolve())}}
+        router_conf["transport"]["link"] = {
+            "tls": {
+                "root_ca_certificate": str(certs["ca"][0].resolve()),
+                "enable_mtls": True,
+                "listen_certificate": str(certs["router"][0].resolve()),
+                "listen_private_key": str(certs["router"][1].resolve()),
+            }
+        }
     files = {"router": out / "router.json5"}
     files["router"].write_text(json.dumps(router_conf, indent=2))
     agents = {}
@@ -186,9 +267,14 @@ def secure_init(folder: str | Path, map_id: str, scouts: Sequence[str], planners
         agents[n] = out / f"{n}.json5"
         conf = _agent_config(n, passwords[n], "client", endpoint)
         if tls:
-            conf["transport"]["link"] = {"tls": {
-                "root_ca_certificate": str(certs["ca"][0].resolve()), "enable_mtls": True,
-                "connect_certificate": str(certs[n][0].resolve()), "connect_private_key": str(certs[n][1].resolve())}}
+            conf["transport"]["link"] = {
+                "tls": {
+                    "root_ca_certificate": str(certs["ca"][0].resolve()),
+                    "enable_mtls": True,
+                    "connect_certificate": str(certs[n][0].resolve()),
+                    "connect_private_key": str(certs[n][1].resolve()),
+                }
+            }
         if n in zids:
             conf["id"] = zids[n]
         agents[n].write_text(json.dumps(conf, indent=2))
@@ -213,25 +299,44 @@ def _ids(text: str) -> list[str]:
 def register(sub: Any) -> None:
     p = sub.add_parser("secure", help="credentials and access control for a mission's Zenoh network")
     s = p.add_subparsers(dest="secure_command", metavar="ACTION", required=True)
-    i = s.add_parser("init", help="write the router's and every agent's Zenoh config into DIR",
-                     description=__doc__.split("\n\n")[0])
+    i = s.add_parser(
+        "init",
+        help="write the router's and every agent's Zenoh config into DIR",
+        description=__doc__.split("\n\n")[0],
+    )
     i.add_argument("dir", metavar="DIR", help="output folder (created, owner-only)")
     i.add_argument("--map", required=True, help="map id the ACL covers")
     i.add_argument("--scouts", type=_ids, required=True, metavar="ID,...", help="scout ids")
     i.add_argument("--planners", type=_ids, default=[], metavar="ID,...", help="planner ids")
-    i.add_argument("--servers", type=_ids, default=["server"], metavar="ID,...", help="server ids (default server)")
-    i.add_argument("--endpoint", default="tcp/127.0.0.1:7447", help="the router's endpoint (agents connect to it)")
-    i.add_argument("--tls", action="store_true", help="also require mutual TLS (writes a CA and certificates)")
+    i.add_argument(
+        "--servers", type=_ids, default=["server"], metavar="ID,...", help="server ids (default server)"
+    )
+    i.add_argument(
+        "--endpoint", default="tcp/127.0.0.1:7447", help="the router's endpoint (agents connect to it)"
+    )
+    i.add_argument(
+        "--tls", action="store_true", help="also require mutual TLS (writes a CA and certificates)"
+    )
     i.add_argument("--days", type=int, default=365, help="certificate lifetime with --tls (default 365)")
     i.set_defaults(func=_cmd_init, _parser=i)
 
 
 def _cmd_init(args: Any) -> int:
     try:
-        lay = secure_init(args.dir, args.map, args.scouts, args.planners, args.servers, args.endpoint, args.tls,
-                          args.days)
+        lay = secure_init(
+            args.dir, args.map, args.scouts, args.planners, args.servers, args.endpoint, args.tls, args.days
+        )
     except ValueError as exc:
         args._parser.error(str(exc))
-    print(json.dumps({"router": str(lay.router), "agents": {k: str(v) for k, v in lay.agents.items()},
-                      "credentials": str(lay.credentials), "servers": str(lay.servers)}, indent=2))
+    print(
+        json.dumps(
+            {
+                "router": str(lay.router),
+                "agents": {k: str(v) for k, v in lay.agents.items()},
+                "credentials": str(lay.credentials),
+                "servers": str(lay.servers),
+            },
+            indent=2,
+        )
+    )
     return 0

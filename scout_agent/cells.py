@@ -42,7 +42,9 @@ class CellAccumulator:
             return
         unknown = stats.keys() - set(order)
         if unknown:
-            raise ScoutConfigError(f"layer {layer!r} has no stat {sorted(unknown)}; stats: {', '.join(order)}")
+            raise ScoutConfigError(
+                f"layer {layer!r} has no stat {sorted(unknown)}; stats: {', '.join(order)}"
+            )
         ident = self._ident[layer]
         self._rows[layer].append((x, y, *(stats.get(s, ident[i]) for i, s in enumerate(order))))
 

@@ -121,7 +121,9 @@ class DeltaPublisher:
             if rows
         }
         if self.epoch in self._old:
-            raise ScoutConfigError(f"epoch {self.epoch} has unacknowledged deltas to resume; a new epoch is needed")
+            raise ScoutConfigError(
+                f"epoch {self.epoch} has unacknowledged deltas to resume; a new epoch is needed"
+            )
         self._lock = threading.Lock()
         self._resend_cutoff: float | None = None  # resend all sent at or before this clock time
 

@@ -339,7 +339,11 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         "wall_seconds": summary["wall_seconds"],
         "mass_kg": round(ev.mapper.feet.total_mass_kg, 3),
         "gia_source": "imu (accelerometer, estimated orientation)",
-        **{k: summary[k] for k in ("drift_xy_m", "drift_xy_pct", "drift_z_m", "drift_yaw_deg") if k in summary},
+        **{
+            k: summary[k]
+            for k in ("drift_xy_m", "drift_xy_pct", "drift_z_m", "drift_yaw_deg")
+            if k in summary
+        },
     }
     out.update(ev.result(world, cfg.friction_default))
     out["cot_whole_run_truth"] = summary["cot_whole_run_truth"]

@@ -50,7 +50,12 @@ def default_pipeline_config(feet: PinocchioFeet, **changes: Any) -> PipelineConf
     """Pipeline defaults with the simulated model's mass and CoM (mass declared in robot/constants)."""
     return replace(
         PipelineConfig(
-            mass_kg=feet.total_mass_kg, com_offset_base=(float(feet.com_home_base[0]), float(feet.com_home_base[1]), float(feet.com_home_base[2]))
+            mass_kg=feet.total_mass_kg,
+            com_offset_base=(
+                float(feet.com_home_base[0]),
+                float(feet.com_home_base[1]),
+                float(feet.com_home_base[2]),
+            ),
         ),
         **changes,
     )
@@ -141,13 +146,22 @@ def add_mapping_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--delta-hz", type=float, default=5.0, help="cell deltas per second (default 5)")
     g.add_argument("--save-map", metavar="PATH.npz", help="save the scout's local map (map_region layout)")
     g.add_argument("--no-map", action="store_true", help="walk without estimators or map")
-    g.add_argument("--outbox", metavar="PATH.db",
-                   help="SQLite outbox keeping each delta until acked (default "
-                        "$XDG_STATE_HOME/psrmap/outbox-<map>-<scout>.db; 'none': memory only)")
-    g.add_argument("--zenoh-config", metavar="FILE",
-                   help="Zenoh config with this scout's credentials (`psrmap secure init`)")
-    g.add_argument("--resume", action="store_true",
-                   help="first resend the deltas an earlier run of this scout left unacknowledged in the outbox")
+    g.add_argument(
+        "--outbox",
+        metavar="PATH.db",
+        help="SQLite outbox keeping each delta until acked (default "
+        "$XDG_STATE_HOME/psrmap/outbox-<map>-<scout>.db; 'none': memory only)",
+    )
+    g.add_argument(
+        "--zenoh-config",
+        metavar="FILE",
+        help="Zenoh config with this scout's credentials (`psrmap secure init`)",
+    )
+    g.add_argument(
+        "--resume",
+        action="store_true",
+        help="first resend the deltas an earlier run of this scout left unacknowledged in the outbox",
+    )
 
 
 class MappingSession:
@@ -235,7 +249,9 @@ def open_mapping(
         from scout_agent.outbox import default_outbox_path
         from scout_agent.publisher import ScoutPublisher
 
-        outbox = None if link.outbox == "none" else (link.outbox or default_outbox_path(link.map_id, scout_id))
+        outbox = (
+            None if link.outbox == "none" else (link.outbox or default_outbox_path(link.map_id, scout_id))
+        )
         publisher = ScoutPublisher(link.map_id, scout_id, res, link.connect, outbox=outbox, resume=link.resume,
                                    zenoh_config_file=link.zenoh_config)  # fmt: skip
     mapper = Mapper(MapperConfig(res=res, delta_hz=delta_hz), publisher=publisher)
@@ -248,7 +264,9 @@ def link_from_args(args: argparse.Namespace) -> LinkConfig | None:
     if args.connect and not args.map:
         raise ScoutConfigError("--connect needs --map ID (the map to publish to)")
     if args.map and not args.connect:
-        raise ScoutConfigError("--map needs --connect ENDPOINT (the map service's router), e.g. tcp/127.0.0.1:7447")
+        raise ScoutConfigError(
+            "--map needs --connect ENDPOINT (the map service's router), e.g. tcp/127.0.0.1:7447"
+        )
     if not args.connect:
         return None
     return LinkConfig(args.map, tuple(args.connect), getattr(args, "outbox", None), getattr(args, "resume", False),

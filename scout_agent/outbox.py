@@ -49,7 +49,9 @@ class SQLiteOutbox:
     def pending(self) -> dict[int, list[tuple[int, bytes]]]:
         out: dict[int, list[tuple[int, bytes]]] = {}
         with self._lock:
-            for epoch, seq, payload in self.db.execute("SELECT epoch, seq, payload FROM pending ORDER BY epoch, seq"):
+            for epoch, seq, payload in self.db.execute(
+                "SELECT epoch, seq, payload FROM pending ORDER BY epoch, seq"
+            ):
                 out.setdefault(int(epoch), []).append((int(seq), bytes(payload)))
         return out
 

@@ -60,7 +60,9 @@ class GroundTruth:
     base: BaseState  # exact base state
     foot_pos_world: np.ndarray  # (4, 3) foot sphere centres, world frame [m]
     contact_point_world: np.ndarray  # (4, 3) foot contact points, world frame [m]; NaN rows in swing
-    stance_disp: np.ndarray  # (4,) distance the contact point moved since the stance's first contact [m]; NaN in swing
+    stance_disp: (
+        np.ndarray
+    )  # (4,) distance the contact point moved since the stance's first contact [m]; NaN in swing
     terrain_height_at_feet: np.ndarray  # (4,) exact terrain height under each foot [m]
     friction_at_feet: np.ndarray  # (4,) friction coefficient of the ground under each foot
     nonfoot_contacts: int  # number of robot geoms other than feet touching the ground

@@ -214,8 +214,10 @@ def analyse(args: argparse.Namespace, runs: list[dict], out_dir: Path) -> dict[s
                 route: trajectory_row([r for r in mine if r["spec"]["route"] == route]) for route in ROUTES
             },
             "merged_map_compare": compare_on_merged(grid, {k: LUNAR_ROUTES[k] for k in ROUTES}),
-            "estimation": {route: estimation_summary([r for r in mine if r["spec"]["route"] == route])
-                           for route in ROUTES},
+            "estimation": {
+                route: estimation_summary([r for r in mine if r["spec"]["route"] == route])
+                for route in ROUTES
+            },
             "patches": mine[0]["friction"]["patches"],
             "route_slope_stats_deg": route_slope_stats(terrain),
         }

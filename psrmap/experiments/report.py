@@ -35,8 +35,15 @@ def _table(head: list[str], rows: list[list[str]]) -> str:
     return "\n".join(out)
 
 
-_EST_HEAD = ["drift xy % (mean / max)", "drift z [m]", "drift yaw [°]", "elev. RMSE estimate / exact [m]",
-             "CoT estimate / truth", "CoT error % (mean / max)", "falls / runs"]
+_EST_HEAD = [
+    "drift xy % (mean / max)",
+    "drift z [m]",
+    "drift yaw [°]",
+    "elev. RMSE estimate / exact [m]",
+    "CoT estimate / truth",
+    "CoT error % (mean / max)",
+    "falls / runs",
+]
 
 
 def _est_row(e: dict) -> list[str]:
@@ -180,7 +187,9 @@ def slopes_tables(r: dict) -> str:
 def lunar_tables(r: dict) -> str:
     routes = ("direct", "west", "east")
     t, p, m = r["table"], r["paper_table"], r["merged_map_table"]
-    est = {f"seed {sd} {x}": s.get("estimation", {}).get(x) for sd, s in r["per_seed"].items() for x in routes}
+    est = {
+        f"seed {sd} {x}": s.get("estimation", {}).get(x) for sd, s in r["per_seed"].items() for x in routes
+    }
     rows = [
         ["total slips (slip-layer events)"]
         + [f"{_ms(t[x]['total_slips'], 1)} ({p['total_slips'][x]})" for x in routes],

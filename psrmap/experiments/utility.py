@@ -386,7 +386,8 @@ def run(args: argparse.Namespace, pool: RunPool, out_dir: Path) -> dict[str, Any
         entry["experienced"] = exp
         entry["map_agreement_along_route"] = agree
         entry["predicted_vs_felt"] = {
-            name: predicted_vs_felt(entry["predicted"].get(name), exp.get(name)) for name in ("planned", "straight")
+            name: predicted_vs_felt(entry["predicted"].get(name), exp.get(name))
+            for name in ("planned", "straight")
         }
         entry["planned_beat_straight"] = (
             _beat(exp["planned"], exp["straight"]) if exp.get("planned") and exp.get("straight") else None

@@ -4,5 +4,13 @@ from scout_agent.control.controller import ControllerConfig, ControlOutput, Robo
 from scout_agent.control.follower import FollowerConfig, PathFollower
 from scout_agent.control.gait import GaitConfig, TrotGait
 
-__all__ = ["ControlOutput", "ControllerConfig", "FollowerConfig", "GaitConfig", "PathFollower",
-           "RobotState", "TrotController", "TrotGait"]
+__all__ = [
+    "ControlOutput",
+    "ControllerConfig",
+    "FollowerConfig",
+    "GaitConfig",
+    "PathFollower",
+    "RobotState",
+    "TrotController",
+    "TrotGait",
+]

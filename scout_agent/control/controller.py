@@ -222,7 +222,10 @@ class TrotController:
         # stance feet: touchdown point held still in the world
         p_hold_b = (self.footholds - s.pos) @ R
         v_hold_b = -(s.vel @ R + cross(s.omega, p_hold_b))
-        tau_st = -np.einsum("lji,lj->li", J, f_b) + c.stance_kd * np.linalg.solve(J + _EPS3, v_hold_b[..., None])[..., 0]
+        tau_st = (
+            -np.einsum("lji,lj->li", J, f_b)
+            + c.stance_kd * np.linalg.solve(J + _EPS3, v_hold_b[..., None])[..., 0]
+        )
         for i in idx.tolist():
             tau[3 * i : 3 * i + 3] = tau_st[i]
         pos_des_b[idx] = p_hold_b[idx]

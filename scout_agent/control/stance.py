@@ -31,8 +31,9 @@ class StanceQP:
         c = config
         self._S = np.array([c.force_weight] * 3 + [c.moment_weight] * 3)
 
-    def solve(self, r: np.ndarray, normal: np.ndarray, wrench: np.ndarray,
-              f_prev: np.ndarray | None = None) -> np.ndarray:
+    def solve(
+        self, r: np.ndarray, normal: np.ndarray, wrench: np.ndarray, f_prev: np.ndarray | None = None
+    ) -> np.ndarray:
         """Forces (k, 3) on the k stance feet (world frame) from their positions `r` (k, 3) relative to the
         CoM, the ground normal (3,) and the desired wrench (6,) = (force, moment about the CoM)."""
         c = self.config
@@ -56,8 +57,9 @@ class StanceQP:
         t1 = np.array([-nz, 0.0, nx]) if abs(nx) < 0.9 else np.array([ny, -nx, 0.0])  # ⊥ normal
         t1 /= np.sqrt(t1 @ t1)
         t2 = np.array([ny * t1[2] - nz * t1[1], nz * t1[0] - nx * t1[2], nx * t1[1] - ny * t1[0]])
-        rows = np.array([normal, -normal, c.mu * normal - t1, c.mu * normal + t1,
-                         c.mu * normal - t2, c.mu * normal + t2])  # (6, 3)
+        rows = np.array(
+            [normal, -normal, c.mu * normal - t1, c.mu * normal + t1, c.mu * normal - t2, c.mu * normal + t2]
+        )  # (6, 3)
         lo = np.array([c.f_min, -c.f_max, 0.0, 0.0, 0.0, 0.0])
         Cm = np.zeros((n, 6 * k))
         b = np.tile(lo, k)

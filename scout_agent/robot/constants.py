@@ -20,7 +20,14 @@ LUNAR_G = 1.62  # [m/s²]
 
 TRUNK_MASS = 9.041  # [kg]
 TRUNK_COM = (0.008465, 0.004045, -0.000763)  # [m], trunk frame
-TRUNK_INERTIA = (0.033260231, 0.16117211, 0.17460442, -0.000451628, 0.000487603, 4.8356e-05)  # xx yy zz xy xz yz
+TRUNK_INERTIA = (
+    0.033260231,
+    0.16117211,
+    0.17460442,
+    -0.000451628,
+    0.000487603,
+    4.8356e-05,
+)  # xx yy zz xy xz yz
 TRUNK_SIZE = (0.647, 0.15, 0.112)  # collision box [m]
 
 HIP_MASS = 1.993

@@ -35,7 +35,9 @@ class ContactConfig:
 
     def __post_init__(self) -> None:
         if self.source not in CONTACT_SOURCES:
-            raise ScoutConfigError(f"contact source {self.source!r} unknown; sources: {', '.join(CONTACT_SOURCES)}")
+            raise ScoutConfigError(
+                f"contact source {self.source!r} unknown; sources: {', '.join(CONTACT_SOURCES)}"
+            )
         if not self.off_n < self.on_n:
             raise ScoutConfigError(f"contact thresholds need off_n < on_n (got {self.off_n}, {self.on_n})")
 

@@ -46,8 +46,9 @@ class JointSensors:
         r = self.config.encoder_resolution_rad
         return np.floor(q / r + 0.5) * r
 
-    def sample(self, q_true: np.ndarray, tau_true: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray,
-                                                                                  np.ndarray, float]:
+    def sample(
+        self, q_true: np.ndarray, tau_true: np.ndarray, dt: float
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
         c, k = self.config, len(q_true)
         q = self.quantise(q_true)
         alpha = 1.0 - math.exp(-2 * math.pi * c.velocity_cutoff_hz * dt)

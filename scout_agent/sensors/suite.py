@@ -70,4 +70,6 @@ class SensorSuite:
             contact = self.feet.flags(fb[:, 2])  # the ground pushes a stance foot up the base z axis
         else:
             contact = self.feet.flags(pressure)
-        return SensorTick(acc.mean(axis=0), gyro.mean(axis=0), q[-1], dq[-1], tau[-1], energy, pressure, contact)
+        return SensorTick(
+            acc.mean(axis=0), gyro.mean(axis=0), q[-1], dq[-1], tau[-1], energy, pressure, contact
+        )

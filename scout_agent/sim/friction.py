@@ -78,8 +78,14 @@ def ramp_slippery_patch(terrain: Terrain, mu: float) -> Patch:
     return Patch(a + q, ya, b - q, yb, mu)
 
 
-def lunar_slippery_patches(terrain: Terrain, n: int, seed: int = 0, size_m: float = 1.6,
-                           mu_range: tuple[float, float] = (0.2, 0.35), margin: float = 0.02) -> tuple[Patch, ...]:
+def lunar_slippery_patches(
+    terrain: Terrain,
+    n: int,
+    seed: int = 0,
+    size_m: float = 1.6,
+    mu_range: tuple[float, float] = (0.2, 0.35),
+    margin: float = 0.02,
+) -> tuple[Patch, ...]:
     """`n` seeded patches spread over the lunar routes in turn, preferably where the route descends 10–20°
     (else anywhere on it). Each patch stays walkable: its μ is drawn from `mu_range` but at least
     tan(steepest slope inside the patch) + `margin` (below that the robot slides away); places where
@@ -101,8 +107,10 @@ def lunar_slippery_patches(terrain: Terrain, n: int, seed: int = 0, size_m: floa
                 gx, gy = terrain.gradient(x, y)
                 descent = -np.degrees(np.arctan(gx * u[0] + gy * u[1]))
                 (cands if 10.0 <= descent <= 20.0 else fallback).append((x, y))
-        pools.append([cands[k] for k in rng.permutation(len(cands))]
-                     + [fallback[k] for k in rng.permutation(len(fallback))])
+        pools.append(
+            [cands[k] for k in rng.permutation(len(cands))]
+            + [fallback[k] for k in rng.permutation(len(fallback))]
+        )
     patches: list[Patch] = []
     cursor = [0] * len(pools)
     stuck = 0
@@ -115,8 +123,10 @@ def lunar_slippery_patches(terrain: Terrain, n: int, seed: int = 0, size_m: floa
             while cursor[r] < len(pool) and not placed:
                 x, y = pool[cursor[r]]
                 cursor[r] += 1
-                if any(abs(x - (p.x0 + p.x1) / 2) < size_m * 1.5 and abs(y - (p.y0 + p.y1) / 2) < size_m * 1.5
-                       for p in patches):
+                if any(
+                    abs(x - (p.x0 + p.x1) / 2) < size_m * 1.5 and abs(y - (p.y0 + p.y1) / 2) < size_m * 1.5
+                    for p in patches
+                ):
                     continue
                 steep = float(np.max(terrain.slope_deg(x + gx_, y + gy_)))
                 mu_min = max(mu_range[0], np.tan(np.radians(steep)) + margin)

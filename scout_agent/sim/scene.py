@@ -40,10 +40,21 @@ def build_scene(terrain: Terrain, physics: PhysicsConfig = PhysicsConfig()) -> m
     zmin, zmax = float(z.min()), float(z.max())
     zrange = max(zmax - zmin, 1e-3)
     xa, ya, xb, yb = terrain.extent
-    spec.add_hfield(name=TERRAIN_GEOM, size=[(xb - xa) / 2, (yb - ya) / 2, zrange, 0.2],
-                    nrow=ny, ncol=nx, userdata=((z - zmin) / zrange).astype(np.float32).ravel().tolist())
-    spec.worldbody.add_geom(name=TERRAIN_GEOM, type=mujoco.mjtGeom.mjGEOM_HFIELD, hfieldname=TERRAIN_GEOM,
-                            pos=[(xa + xb) / 2, (ya + yb) / 2, zmin], friction=[physics.ground_mu, 0.005, 1e-4],
-                            rgba=[0.55, 0.55, 0.52, 1.0], condim=3)
+    spec.add_hfield(
+        name=TERRAIN_GEOM,
+        size=[(xb - xa) / 2, (yb - ya) / 2, zrange, 0.2],
+        nrow=ny,
+        ncol=nx,
+        userdata=((z - zmin) / zrange).astype(np.float32).ravel().tolist(),
+    )
+    spec.worldbody.add_geom(
+        name=TERRAIN_GEOM,
+        type=mujoco.mjtGeom.mjGEOM_HFIELD,
+        hfieldname=TERRAIN_GEOM,
+        pos=[(xa + xb) / 2, (ya + yb) / 2, zmin],
+        friction=[physics.ground_mu, 0.005, 1e-4],
+        rgba=[0.55, 0.55, 0.52, 1.0],
+        condim=3,
+    )
     spec.worldbody.add_light(pos=[(xa + xb) / 2, (ya + yb) / 2, zmax + 10], dir=[0, 0, -1])
     return spec.compile()

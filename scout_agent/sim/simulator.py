@@ -50,23 +50,32 @@ class SimConfig:
 
     def __post_init__(self) -> None:
         if self.state_source not in STATE_SOURCES:
-            raise ScoutConfigError(f"state source {self.state_source!r} unknown; sources: {', '.join(STATE_SOURCES)}")
+            raise ScoutConfigError(
+                f"state source {self.state_source!r} unknown; sources: {', '.join(STATE_SOURCES)}"
+            )
 
 
 def _quat_to_mat(q: np.ndarray) -> np.ndarray:
     w, x, y, z = q
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-    ])
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
 
 
 class ScoutSim:
     """One Aliengo on one terrain. `step()` advances one control tick and returns its records."""
 
-    def __init__(self, terrain: Terrain, friction: FrictionMap | None = None, config: SimConfig = SimConfig(),
-                 start: tuple[float, float, float] | None = None) -> None:
+    def __init__(
+        self,
+        terrain: Terrain,
+        friction: FrictionMap | None = None,
+        config: SimConfig = SimConfig(),
+        start: tuple[float, float, float] | None = None,
+    ) -> None:
         self.terrain = terrain
         self.friction = friction or FrictionMap()
         self.config = config
@@ -117,8 +126,16 @@ class ScoutSim:
         self.launch = LaunchPose(float(x), float(y), float(yaw), ground)
         self.estimator = StateEstimator(self.launch, C.HOME_Q, self.config.estimator)
         self.energy_true_j = 0.0  # exact joint work since start, every physics step [J]
-        self._state = RobotState(0.0, self.estimator.estimate.pos, self.estimator.estimate.R, np.zeros(3),
-                                 np.zeros(3), C.HOME_Q.copy(), np.zeros(12), np.zeros(4, bool))
+        self._state = RobotState(
+            0.0,
+            self.estimator.estimate.pos,
+            self.estimator.estimate.R,
+            np.zeros(3),
+            np.zeros(3),
+            C.HOME_Q.copy(),
+            np.zeros(12),
+            np.zeros(4, bool),
+        )
         if self.config.state_source == "exact":
             self._state = self.exact_state()
         self._cp0 = np.full((4, 3), np.nan)
@@ -135,8 +152,16 @@ class ScoutSim:
     def exact_state(self) -> RobotState:
         """The simulator's exact state, for evaluation (and the `exact` state source) only."""
         d = self.data
-        return RobotState(self.t, d.qpos[0:3].copy(), _quat_to_mat(d.qpos[3:7]), d.qvel[0:3].copy(),
-                          d.qvel[3:6].copy(), d.qpos[7:].copy(), d.qvel[6:].copy(), np.zeros(4, bool))
+        return RobotState(
+            self.t,
+            d.qpos[0:3].copy(),
+            _quat_to_mat(d.qpos[3:7]),
+            d.qvel[0:3].copy(),
+            d.qvel[3:6].copy(),
+            d.qpos[7:].copy(),
+            d.qvel[6:].copy(),
+            np.zeros(4, bool),
+        )
 
     def robot_state(self) -> RobotState:
         """The state the robot's software runs on: the estimate (sensor readings), or exact on request."""
@@ -184,7 +209,9 @@ class ScoutSim:
         return forces, points, fn, len(nonfoot), self._trunk_geom in nonfoot
 
     # ------------------------------------------------------------------------------------------ step
-    def step(self, forward_speed: float | None = None, yaw_rate: float = 0.0) -> tuple[ProprioSample, GroundTruth]:
+    def step(
+        self, forward_speed: float | None = None, yaw_rate: float = 0.0
+    ) -> tuple[ProprioSample, GroundTruth]:
         """Advance one control tick with the given command (None: keep the last one)."""
         m, d, cfg = self.model, self.data, self.config
         if forward_speed is not None:
@@ -202,8 +229,8 @@ class ScoutSim:
         for k in range(cfg.decimation):
             mujoco.mj_step(m, d)
             sd = d.sensordata
-            acc[k] = sd[ia:ia + 3]
-            gyro[k] = sd[ig:ig + 3]
+            acc[k] = sd[ia : ia + 3]
+            gyro[k] = sd[ig : ig + 3]
             q[k] = d.qpos[7:]
             tau[k] = d.qfrc_actuator[6:]
             energy += float(np.abs(tau[k] * d.qvel[6:]).sum())
@@ -222,7 +249,9 @@ class ScoutSim:
         d, cfg = self.data, self.config
         forces, points, fn, n_nonfoot, trunk_touch = self._contacts()
         true_contact = fn > cfg.contact_threshold_n
-        tick = self.sensors.read(TrueBlock(self.dt, self._blk_acc, self._blk_gyro, self._blk_q, self._blk_tau, fn))
+        tick = self.sensors.read(
+            TrueBlock(self.dt, self._blk_acc, self._blk_gyro, self._blk_q, self._blk_tau, fn)
+        )
         pos = d.qpos[0:3].copy()
         quat = d.qpos[3:7].copy()
         R = _quat_to_mat(quat)
@@ -233,7 +262,9 @@ class ScoutSim:
             base = BaseState(pos.copy(), quat.copy(), truth_base.vel.copy(), truth_base.omega.copy())
         else:
             est = self.estimator.update(self.t, tick, self.control_dt, self._mid_stance(out))
-            self._state = RobotState(self.t, est.pos, est.R, est.vel, est.omega, tick.q, tick.dq, tick.contact)
+            self._state = RobotState(
+                self.t, est.pos, est.R, est.vel, est.omega, tick.q, tick.dq, tick.contact
+            )
             base = BaseState(est.pos, est.quat, est.vel, est.omega)
         q = d.qpos[7:].copy()
         feet_w = pos + K.fk(q) @ R.T
@@ -250,16 +281,36 @@ class ScoutSim:
                 self._swung[i] = False
         disp = np.where(true_contact, np.linalg.norm(points - self._cp0, axis=1), np.nan)
         sample = ProprioSample(
-            t=self.t, q=tick.q, dq=tick.dq, tau=tick.tau, contact=tick.contact, foot_pressure=tick.foot_pressure,
-            joint_energy_j=tick.joint_energy_j, imu_acc=tick.imu_acc, imu_gyro=tick.imu_gyro, base=base,
-            foot_pos_des_base=out.foot_pos_des_base, foot_vel_des_base=out.foot_vel_des_base,
-            stance_planned=out.stance_planned, phase=out.phase)
+            t=self.t,
+            q=tick.q,
+            dq=tick.dq,
+            tau=tick.tau,
+            contact=tick.contact,
+            foot_pressure=tick.foot_pressure,
+            joint_energy_j=tick.joint_energy_j,
+            imu_acc=tick.imu_acc,
+            imu_gyro=tick.imu_gyro,
+            base=base,
+            foot_pos_des_base=out.foot_pos_des_base,
+            foot_vel_des_base=out.foot_vel_des_base,
+            stance_planned=out.stance_planned,
+            phase=out.phase,
+        )
         truth = GroundTruth(
-            t=self.t, base=truth_base, foot_pos_world=feet_w,
-            contact_point_world=np.where(true_contact[:, None], points, np.nan), stance_disp=disp,
+            t=self.t,
+            base=truth_base,
+            foot_pos_world=feet_w,
+            contact_point_world=np.where(true_contact[:, None], points, np.nan),
+            stance_disp=disp,
             terrain_height_at_feet=ground[:4],
-            friction_at_feet=self._mu_feet.copy(), nonfoot_contacts=n_nonfoot, contact=true_contact,
-            foot_force_world=forces, joint_energy_j=energy_true_j, q=q, dq=d.qvel[6:].copy())
+            friction_at_feet=self._mu_feet.copy(),
+            nonfoot_contacts=n_nonfoot,
+            contact=true_contact,
+            foot_force_world=forces,
+            joint_energy_j=energy_true_j,
+            q=q,
+            dq=d.qvel[6:].copy(),
+        )
         tilt = np.degrees(np.arccos(np.clip(R[2, 2], -1.0, 1.0)))
         clearance = pos[2] - float(ground[4])
         if not self.fell and (tilt > cfg.fall_tilt_deg or clearance < cfg.fall_min_height_m or trunk_touch):

@@ -54,8 +54,14 @@ class NoiseConfig:
 
 
 class ErrorStateEKF:
-    def __init__(self, R: np.ndarray, v: np.ndarray, p: np.ndarray, gravity: np.ndarray,
-                 noise: NoiseConfig = NoiseConfig()) -> None:
+    def __init__(
+        self,
+        R: np.ndarray,
+        v: np.ndarray,
+        p: np.ndarray,
+        gravity: np.ndarray,
+        noise: NoiseConfig = NoiseConfig(),
+    ) -> None:
         self.R = np.array(R, dtype=float)
         self.v = np.array(v, dtype=float)
         self.p = np.array(p, dtype=float)
@@ -64,14 +70,26 @@ class ErrorStateEKF:
         self.g = np.asarray(gravity, dtype=float)
         self.noise = n = noise
         # initial covariance: the launch yaw is known (mission frame), roll/pitch come from gravity
-        sd = np.r_[n.init_tilt, n.init_tilt, n.init_yaw, [n.init_vel] * 3, [n.init_pos] * 3,
-                   [n.init_gyro_bias] * 3, [n.init_acc_bias] * 3]
+        sd = np.r_[
+            n.init_tilt,
+            n.init_tilt,
+            n.init_yaw,
+            [n.init_vel] * 3,
+            [n.init_pos] * 3,
+            [n.init_gyro_bias] * 3,
+            [n.init_acc_bias] * 3,
+        ]
         self.P = np.diag(sd**2)
         self._F = np.eye(15)
         self._I15 = np.eye(15)
         self._I3 = np.eye(3)
-        self._q = np.r_[[n.gyro**2] * 3, [n.acc**2] * 3, [n.position**2] * 3, [n.gyro_bias_walk**2] * 3,
-                        [n.acc_bias_walk**2] * 3]  # process noise densities², per unit time
+        self._q = np.r_[
+            [n.gyro**2] * 3,
+            [n.acc**2] * 3,
+            [n.position**2] * 3,
+            [n.gyro_bias_walk**2] * 3,
+            [n.acc_bias_walk**2] * 3,
+        ]  # process noise densities², per unit time
         self._diag = np.diag_indices(15)
 
     def propagate(self, gyro: np.ndarray, acc: np.ndarray, dt: float) -> np.ndarray:
@@ -120,8 +138,9 @@ class ErrorStateEKF:
         H[0, 8] = 1.0
         return H
 
-    def update(self, residual: np.ndarray, H: np.ndarray, noise_var: np.ndarray,
-               gate_chi2: float | None = None) -> np.ndarray:
+    def update(
+        self, residual: np.ndarray, H: np.ndarray, noise_var: np.ndarray, gate_chi2: float | None = None
+    ) -> np.ndarray:
         """Kalman update with stacked 3-row measurements; the error is folded into the nominal state. With
         `gate_chi2`, each 3-row block whose Mahalanobis distance² exceeds it is dropped first (an outlier, e.g.
         a slipping foot). Returns the kept blocks' mask."""

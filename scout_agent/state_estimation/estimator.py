@@ -100,8 +100,13 @@ def matrix_to_quat(R: np.ndarray) -> np.ndarray:
 
 
 class StateEstimator:
-    def __init__(self, launch: LaunchPose, q0: np.ndarray, config: EstimatorConfig = EstimatorConfig(),
-                 feet: PinocchioFeet | None = None) -> None:
+    def __init__(
+        self,
+        launch: LaunchPose,
+        q0: np.ndarray,
+        config: EstimatorConfig = EstimatorConfig(),
+        feet: PinocchioFeet | None = None,
+    ) -> None:
         self.config = c = config
         self.feet = feet or PinocchioFeet()
         c_, s_ = np.cos(launch.yaw), np.sin(launch.yaw)
@@ -109,8 +114,13 @@ class StateEstimator:
         fb, _ = self.feet.feet_base_and_vel(q0, np.zeros(12))
         # feet on the surveyed ground: the lowest foot sphere's bottom at ground_z
         z0 = launch.ground_z + c.foot_radius_m - float(np.min((fb @ R0.T)[:, 2]))
-        self.ekf = ErrorStateEKF(R0, np.zeros(3), np.array([launch.x, launch.y, z0]),
-                                 np.array([0.0, 0.0, -c.gravity_mps2]), c.noise)
+        self.ekf = ErrorStateEKF(
+            R0,
+            np.zeros(3),
+            np.array([launch.x, launch.y, z0]),
+            np.array([0.0, 0.0, -c.gravity_mps2]),
+            c.noise,
+        )
         self._contact_since = np.full(4, np.inf)
         self._footholds = fb @ R0.T + self.ekf.p  # (4, 3) each foot's latest stance position, world [m]
         self._was_contact = np.zeros(4, bool)
@@ -125,7 +135,9 @@ class StateEstimator:
         e = self.ekf
         return StateEstimate(self.t, e.p.copy(), e.R.copy(), matrix_to_quat(e.R), e.v.copy(), omega)
 
-    def update(self, t: float, tick: SensorTick, dt: float, mid_stance: np.ndarray | None = None) -> StateEstimate:
+    def update(
+        self, t: float, tick: SensorTick, dt: float, mid_stance: np.ndarray | None = None
+    ) -> StateEstimate:
         """One tick. `mid_stance` (4,) bool, optional: the gait schedule puts the leg in the middle of its stance
         (the robot's own controller knows its schedule); odometry then uses only those feet."""
         c, e = self.config, self.ekf
@@ -140,11 +152,13 @@ class StateEstimator:
             fb, fv = self.feet.feet_base_and_vel(tick.q, tick.dq)
         if use.any():
             n_b = e.R.T @ self._normal_w
-            z, rc = stance_velocity_measurements(fb, fv, self.feet.foot_omega, tick.imu_gyro, n_b,
-                                                 c.foot_radius_m)
+            z, rc = stance_velocity_measurements(
+                fb, fv, self.feet.foot_omega, tick.imu_gyro, n_b, c.foot_radius_m
+            )
             h, H = e.velocity_rows_many(rc[use])
-            keep = e.update((z[use] - h).reshape(-1), H, np.full(H.shape[0], c.leg_vel_std**2),
-                            gate_chi2=c.gate_chi2)
+            keep = e.update(
+                (z[use] - h).reshape(-1), H, np.full(H.shape[0], c.leg_vel_std**2), gate_chi2=c.gate_chi2
+            )
             self.rejected += int((~keep).sum())
         settled = contact & (t - self._contact_since >= c.stance_settle_s)
         if not self.anchored and settled.sum() >= 2:

@@ -18,9 +18,14 @@ import numpy as np
 from scout_agent.robot.vectors import cross
 
 
-def stance_velocity_measurements(feet_b: np.ndarray, feet_vel_b: np.ndarray, foot_omega_b: np.ndarray,
-                                 gyro: np.ndarray, normal_b: np.ndarray, foot_radius: float
-                                 ) -> tuple[np.ndarray, np.ndarray]:
+def stance_velocity_measurements(
+    feet_b: np.ndarray,
+    feet_vel_b: np.ndarray,
+    foot_omega_b: np.ndarray,
+    gyro: np.ndarray,
+    normal_b: np.ndarray,
+    foot_radius: float,
+) -> tuple[np.ndarray, np.ndarray]:
     """For all four feet: (z (4, 3) base velocity measurements [m/s], r' (4, 3) contact points [m]).
     feet_b: foot sphere centres; feet_vel_b: their velocities relative to the base; foot_omega_b: feet's
     angular velocities relative to the base; gyro: (3,) measured angular velocity; normal_b: (3,) unit ground

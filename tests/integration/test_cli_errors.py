@@ -20,7 +20,10 @@ def _closed_port() -> int:
     [
         (["server", "--map", "bad.id", "--connect", "tcp/127.0.0.1:1"], "must match [A-Za-z0-9_-]+"),
         (["status", "--map", "a/b", "--connect", "tcp/127.0.0.1:1"], "must match [A-Za-z0-9_-]+"),
-        (["plan", "--map", "x y", "--connect", "tcp/127.0.0.1:1", "--from", "1,1", "--to", "2,2"], "must match"),
+        (
+            ["plan", "--map", "x y", "--connect", "tcp/127.0.0.1:1", "--from", "1,1", "--to", "2,2"],
+            "must match",
+        ),
         (["scout", "--scout-id", "bad.id"], "scout 'bad.id' must match"),
         (["scout", "--scene", "mars"], "choose from"),
         (["scout", "--slope", "40"], "valid range is 0–25 degrees"),

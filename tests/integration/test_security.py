@@ -30,8 +30,13 @@ def secured(tmp_path):
     ep = free_endpoint()
     lay = secure_init(tmp_path / "sec", MAP, ["s1", "s2"], ["p1"], endpoint=ep)
     with zenoh.open(zenoh_config(config_file=lay.router)):
-        cfg = ServerConfig(map_id=MAP, res=RES, db=str(tmp_path / "m.db"), connect=(ep,),
-                           zenoh_config=str(lay.agents["server"]))
+        cfg = ServerConfig(
+            map_id=MAP,
+            res=RES,
+            db=str(tmp_path / "m.db"),
+            connect=(ep,),
+            zenoh_config=str(lay.agents["server"]),
+        )
         with MapService(cfg) as service:
             yield ep, lay, service
 
@@ -61,8 +66,11 @@ def test_anonymous_and_wrong_password_are_refused(secured):
 
 def test_a_scout_writes_only_its_own_key_and_cannot_ack_for_another(secured):
     ep, lay, service = secured
-    with _open(lay, "s2") as s2, _open(lay, "p1") as p1, \
-            ScoutPublisher(MAP, "s1", RES, [ep], outbox=None, zenoh_config_file=str(lay.agents["s1"])) as pub:
+    with (
+        _open(lay, "s2") as s2,
+        _open(lay, "p1") as p1,
+        ScoutPublisher(MAP, "s1", RES, [ep], outbox=None, zenoh_config_file=str(lay.agents["s1"])) as pub,
+    ):
         assert pub.link.server_up.wait(10)
         acks_seen_by_s2: list[bytes] = []
         s2.declare_subscriber(ack_key(MAP, "s2"), lambda s: acks_seen_by_s2.append(s.payload.to_bytes()))
@@ -92,6 +100,7 @@ def test_the_planner_queries_and_a_rogue_queryable_is_not_heard(secured):
     fake = service.region(RegionQuery(0, 0, 0.3, 0.3, ("slip",), ("all",)))
     fake.layers["slip"]["n"][:] = 1e9  # the largest count used to win the planner's stitching
     with _open(lay, "s2") as rogue, _open(lay, "p1") as p1:
+
         def lie(query):
             with query:
                 query.reply(map_key(MAP), encode(fake))
@@ -106,19 +115,24 @@ def test_a_planner_believes_only_its_trusted_servers(tmp_path):
     ep = free_endpoint()
     with zenoh.open(zenoh_config(listen=[ep], mode="router")):
         cfg = ServerConfig(map_id=MAP, res=RES, connect=(ep,))
-        with MapService(cfg) as service, zenoh.open(zenoh_config(connect=[ep], mode="client")) as rogue, \
-                zenoh.open(zenoh_config(connect=[ep], mode="client")) as client:
+        with (
+            MapService(cfg) as service,
+            zenoh.open(zenoh_config(connect=[ep], mode="client")) as rogue,
+            zenoh.open(zenoh_config(connect=[ep], mode="client")) as client,
+        ):
             assert wait_for_server(client, MAP)
             region = service.region(RegionQuery(0, 0, 0.3, 0.3, ("slip",), ("all",)))
             region.layers["slip"]["n"][:] = 1e9  # "the largest count wins" made this win the stitching
             rogue.declare_queryable(map_key(MAP), lambda q: q.reply(map_key(MAP), encode(region)))
             server_zid = str(service._session.info.zid())
-            grid = query_region(client, MAP, (0, 0, 0.3, 0.3), ClientConfig(trusted_servers=(server_zid,)),
-                                layers=("slip",))
+            grid = query_region(
+                client, MAP, (0, 0, 0.3, 0.3), ClientConfig(trusted_servers=(server_zid,)), layers=("slip",)
+            )
             assert float(np.nanmax(grid.layers["slip"]["n"])) < 1e9
             with pytest.raises(PlannerError, match="not a trusted map server"):
-                query_region(client, MAP, (0, 0, 0.3, 0.3), ClientConfig(trusted_servers=("0" * 32,)),
-                             layers=("slip",))
+                query_region(
+                    client, MAP, (0, 0, 0.3, 0.3), ClientConfig(trusted_servers=("0" * 32,)), layers=("slip",)
+                )
 
 
 def test_secure_init_pins_server_ids_for_planners(tmp_path):
@@ -135,8 +149,13 @@ def test_secure_init_pins_server_ids_for_planners(tmp_path):
 
 def test_listening_beyond_loopback_needs_credentials_or_insecure():
     port = free_endpoint().rsplit(":", 1)[1]
-    res = subprocess.run([sys.executable, "-m", "psrmap", "router", "--listen", f"tcp/0.0.0.0:{port}"],
-                         check=False, capture_output=True, text=True, timeout=60)
+    res = subprocess.run(
+        [sys.executable, "-m", "psrmap", "router", "--listen", f"tcp/0.0.0.0:{port}"],
+        check=False,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert res.returncode == 2 and "without credentials" in res.stderr and "--insecure" in res.stderr
 
 
@@ -144,7 +163,10 @@ def test_mutual_tls_admits_only_clients_with_a_certificate_from_the_ca(tmp_path)
     ep = free_endpoint().replace("tcp/127.0.0.1", "tcp/localhost")
     lay = secure_init(tmp_path / "sec", MAP, ["s1"], ["p1"], endpoint=ep, tls=True)
     router = json.loads(lay.router.read_text())
-    assert router["listen"]["endpoints"][0].startswith("tls/") and router["transport"]["link"]["tls"]["enable_mtls"]
+    assert (
+        router["listen"]["endpoints"][0].startswith("tls/")
+        and router["transport"]["link"]["tls"]["enable_mtls"]
+    )
     with zenoh.open(zenoh_config(config_file=lay.router)):
         with zenoh.open(zenoh_config(config_file=lay.agents["s1"])) as s1:  # certificate + password
             assert str(s1.info.zid())

@@ -233,7 +233,9 @@ def test_a_late_subscriber_gets_the_last_map_from_the_cache(router, served_map, 
         stop = threading.Event()
         cfg = BridgeConfig(map_id, (0.0, -1.0, 4.0, 2.4), (router,))
         done: list[dict] = []
-        t = threading.Thread(target=lambda: done.append(run_bridge(cfg, stop, log=lambda *a: None)), daemon=True)
+        t = threading.Thread(
+            target=lambda: done.append(run_bridge(cfg, stop, log=lambda *a: None)), daemon=True
+        )
         t.start()
         try:
             time.sleep(3.0)  # the bridge has published by now; nobody was listening
@@ -245,7 +247,9 @@ def test_a_late_subscriber_gets_the_last_map_from_the_cache(router, served_map, 
             with zenoh.open(conf) as late:
                 key = f"0/psrmap/grid_map/grid_map_msgs::msg::dds_::GridMap_/{store.hash_rihs01('grid_map_msgs/msg/GridMap')}"
                 sub = zext.declare_advanced_subscriber(
-                    late, key, lambda s: got.append(s.payload.to_bytes()),
+                    late,
+                    key,
+                    lambda s: got.append(s.payload.to_bytes()),
                     history=zext.HistoryConfig(detect_late_publishers=True, max_samples=1),
                 )
                 end = time.monotonic() + 10

@@ -13,8 +13,13 @@ BENCH = Path(__file__).resolve().parents[2] / "benchmarks" / "fuzz.py"
 
 
 def test_fuzzed_messages_are_rejected_whole_and_counted():
-    res = subprocess.run([sys.executable, str(BENCH), "--messages", "4000", "--live", "600", "--seed", "3"],
-                         check=True, capture_output=True, text=True, timeout=300)
+    res = subprocess.run(
+        [sys.executable, str(BENCH), "--messages", "4000", "--live", "600", "--seed", "3"],
+        check=True,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     out = json.loads(res.stdout.strip().splitlines()[-1])
     assert out["crashes"] == 0 and out["every_message_counted"] and out["totals_exact"]
     assert out["merged"] > 100 and len(out["rejected_by_reason"]) >= 8
@@ -46,11 +51,21 @@ def test_a_truncated_message_on_the_fast_path_is_rejected_not_a_crash():
 def _msgpack_values():
     from hypothesis import strategies as st
 
-    scalars = st.one_of(st.none(), st.booleans(), st.integers(-(2**64), 2**64), st.floats(allow_nan=True),
-                        st.text(max_size=12), st.binary(max_size=64))
-    return st.recursive(scalars, lambda kids: st.one_of(st.lists(kids, max_size=4),
-                                                        st.dictionaries(st.text(max_size=8), kids, max_size=5)),
-                        max_leaves=20)
+    scalars = st.one_of(
+        st.none(),
+        st.booleans(),
+        st.integers(-(2**64), 2**64),
+        st.floats(allow_nan=True),
+        st.text(max_size=12),
+        st.binary(max_size=64),
+    )
+    return st.recursive(
+        scalars,
+        lambda kids: st.one_of(
+            st.lists(kids, max_size=4), st.dictionaries(st.text(max_size=8), kids, max_size=5)
+        ),
+        max_leaves=20,
+    )
 
 
 def test_hypothesis_arbitrary_msgpack_and_field_swaps_never_crash_the_merge():

@@ -91,7 +91,9 @@ def test_a_full_disk_is_reported_and_the_service_recovers_without_restart(served
                 pages = service.store.db.execute("PRAGMA page_count").fetchone()[0]
                 service.store.db.execute(f"PRAGMA max_page_count={pages}")
             for i in range(5, 60):
-                d = make_delta(seq=i, scout="s1", cells=tuple((i, k) for k in range(40)), layers=("slip",), seed=i)
+                d = make_delta(
+                    seq=i, scout="s1", cells=tuple((i, k) for k in range(40)), layers=("slip",), seed=i
+                )
                 pub.send(d.layers, d.t)
                 sent.append(d)
             assert _wait(lambda: _status(client).health.get("store") == "error")
@@ -99,7 +101,9 @@ def test_a_full_disk_is_reported_and_the_service_recovers_without_restart(served
             assert "full" in str(st.health["store_error"]) and st.health["worker"] == "waiting_for_store"
             assert pub.unacked > 0  # nothing uncommitted is acked
             committed = service.store.last_id
-            assert service.merger.book.merged - committed <= service.config.batch_max  # at most one batch ahead
+            assert (
+                service.merger.book.merged - committed <= service.config.batch_max
+            )  # at most one batch ahead
             with service.lock:  # space again
                 service.store.db.execute("PRAGMA max_page_count=1073741823")
             assert pub.wait_acked(20)
@@ -111,6 +115,7 @@ def test_a_full_disk_is_reported_and_the_service_recovers_without_restart(served
 
 def test_an_unexpected_error_in_the_merge_worker_is_counted_and_reported(served_map, monkeypatch):
     with served_map(MAP, RES) as (service, client):
+
         def broken_apply(*a, **k):
             raise RuntimeError("injected bug")
 
@@ -124,8 +129,17 @@ def test_an_unexpected_error_in_the_merge_worker_is_counted_and_reported(served_
 
 
 def test_status_health_round_trips_and_rejects_garbage():
-    st = Status(MAP, RES, 1, 2, 3, 0, {}, {}, {"worker": "ok", "store": "ok", "last_commit_unix": 1.5,
-                                               "store_error": None})
+    st = Status(
+        MAP,
+        RES,
+        1,
+        2,
+        3,
+        0,
+        {},
+        {},
+        {"worker": "ok", "store": "ok", "last_commit_unix": 1.5, "store_error": None},
+    )
     assert decode(encode(st)).health == st.health
     import msgpack
 
@@ -144,7 +158,7 @@ def test_cells_spread_over_far_tiles_cannot_blow_up_memory():
     rng = np.random.default_rng(0)
     m = Merger(TiledMap(RES), MAP, limits=Limits(max_new_tiles_per_delta=4, max_tiles=64))
     for seq in range(200):
-        ix, iy = rng.integers(-10**6, 10**6, 12), rng.integers(-10**6, 10**6, 12)
+        ix, iy = rng.integers(-(10**6), 10**6, 12), rng.integers(-(10**6), 10**6, 12)
         d = make_delta(seq=seq, cells=tuple(zip(ix.tolist(), iy.tolist(), strict=True)), layers=("slip",))
         m.ingest([(KEY, encode(d))])
     assert m.book.rejected["limit_new_tiles"] == 200 and len(m.map.gslots) == 0

@@ -62,7 +62,9 @@ def test_closed_form_matches_pinocchio_and_inverts(lk):
         np.testing.assert_allclose(K.jacobians(q), lk.foot_jacobians_base(q), atol=1e-12)
         np.testing.assert_allclose(K.ik(K.fk(q)), q, atol=1e-9)
         dq = rng.normal(size=12)
-        np.testing.assert_allclose(lk.feet_vel_base(q, dq), np.einsum("lij,lj->li", K.jacobians(q), dq.reshape(4, 3)))
+        np.testing.assert_allclose(
+            lk.feet_vel_base(q, dq), np.einsum("lij,lj->li", K.jacobians(q), dq.reshape(4, 3))
+        )
 
 
 def test_home_posture_stands_about_034_m():

@@ -41,11 +41,15 @@ def test_standing_feet_carry_the_lunar_weight(standing):
     assert window[:, 2].mean() == pytest.approx(TOTAL_MASS * LUNAR_G, rel=0.08)
     assert truth.nonfoot_contacts == 0
     # accelerometer reads the specific force: +g up when still
-    assert np.linalg.norm(np.mean([s.imu_acc for s, _ in records[-60:]], axis=0)) == pytest.approx(LUNAR_G, rel=0.1)
+    assert np.linalg.norm(np.mean([s.imu_acc for s, _ in records[-60:]], axis=0)) == pytest.approx(
+        LUNAR_G, rel=0.1
+    )
     # in contact, the foot centre sits a foot radius above the exact terrain
     c = sample.contact
     assert c.any()
-    np.testing.assert_allclose(truth.foot_pos_world[c, 2] - truth.terrain_height_at_feet[c], FOOT_RADIUS, atol=4e-3)
+    np.testing.assert_allclose(
+        truth.foot_pos_world[c, 2] - truth.terrain_height_at_feet[c], FOOT_RADIUS, atol=4e-3
+    )
 
 
 def test_base_state_is_the_estimate_and_exact_only_on_request(standing):
@@ -90,11 +94,15 @@ def test_walking_into_a_hazard_crater_is_a_reported_fall():
     from scout_agent.run import ScoutRunConfig, run_scout
     from scout_agent.sim.terrain import LunarConfig, make_lunar
 
-    crater = max((c for c in make_lunar(LunarConfig(seed=0)).info["craters"] if c["hazard"]), key=lambda c: c["depth"])
+    crater = max(
+        (c for c in make_lunar(LunarConfig(seed=0)).info["craters"] if c["hazard"]), key=lambda c: c["depth"]
+    )
     assert crater["depth"] > 0.6
     x, y = crater["x"], crater["y"]
-    s = run_scout(ScoutRunConfig(scene="lunar", seed=0, start=(x - 2.0, y, 0.0), goal=(x + 2.5, y), sim_seconds=25),
-                  progress=False)
+    s = run_scout(
+        ScoutRunConfig(scene="lunar", seed=0, start=(x - 2.0, y, 0.0), goal=(x + 2.5, y), sim_seconds=25),
+        progress=False,
+    )
     assert s["fell"] and not s["reached_goal"]
     assert np.hypot(s["fall_xy"][0] - x, s["fall_xy"][1] - y) < crater["r"] + 0.5
 

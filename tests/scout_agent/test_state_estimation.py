@@ -34,8 +34,13 @@ def test_a_velocity_update_corrects_a_tilt_error_through_gravity():
     g = np.array([0.0, 0.0, -1.62])
     true_R = so3_exp(np.array([0.05, -0.04, 0.0]))  # rolled and pitched, filter believes level
     # (with a well-known accelerometer bias: standing still, a horizontal bias and a tilt look the same)
-    ekf = ErrorStateEKF(np.eye(3), np.zeros(3), np.zeros(3), g,
-                        NoiseConfig(init_tilt=0.1, init_acc_bias=1e-4, acc_bias_walk=1e-6))
+    ekf = ErrorStateEKF(
+        np.eye(3),
+        np.zeros(3),
+        np.zeros(3),
+        g,
+        NoiseConfig(init_tilt=0.1, init_acc_bias=1e-4, acc_bias_walk=1e-6),
+    )
     f_still = true_R.T @ -g  # accelerometer of a robot standing still
     for _ in range(300):
         ekf.propagate(np.zeros(3), f_still, 0.01)
@@ -90,11 +95,20 @@ def _nan_truth(*args, **kwargs) -> GroundTruth:
     t = GroundTruth(*args, **kwargs)
     nan3 = np.full(3, np.nan)
     return GroundTruth(
-        t=math.nan, base=BaseState(nan3, np.full(4, np.nan), nan3, nan3), foot_pos_world=np.full((4, 3), np.nan),
-        contact_point_world=np.full((4, 3), np.nan), stance_disp=np.full(4, np.nan),
-        terrain_height_at_feet=np.full(4, np.nan), friction_at_feet=np.full(4, np.nan), nonfoot_contacts=-1,
-        contact=np.zeros(4, bool), foot_force_world=np.full((4, 3), np.nan), joint_energy_j=math.nan,
-        q=np.full_like(t.q, np.nan), dq=np.full_like(t.dq, np.nan))
+        t=math.nan,
+        base=BaseState(nan3, np.full(4, np.nan), nan3, nan3),
+        foot_pos_world=np.full((4, 3), np.nan),
+        contact_point_world=np.full((4, 3), np.nan),
+        stance_disp=np.full(4, np.nan),
+        terrain_height_at_feet=np.full(4, np.nan),
+        friction_at_feet=np.full(4, np.nan),
+        nonfoot_contacts=-1,
+        contact=np.zeros(4, bool),
+        foot_force_world=np.full((4, 3), np.nan),
+        joint_energy_j=math.nan,
+        q=np.full_like(t.q, np.nan),
+        dq=np.full_like(t.dq, np.nan),
+    )
 
 
 def _walk_and_map(cfg: ScoutRunConfig) -> tuple[dict, list[np.ndarray], dict]:
@@ -115,9 +129,16 @@ def test_nothing_on_the_estimation_or_control_path_reads_the_simulator_state(mon
     ref_summary, ref_trace, ref_map = _walk_and_map(cfg)
     # poison every way the robot's side could reach ground truth: the records evaluation gets, and the exact state
     monkeypatch.setattr(simulator, "GroundTruth", _nan_truth)
-    nan_state = simulator.RobotState(math.nan, *(np.full(n, np.nan) for n in (3,)), np.full((3, 3), np.nan),
-                                     np.full(3, np.nan), np.full(3, np.nan), np.full(12, np.nan),
-                                     np.full(12, np.nan), np.zeros(4, bool))
+    nan_state = simulator.RobotState(
+        math.nan,
+        *(np.full(n, np.nan) for n in (3,)),
+        np.full((3, 3), np.nan),
+        np.full(3, np.nan),
+        np.full(3, np.nan),
+        np.full(12, np.nan),
+        np.full(12, np.nan),
+        np.zeros(4, bool),
+    )
     monkeypatch.setattr(ScoutSim, "exact_state", lambda self: nan_state)
     summary, trace, poisoned_map = _walk_and_map(cfg)
     assert len(trace) == len(ref_trace) and not summary["fell"]
@@ -131,8 +152,13 @@ def test_nothing_on_the_estimation_or_control_path_reads_the_simulator_state(mon
 
 
 def test_exact_state_is_an_evaluation_option_with_zero_drift():
-    s = run_scout(replace(ScoutRunConfig(scene="ramps", slope_deg=5.0, sim_seconds=6.0),
-                          sim=replace(ScoutRunConfig().sim, state_source="exact")), progress=False)
+    s = run_scout(
+        replace(
+            ScoutRunConfig(scene="ramps", slope_deg=5.0, sim_seconds=6.0),
+            sim=replace(ScoutRunConfig().sim, state_source="exact"),
+        ),
+        progress=False,
+    )
     assert s["state_source"] == "exact" and s["drift_xy_m"] == 0.0
 
 
@@ -145,7 +171,7 @@ def test_stacked_velocity_rows_equal_the_single_ones():
     for i in range(3):
         hi, Hi = ekf.velocity_rows(r[i])
         np.testing.assert_allclose(h[i], hi, atol=1e-15)
-        np.testing.assert_allclose(H[3 * i:3 * i + 3], Hi, atol=1e-15)
+        np.testing.assert_allclose(H[3 * i : 3 * i + 3], Hi, atol=1e-15)
 
 
 def test_the_height_is_anchored_to_the_launch_ground_once_the_feet_stand_on_it():
