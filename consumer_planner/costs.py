@@ -52,13 +52,22 @@ import math
 import os
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import dataclass, field, fields
-from typing import Literal
+from dataclasses import dataclass
 
 import numpy as np
-from scipy import ndimage
 
-from consumer_planner.errors import PlannerError
+from consumer_planner.cost_config import (
+    METRICS,
+    TERMS,
+    UNKNOWN_POLICIES,
+    CostConfig,
+    CostMap,
+    Limits,
+    Weights,
+    parse_weights,
+)
+from consumer_planner.infer import FillBox, fill_box, fill_into, kernel_radius, smoothed_mask
+from consumer_planner.spread import spread_cells, spread_finite, spread_max
 from mapcore import LayerGrid
 
 __all__ = [
@@ -73,160 +82,6 @@ __all__ = [
     "parse_weights",
     "spread_max",
 ]
-
-UNKNOWN_POLICIES = ("forbid", "penalty", "infer")
-UnknownPolicy = Literal["forbid", "penalty", "infer"]
-METRICS = ("cot", "slip_rate", "giim", "giam", "slope_deg")  # per-cell values the terms read
-
-
-@dataclass(frozen=True)
-class Weights:
-    """Weight of each cost term (>= 0); names are the CLI's `--weights name=value` keys."""
-
-    distance: float = 1.0
-    cot: float = 1.0
-    slip: float = 1.0
-    giim: float = 1.0
-    giam: float = 1.0
-    slope: float = 1.0
-    confidence: float = 0.5
-
-
-TERMS = tuple(f.name for f in fields(Weights))
-
-
-@dataclass(frozen=True)
-class Limits:
-    """Hard limits: a cell beyond any of them is impassable (NaN metrics never trip a limit)."""
-
-    max_slope_deg: float = 30.0  # what a trot crosses (REFERENCE: 33 deg craters barely, 39 deg fall)
-    min_giim_rad: float = 0.087  # 5 deg: four-foothold GIIM fell below this 0.5-1 s before falls
-    min_giam: float = -math.inf  # [m/s^2]
-    max_slip_rate: float = math.inf  # slip events per stance
-
-
-@dataclass(frozen=True)
-class CostConfig:
-    weights: Weights = field(default_factory=Weights)
-    limits: Limits = field(default_factory=Limits)
-    unknown: UnknownPolicy = "penalty"
-    unknown_penalty: float = 4.0  # [1/m] added to the distance term on unknown cells (policy penalty)
-    infer_sigma_cells: float = 2.0  # Gaussian sigma of the fill (eq. 17) [cells]
-    stances_per_m: float = 28.0  # stance phases per metre: 4 feet x 1.4 Hz trot / 0.2 m/s
-    giim_ref_rad: float = 0.6  # GIIM at or above this costs nothing (flat static Aliengo ~0.6 rad)
-    giam_ref: float = 0.9  # [m/s^2], ditto (flat static ~0.9 m/s^2)
-    slope_ref_deg: float = 30.0  # slope term = 1 at this slope
-    confidence_n: float = 10.0  # samples at which the confidence term halves
-    # [m] the slip term of a cell reads the largest slip rate within this radius (0 = the raw layer);
-    # 0.8 m = half a slippery patch: in the map-utility experiment this made planned routes avoid patches
-    slip_spread_m: float = 0.8
-
-    def __post_init__(self) -> None:
-        if self.unknown not in UNKNOWN_POLICIES:
-            raise PlannerError(f"no unknown policy {self.unknown!r}; policies: {', '.join(UNKNOWN_POLICIES)}")
-        if not (self.slip_spread_m >= 0 and math.isfinite(self.slip_spread_m)):
-            raise PlannerError(f"slip_spread_m={self.slip_spread_m} must be a finite radius >= 0 m (0 = off)")
-        bad = [f"{t}={getattr(self.weights, t)}" for t in TERMS if not getattr(self.weights, t) >= 0]
-        if bad:
-            raise PlannerError(f"weights must be finite and >= 0: {', '.join(bad)}")
-
-
-def parse_weights(text: str, base: Weights | None = None) -> Weights:
-    """`cot=1,slip=2` -> Weights (unnamed terms keep `base`); PlannerError naming the valid terms."""
-    values: dict[str, float] = {}
-    for part in (p.strip() for p in text.split(",")):
-        if not part:
-            continue
-        name, sep, num = part.partition("=")
-        name = name.strip()
-        if not sep or name not in TERMS:
-            raise PlannerError(f"bad weight {part!r}; give name=value with name in: {', '.join(TERMS)}")
-        try:
-            values[name] = float(num)
-        except ValueError:
-            raise PlannerError(f"weight {name}={num!r} is not a number") from None
-        if not (values[name] >= 0 and math.isfinite(values[name])):
-            raise PlannerError(f"weight {name}={num} must be finite and >= 0")
-    return Weights(**{**(base or Weights()).__dict__, **values})
-
-
-@dataclass(frozen=True, eq=False)
-class CostMap:
-    """Everything a route breakdown needs, all (h, w): `cost` [1/m] (+inf impassable), the weighted
-    `terms` (summing to `cost` on passable cells; `unknown` = the penalty), the `metrics` the terms read
-    (filled where inferred), and the masks `known`, `inferred`, `impassable`."""
-
-    cost: np.ndarray
-    terms: dict[str, np.ndarray]
-    metrics: dict[str, np.ndarray]
-    known: np.ndarray
-    inferred: np.ndarray
-    impassable: np.ndarray
-    config: CostConfig
-
-
-_MIN_WEIGHT = 1e-12  # a cell is filled only where the known cells' Gaussian weight exceeds this
-
-
-def _smooth(a: np.ndarray, sigma_cells: float, in_place: bool = False) -> np.ndarray:
-    """The Gaussian of eq. 17 (cut at 3 sigma, 0 beyond the grid); `in_place`: into `a` (float64),
-    as scipy filters each axis line by line from a buffered copy of the line."""
-    return ndimage.gaussian_filter(
-        a, sigma=sigma_cells, output=a if in_place else None, mode="constant", cval=0.0, truncate=3.0
-    )
-
-
-def _smoothed_mask(mask: np.ndarray, sigma_cells: float) -> np.ndarray:
-    return _smooth(mask.astype(np.float64), sigma_cells, in_place=True)
-
-
-def _kernel_radius(sigma_cells: float) -> int:
-    """Cells `_smooth` reaches from a cell (scipy's kernel radius at truncate=3; 0 where it does not
-    filter: scipy skips sigma <= 1e-15)."""
-    s = float(sigma_cells)
-    return int(3.0 * s + 0.5) if s > 1e-15 else 0
-
-
-@dataclass(frozen=True)
-class _Box:
-    """The bounding box `inner` of the cells to fill, `outer` = it widened by the kernel radius (the
-    cells `_smooth` reads for them), `rel` = `inner` within `outer` (all (rows, cols) slices)."""
-
-    inner: tuple[slice, slice]
-    outer: tuple[slice, slice]
-    rel: tuple[slice, slice]
-
-
-def _fill_box(target: np.ndarray, radius: int) -> _Box | None:
-    rows = np.flatnonzero(target.any(axis=1))
-    if rows.size == 0:
-        return None
-    r0, r1 = int(rows[0]), int(rows[-1]) + 1
-    cols = np.flatnonzero(target[r0:r1].any(axis=0))
-    c0, c1 = int(cols[0]), int(cols[-1]) + 1
-    h, w = target.shape
-    o_r0, o_c0 = max(0, r0 - radius), max(0, c0 - radius)
-    o_r1, o_c1 = min(h, r1 + radius), min(w, c1 + radius)
-    return _Box(
-        inner=(slice(r0, r1), slice(c0, c1)),
-        outer=(slice(o_r0, o_r1), slice(o_c0, o_c1)),
-        rel=(slice(r0 - o_r0, r1 - o_r0), slice(c0 - o_c0, c1 - o_c0)),
-    )
-
-
-def _fill_into(
-    out: np.ndarray, mask: np.ndarray, target: np.ndarray, box: _Box, den: Future, sigma_cells: float
-) -> None:
-    """Eq. 17 into `out` (in place) on the `target` cells of `box` whose known weight is > 0: `mask`
-    (the finite cells, cropped to `box.outer`) weights the values of `out`; `den` = `_smooth(mask)`.
-
-    `_smooth` over `box.outer` gives, on `box.inner`, bit for bit what it gives there over the whole
-    grid: each output cell reads only cells within the kernel radius (in `outer`, or beyond the grid's
-    edge where both see the constant 0), in the same order."""
-    num = _smooth(np.where(mask, out[box.outer], 0.0), sigma_cells, in_place=True)[box.rel]
-    weight = den.result()[box.rel]
-    reach = target[box.inner] & (weight > _MIN_WEIGHT)
-    np.divide(num, weight, out=out[box.inner], where=reach)
 
 
 def read_metrics(grid: LayerGrid) -> tuple[dict[str, np.ndarray], np.ndarray]:
@@ -253,29 +108,6 @@ def read_metrics(grid: LayerGrid) -> tuple[dict[str, np.ndarray], np.ndarray]:
             np.fmax(count, n, out=count)
     np.minimum(count, np.finfo(np.float64).max, out=count)
     return metrics, count
-
-
-def spread_max(values: np.ndarray, radius_m: float, res: float) -> np.ndarray:
-    """Per cell, the largest finite value among the cells whose centres lie within `radius_m` of its
-    centre (itself included; a grey dilation over a disc of cells); NaN where none is finite."""
-    if _spread_cells(radius_m, res) < 1:
-        return values.copy()
-    return _spread_finite(values, np.isfinite(values), radius_m, res)
-
-
-def _spread_cells(radius_m: float, res: float) -> int:
-    return int(math.floor(radius_m / res + 1e-9))
-
-
-def _spread_finite(values: np.ndarray, finite: np.ndarray, radius_m: float, res: float) -> np.ndarray:
-    """`spread_max` of `values` where `finite` (a radius of >= 1 cell); a new array."""
-    r = _spread_cells(radius_m, res)
-    yy, xx = np.mgrid[-r : r + 1, -r : r + 1]
-    disc = (xx**2 + yy**2) * res**2 <= radius_m**2 + 1e-9 * res**2
-    lifted = np.where(finite, values, -np.inf)
-    out = ndimage.maximum_filter(lifted, footprint=disc, mode="constant", cval=-np.inf)
-    out[out == -np.inf] = np.nan  # nothing finite in reach (`lifted` holds no +inf or NaN)
-    return out
 
 
 def _copied(out: np.ndarray, values: np.ndarray | float) -> np.ndarray:
@@ -375,8 +207,8 @@ def build_costs(grid: LayerGrid, config: CostConfig | None = None) -> CostMap:
         if config.slip_spread_m > 0:
             # the spread reads the measured rates: samples of known cells only, never a filled one
             slip, r_m = raw["slip_rate"], config.slip_spread_m
-            if _spread_cells(r_m, grid.res) >= 1:
-                spread = pool.submit(_spread_finite, slip, np.isfinite(slip) & known, r_m, grid.res)
+            if spread_cells(r_m, grid.res) >= 1:
+                spread = pool.submit(spread_finite, slip, np.isfinite(slip) & known, r_m, grid.res)
             else:  # a disc of one cell: the measured rates themselves
                 spread = pool.submit(np.where, known, slip, np.nan)
             del slip
@@ -419,7 +251,7 @@ def _fill_metrics(
     docstring); the jobs run on `pool`."""
     infer = config.unknown == "infer"
     sigma = config.infer_sigma_cells
-    radius = _kernel_radius(sigma)
+    radius = kernel_radius(sigma)
     jobs: dict[str, Future] = {}
     dens: list[tuple[tuple[slice, slice], np.ndarray, Future]] = []  # one fill weight per mask
     for name, m in raw.items():
@@ -430,14 +262,14 @@ def _fill_metrics(
             target = ~finite  # the cells to fill: all but finite ones under infer, else gaps in known
             if not infer:
                 target &= known  # (fills of unknown cells would be dropped)
-            box = _fill_box(target, radius)  # None: all finite where it counts
+            box = fill_box(target, radius)  # None: all finite where it counts
         if box is None:
             jobs[name] = pool.submit(np.where, known, m, np.nan)
             continue
         mask = finite[box.outer]
         den = next((d for o, mk, d in dens if o == box.outer and np.array_equal(mk, mask)), None)
         if den is None:
-            den = pool.submit(_smoothed_mask, mask, sigma)
+            den = pool.submit(smoothed_mask, mask, sigma)
             dens.append((box.outer, mask, den))
         jobs[name] = pool.submit(_filled_metric, m, known, mask, target, box, den, sigma)
     return {name: job.result() for name, job in jobs.items()}
@@ -448,12 +280,12 @@ def _filled_metric(
     known: np.ndarray,
     mask: np.ndarray,
     target: np.ndarray,
-    box: _Box,
+    box: FillBox,
     den: Future,
     sigma: float,
 ) -> np.ndarray:
     filled = np.where(known, m, np.nan)
-    _fill_into(filled, mask, target, box, den, sigma)
+    fill_into(filled, mask, target, box, den, sigma)
     return filled
 
 

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from consumer_planner import costs as costs_mod
+from consumer_planner import infer
 from consumer_planner.costs import (
     TERMS,
     UNKNOWN_POLICIES,
@@ -256,7 +257,7 @@ def test_crop_is_exercised() -> None:
     grid = random_grid(1, kind="local")
     known = grid.count("cot") > 0
     target = known & ~np.isfinite(grid.value("cot"))
-    box = costs_mod._fill_box(target, costs_mod._kernel_radius(2.0))
+    box = infer.fill_box(target, infer.kernel_radius(2.0))
     assert box is not None
     (r, c), (orow, ocol) = box.inner, box.outer
     assert r.stop <= 0.3 * grid.h + 1 and c.stop <= 0.3 * grid.w + 1

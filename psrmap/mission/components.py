@@ -1,0 +1,71 @@
+"""What the mission gives each component: a scout's `ScoutConfig` from the mission's config, and the plan
+and route comparison run as planner components on the shared map.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Any, cast
+
+from psrmap.mission.config import MissionConfig, ScoutPlan
+from psrmap.mission.processes import spawn
+
+__all__ = ["plan_and_compare", "scout_config"]
+
+
+def scout_config(
+    cfg: MissionConfig, s: ScoutPlan, endpoint: str, run_dir: Path, zenoh_file: str | None
+) -> Any:
+    """The ScoutConfig of one of the mission's scouts."""
+    from scout_agent.component import ScoutConfig
+    from scout_agent.mapping import LinkConfig
+    from scout_agent.run import ScoutRunConfig
+
+    lunar = cfg.scene == "lunar"
+    run = ScoutRunConfig(
+        scene=cfg.scene,
+        slope_deg=15.0 if lunar else cfg.slope,
+        seed=cfg.seed if lunar else 0,
+        start=tuple(s.start) if lunar else None,
+        goal=tuple(s.goal) if lunar else None,  # type: ignore[arg-type]
+        via=tuple(tuple(v) for v in s.via) if lunar else (),  # type: ignore[misc]
+        speed=cfg.speed,
+        sim_seconds=cfg.sim_seconds,
+        slippery_patches=cfg.slippery_patches if lunar else 0,
+        scout_id=s.id,
+    )
+    link = LinkConfig(cfg.map, (endpoint,), str(run_dir / f"{s.id}_outbox.db"), zenoh_config=zenoh_file)
+    return ScoutConfig(
+        run=run,
+        res=cfg.res,
+        delta_hz=cfg.rate_hz,
+        link=link,
+        save_map=str(run_dir / f"{s.id}_local.npz"),
+        rrd=str(run_dir / "recordings" / f"{s.id}.rrd") if cfg.rrd else None,
+        rrd_terrain=False,  # the terrain is in the mission's own recording, once
+    )
+
+
+def plan_and_compare(
+    ctx: Any, cfg: MissionConfig, endpoint: str, run_dir: Path, env: dict[str, str], creds: str | None
+) -> tuple[Any, Any]:
+    from consumer_planner.component import CompareConfig, MapSource, PlanConfig, compare, plan
+    from consumer_planner.costs import CostConfig, parse_weights
+
+    source = MapSource(map_id=cfg.map, connect=(endpoint,), zenoh_config=creds)
+    cost = dataclasses.replace(CostConfig(), weights=parse_weights(",".join(f"{k}={v:g}" for k, v in cfg.weights.items())),
+                               unknown=cast(Any, cfg.unknown))  # fmt: skip
+    rrd = str(run_dir / "recordings" / "planner.rrd") if cfg.rrd else None
+    p = spawn(ctx, "plan", plan, PlanConfig(source, cfg.plan_from, cfg.plan_to, cost, rrd=rrd), run_dir, env)
+    kind, res = p.result(timeout=300)
+    plan_json = res.to_json() if kind == "ok" else {"error": f"plan failed ({res}); see {p.log}"}
+    # the comparison reads the slip layer as the map holds it (no spread): the paper's table of trajectories
+    routes = [(s.id, tuple(tuple(pt) for pt in s.route())) for s in cfg.scouts]
+    if plan_json.get("path"):
+        routes.append(("planned", tuple((float(x), float(y)) for x, y in cast(list, plan_json["path"]))))
+    cmp_cfg = CompareConfig(source, tuple(routes), dataclasses.replace(cost, slip_spread_m=0.0))  # type: ignore[arg-type]
+    c = spawn(ctx, "compare", compare, cmp_cfg, run_dir, env)
+    kind, res = c.result(timeout=300)
+    comparison = res.to_json() if kind == "ok" else {"error": f"compare failed ({res}); see {c.log}"}
+    return plan_json, comparison

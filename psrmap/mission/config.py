@@ -1,0 +1,250 @@
+"""The mission's configuration: `MissionConfig` (map, terrain, scouts, planner), read from TOML and checked.
+
+`load_config(path)` reads `psrmap/mission_default.toml` or a user file (unknown keys and bad values are
+`MissionError`s naming what would be valid), `validate` checks a config built in code, `with_scouts(cfg, n)`
+keeps or adds scouts.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import tomllib
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+__all__ = [
+    "DRIFT_KEYS",
+    "MissionConfig",
+    "MissionError",
+    "SCENES",
+    "ScoutPlan",
+    "UNKNOWN_POLICIES",
+    "load_config",
+    "validate",
+    "with_scouts",
+]
+
+
+DRIFT_KEYS = ("drift_xy_m", "drift_xy_pct", "drift_z_m", "drift_yaw_deg", "state_source")
+
+
+SCENES = ("lunar", "ramps")
+
+
+UNKNOWN_POLICIES = ("forbid", "penalty", "infer")
+
+
+class MissionError(ValueError):
+    """A mission config or flag that cannot run; the message names what would have been valid."""
+
+
+@dataclass(frozen=True)
+class ScoutPlan:
+    """One scout: id, start pose (x [m], y [m], yaw [rad]) in the map frame, goal (x, y), waypoints."""
+
+    id: str
+    start: tuple[float, float, float]
+    goal: tuple[float, float]
+    via: tuple[tuple[float, float], ...] = ()
+
+    def route(self) -> list[tuple[float, float]]:
+        """The route as map-frame points, start to goal."""
+        return [(self.start[0], self.start[1]), *self.via, self.goal]
+
+
+@dataclass(frozen=True)
+class MissionConfig:
+    """Everything a mission needs; `load_config` reads it from TOML, flags replace fields once."""
+
+    map: str = "moon"
+    res: float = 0.4  # cell size [m]
+    sim_seconds: float = 150.0  # cap on each scout's walk [s]
+    speed: float = 0.2  # [m/s]
+    rate_hz: float = 5.0  # deltas per second per scout
+    out: str = "runs"
+    scene: str = "lunar"
+    seed: int = 7
+    slope: float = 15.0  # ramps scene only [deg]
+    slippery_patches: int = 4
+    scouts: tuple[ScoutPlan, ...] = ()
+    plan_from: tuple[float, float] = (2.0, 2.0)
+    plan_to: tuple[float, float] = (18.0, 18.0)
+    unknown: str = "penalty"
+    weights: dict[str, float] = field(default_factory=dict)
+    rrd: bool = True  # write Rerun recordings
+    secure: bool = True  # per-run credentials + router ACL (psrmap secure init) for every component
+    zenoh_config: str | None = None  # an existing secure folder's router.json5 (agents' files beside it)
+    timeout_s: float = 900.0  # the whole mission gives up after this long [s wall clock]
+    # where the map frame's origin is on the Moon: latitude, longitude [deg], heading of the map's +x axis from
+    # the south polar stereographic easting [deg]; exports are then in IAU_2015:30135 (`psrmap export`)
+    origin: tuple[float, float, float] | None = None
+
+
+def _pair(v: Any, what: str) -> tuple[float, float]:
+    try:
+        x, y = (float(c) for c in v)
+    except (TypeError, ValueError):
+        raise MissionError(f"{what} = {v!r}: need [x, y] in metres") from None
+    return (x, y)
+
+
+def _scout(d: dict[str, Any], i: int) -> ScoutPlan:
+    where = f"[[scouts]] #{i + 1}"
+    try:
+        sid = str(d["id"])
+        start = tuple(float(c) for c in d["start"])
+        goal = _pair(d["goal"], f"{where} goal")
+    except KeyError as exc:
+        raise MissionError(
+            f"{where}: missing {exc.args[0]!r}; a scout needs id, start, goal (via optional)"
+        ) from None
+    except (TypeError, ValueError):
+        raise MissionError(f"{where}: start must be [x, y, yaw]") from None
+    if len(start) != 3:
+        raise MissionError(f"{where} start = {d['start']!r}: need [x, y, yaw]")
+    via = tuple(_pair(p, f"{where} via") for p in d.get("via", []))
+    return ScoutPlan(sid, (start[0], start[1], start[2]), goal, via)
+
+
+_MISSION_KEYS = ("map", "res", "sim_seconds", "speed", "rate_hz", "out", "secure", "origin")
+
+
+_TERRAIN_KEYS = ("scene", "seed", "slope", "slippery_patches")
+
+
+_PLANNER_KEYS = ("from", "to", "unknown", "weights")
+
+
+_SCOUT_KEYS = ("id", "start", "goal", "via")
+
+
+def _origin(v: Any, where: str) -> tuple[float, float, float] | None:
+    if v is None:
+        return None
+    try:
+        vals = [float(c) for c in v]
+        if len(vals) == 2:
+            vals.append(0.0)
+        lat, lon, heading = vals
+    except (TypeError, ValueError):
+        raise MissionError(
+            f"{where}: [mission] origin = {v!r}: need [lat, lon] or [lat, lon, heading] in degrees"
+        ) from None
+    if not -90.0 <= lat < -60.0:
+        raise MissionError(
+            f"{where}: [mission] origin latitude {lat}: the south polar projection needs -90 <= lat < -60"
+        )
+    return (lat, lon, heading)
+
+
+def load_config(path: str | Path | None = None) -> MissionConfig:
+    """The mission config from a TOML file (None: the embedded default `mission_default.toml`)."""
+    if path is None:
+        text = resources.files("psrmap").joinpath("mission_default.toml").read_text()
+        where = "the embedded default mission"
+    else:
+        try:
+            text = Path(path).read_text()
+        except OSError as exc:
+            raise MissionError(f"mission config {path}: {exc.strerror}") from None
+        where = str(path)
+    try:
+        doc = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise MissionError(f"{where}: not valid TOML ({exc})") from None
+    known = {"mission", "terrain", "scouts", "planner"}
+    unknown = set(doc) - known
+    if unknown:
+        raise MissionError(f"{where}: unknown section(s) {sorted(unknown)}; sections: {sorted(known)}")
+    m, t, p = doc.get("mission", {}), doc.get("terrain", {}), doc.get("planner", {})
+    for section, table, keys in (
+        ("mission", m, _MISSION_KEYS),
+        ("terrain", t, _TERRAIN_KEYS),
+        ("planner", p, _PLANNER_KEYS),
+        *(("scouts", s, _SCOUT_KEYS) for s in doc.get("scouts", [])),
+    ):
+        if not isinstance(table, dict):
+            raise MissionError(f"{where}: [{section}] must be a table")
+        extra = set(table) - set(keys)
+        if extra:
+            raise MissionError(
+                f"{where}: unknown key(s) {sorted(extra)} in [{section}]; keys: {', '.join(keys)}"
+            )
+    base = MissionConfig()
+    cfg = dataclasses.replace(
+        base,
+        map=str(m.get("map", base.map)),
+        res=float(m.get("res", base.res)),
+        sim_seconds=float(m.get("sim_seconds", base.sim_seconds)),
+        speed=float(m.get("speed", base.speed)),
+        rate_hz=float(m.get("rate_hz", base.rate_hz)),
+        out=str(m.get("out", base.out)),
+        secure=bool(m.get("secure", base.secure)),
+        scene=str(t.get("scene", base.scene)),
+        seed=int(t.get("seed", base.seed)),
+        slope=float(t.get("slope", base.slope)),
+        slippery_patches=int(t.get("slippery_patches", base.slippery_patches)),
+        scouts=tuple(_scout(s, i) for i, s in enumerate(doc.get("scouts", []))),
+        plan_from=_pair(p.get("from", base.plan_from), "[planner] from"),
+        plan_to=_pair(p.get("to", base.plan_to), "[planner] to"),
+        unknown=str(p.get("unknown", base.unknown)),
+        weights={str(k): float(v) for k, v in p.get("weights", {}).items()},
+        origin=_origin(m.get("origin"), where),
+    )
+    validate(cfg)
+    return cfg
+
+
+def validate(cfg: MissionConfig) -> None:
+    """Raise `MissionError` naming the valid choices when the config cannot run."""
+    if cfg.scene not in SCENES:
+        raise MissionError(f"scene {cfg.scene!r}; scenes: {', '.join(SCENES)}")
+    if cfg.unknown not in UNKNOWN_POLICIES:
+        raise MissionError(f"unknown policy {cfg.unknown!r}; policies: {', '.join(UNKNOWN_POLICIES)}")
+    if not cfg.scouts:
+        raise MissionError("no scouts: give at least one [[scouts]] entry (id, start, goal)")
+    ids = [s.id for s in cfg.scouts]
+    if len(set(ids)) != len(ids):
+        raise MissionError(f"scout ids must be unique, got {ids}")
+    for name, v in (
+        ("res", cfg.res),
+        ("sim_seconds", cfg.sim_seconds),
+        ("speed", cfg.speed),
+        ("rate_hz", cfg.rate_hz),
+    ):
+        if not v > 0:
+            raise MissionError(f"{name} = {v}: must be > 0")
+    if cfg.zenoh_config:
+        _credential_files(cfg)
+
+
+def _credential_files(cfg: MissionConfig) -> dict[str, Path]:
+    """The secure folder's file of every component, beside `cfg.zenoh_config` (the router's)."""
+    router = Path(cfg.zenoh_config or "")
+    needed = {n: router.with_name(f"{n}.json5") for n in ["server", "planner", *(s.id for s in cfg.scouts)]}
+    missing = [str(p) for p in [router, *needed.values()] if not p.is_file()]
+    if missing:
+        raise MissionError(
+            f"--zenoh-config {router}: need the router's file and, beside it, one per component "
+            f"(psrmap secure init --scouts <the mission's scout ids> --planners planner); missing: "
+            f"{', '.join(missing)}"
+        )
+    return needed
+
+
+def with_scouts(cfg: MissionConfig, n: int) -> MissionConfig:
+    """`cfg` with exactly `n` scouts: the first `n` of its list, more generated around the terrain if needed."""
+    if n < 1:
+        raise MissionError(f"--scouts {n}: need at least 1")
+    scouts = list(cfg.scouts[:n])
+    k = 0
+    while len(scouts) < n:  # extra scouts start on a ring and walk through the centre
+        a = 2 * math.pi * (k + 0.5) / max(n, 1)
+        r = 7.0
+        sx, sy = r * math.cos(a), r * math.sin(a)
+        scouts.append(ScoutPlan(f"scout{len(scouts) + 1}", (sx, sy, a + math.pi), (-0.5 * sx, -0.5 * sy)))
+        k += 1
+    return dataclasses.replace(cfg, scouts=tuple(scouts))
