@@ -16,6 +16,7 @@ the cache).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import platform
 import time
 from pathlib import Path
@@ -23,6 +24,7 @@ from typing import Any
 
 from psrmap.experiments import lunar, ramps, slopes, utility
 from psrmap.experiments.common import RunPool, write_json
+from psrmap.experiments.config import ExperimentConfig, ExperimentError, from_args
 
 __all__ = ["EXPERIMENTS", "register", "run_experiment"]
 
@@ -111,17 +113,14 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
     return p
 
 
-def _resolved(args: argparse.Namespace, mod: Any) -> argparse.Namespace:
-    ns = argparse.Namespace(**vars(args))
-    ns.seeds = args.seeds if args.seeds is not None else _seeds(mod.DEFAULT_SEEDS)
-    ns.runs = args.runs if args.runs is not None else mod.DEFAULT_RUNS
-    return ns
+def _resolved(args: argparse.Namespace, mod: Any) -> ExperimentConfig:
+    return from_args(args, tuple(_seeds(mod.DEFAULT_SEEDS)), mod.DEFAULT_RUNS)
 
 
 def run_experiment(name: str, args: argparse.Namespace, pool: RunPool, out_dir: Path) -> dict[str, Any]:
     """Run one experiment into `out_dir` (results.json + PNGs); returns its results."""
     mod = EXPERIMENTS[name]
-    ns = _resolved(args, mod)
+    ns = dataclasses.replace(_resolved(args, mod), experiment=name)
     out_dir.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     walked0, ws0 = pool.walked, pool.worker_seconds
@@ -153,13 +152,25 @@ def _cmd(args: argparse.Namespace) -> int:
     out = Path(args.out)
     cache = Path(args.cache) if args.cache else out / "runs"
     pool = RunPool(cache, workers=args.workers, progress=not args.quiet, fresh=args.fresh)
+    try:
+        return _run(args, out, pool)
+    except ExperimentError as exc:
+        args._parser.error(str(exc))
+        raise  # unreachable: error() exits
+
+
+def _run(args: argparse.Namespace, out: Path, pool: RunPool) -> int:
     t0 = time.perf_counter()
     if args.experiment != "all":
         res = run_experiment(args.experiment, args, pool, out)
         print(f"{args.experiment}: {res['timing']['wall_seconds']} s, results in {out / 'results.json'}")
         return 0
     # every run known up front in one pool, so both workers stay busy across experiments
-    everything = [s for name, mod in EXPERIMENTS.items() for s in mod.specs(_resolved(args, mod))]
+    everything = [
+        s
+        for name, mod in EXPERIMENTS.items()
+        for s in mod.specs(dataclasses.replace(_resolved(args, mod), experiment=name))
+    ]
     pool.run(everything, desc="all runs")
     summary: dict[str, Any] = {"experiments": {}}
     for name in EXPERIMENTS:

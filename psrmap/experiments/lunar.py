@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from psrmap.experiments.common import MAP_RES, RunPool, RunSpec, estimation_summary, fmean, fstd, jitter_start
+from psrmap.experiments.config import ExperimentConfig
 
 __all__ = [
     "PAPER_TABLE",
@@ -62,7 +63,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def route_specs(
-    args: argparse.Namespace,
+    cfg: ExperimentConfig,
     seed: int,
     routes: tuple[str, ...],
     noise_offset: int = 0,
@@ -72,7 +73,7 @@ def route_specs(
 
     out = []
     for route in routes:
-        for r in range(args.runs if runs is None else runs):
+        for r in range(cfg.runs if runs is None else runs):
             noise = seed * 100 + noise_offset + r
             out.append(
                 RunSpec(
@@ -81,16 +82,16 @@ def route_specs(
                     noise_seed=noise,
                     route=route,
                     start=jitter_start(LUNAR_ROUTES[route][0], noise, 0.1, 0.1),
-                    slippery_patches=args.slippery_patches,
-                    sim_seconds=args.sim_seconds,
+                    slippery_patches=cfg.slippery_patches,
+                    sim_seconds=cfg.sim_seconds,
                     label=f"lunar{seed}-{route}-n{noise}",
                 )
             )
     return out
 
 
-def specs(args: argparse.Namespace) -> list[RunSpec]:
-    return [s for seed in args.seeds for s in route_specs(args, seed, ROUTES)]
+def specs(cfg: ExperimentConfig) -> list[RunSpec]:
+    return [s for seed in cfg.seeds for s in route_specs(cfg, seed, ROUTES)]
 
 
 # ------------------------------------------------------------------------------------------ maps
@@ -196,14 +197,14 @@ def compare_on_merged(grid: Any, routes: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-def analyse(args: argparse.Namespace, runs: list[dict], out_dir: Path) -> dict[str, Any]:
+def analyse(cfg: ExperimentConfig, runs: list[dict], out_dir: Path) -> dict[str, Any]:
     from psrmap.experiments import plots
     from scout_agent.sim.terrain import LUNAR_ROUTES, LunarConfig, make_lunar, route_slope_stats
 
     table = {route: trajectory_row([r for r in runs if r["spec"]["route"] == route]) for route in ROUTES}
     per_seed: dict[str, Any] = {}
     figures: list[Path] = []
-    for seed in args.seeds:
+    for seed in cfg.seeds:
         mine = [r for r in runs if r["spec"]["terrain_seed"] == seed]
         if not mine:
             continue
@@ -236,16 +237,16 @@ def analyse(args: argparse.Namespace, runs: list[dict], out_dir: Path) -> dict[s
         "paper_note": "paper's trajectories 1–3 in order (direct first, then via landmarks); our west/east "
         "are the two via-landmark routes on a different, seeded terrain",
         "protocol": {
-            "seeds": list(args.seeds),
-            "runs_per_route": args.runs,
-            "slippery_patches": args.slippery_patches,
+            "seeds": list(cfg.seeds),
+            "runs_per_route": cfg.runs,
+            "slippery_patches": cfg.slippery_patches,
             "routes": {k: LUNAR_ROUTES[k] for k in ROUTES},
             "table_from": "each trajectory's own map: slips = Σ slip-layer events, CoT = mean over CoT "
             "cells, GIIM/GIAM = mean over cells (four-foothold default; paper variant beside)",
             "merged_from": "LocalMap merge of every run of the seed → npz → consumer_planner LayerGrid → "
             "compare.evaluate_route on the nominal route polyline (CostConfig defaults, raw slip layer: "
             "slip_spread_m 0)",
-            "sim_seconds_cap": args.sim_seconds,
+            "sim_seconds_cap": cfg.sim_seconds,
         },
         "table": table,
         "merged_map_table": merged_mean,
@@ -267,5 +268,5 @@ def analyse(args: argparse.Namespace, runs: list[dict], out_dir: Path) -> dict[s
     }
 
 
-def run(args: argparse.Namespace, pool: RunPool, out_dir: Path) -> dict[str, Any]:
-    return analyse(args, pool.run(specs(args), desc=NAME), out_dir)
+def run(cfg: ExperimentConfig, pool: RunPool, out_dir: Path) -> dict[str, Any]:
+    return analyse(cfg, pool.run(specs(cfg), desc=NAME), out_dir)

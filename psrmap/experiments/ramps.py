@@ -30,6 +30,7 @@ from psrmap.experiments.common import (
     fstd,
     jitter_start,
 )
+from psrmap.experiments.config import ExperimentConfig
 
 __all__ = [
     "ANGLES",
@@ -103,12 +104,12 @@ def patch_mu(angle: float, table: dict[float, float]) -> float:
     return float(np.interp(angle, xs, [table[x] for x in xs]))
 
 
-def run_specs(args: argparse.Namespace, angles: tuple[float, ...], slippery: bool) -> list[RunSpec]:
+def run_specs(cfg: ExperimentConfig, angles: tuple[float, ...], slippery: bool) -> list[RunSpec]:
     specs = []
     for a in angles:
-        for mu in (None, patch_mu(a, args.slippery)) if slippery else (None,):
-            for seed in args.seeds:
-                for r in range(args.runs):
+        for mu in (None, patch_mu(a, cfg.slippery)) if slippery else (None,):
+            for seed in cfg.seeds:
+                for r in range(cfg.runs):
                     noise = seed * 100 + r
                     tag = f"mu{mu:g}" if mu else "plain"
                     specs.append(
@@ -118,15 +119,15 @@ def run_specs(args: argparse.Namespace, angles: tuple[float, ...], slippery: boo
                             noise_seed=noise,
                             start=jitter_start(RAMP_SPAWN, noise),
                             slippery_mu=mu,
-                            sim_seconds=args.sim_seconds,
+                            sim_seconds=cfg.sim_seconds,
                             label=f"ramps{a:g}-{tag}-n{noise}",
                         )
                     )
     return specs
 
 
-def specs(args: argparse.Namespace) -> list[RunSpec]:
-    return run_specs(args, args.angles, slippery=not args.no_slippery)
+def specs(cfg: ExperimentConfig) -> list[RunSpec]:
+    return run_specs(cfg, cfg.angles, slippery=not cfg.no_slippery)
 
 
 # ------------------------------------------------------------------------------------------ analysis
@@ -299,13 +300,13 @@ def _both(a: bool | None, b: bool | None) -> bool | None:
     return None if a is None or b is None else bool(a and b)
 
 
-def analyse(args: argparse.Namespace, runs: list[dict], out_dir: Path) -> dict[str, Any]:
+def analyse(cfg: ExperimentConfig, runs: list[dict], out_dir: Path) -> dict[str, Any]:
     from psrmap.experiments import plots
     from scout_agent.sim.terrain import RampConfig, ramp_profile
 
     by_angle: dict[str, Any] = {}
     figures = []
-    for a in args.angles:
+    for a in cfg.angles:
         key = f"{a:g}"
         mine = [r for r in runs if r["spec"]["slope_deg"] == a]
         conds = {
@@ -362,15 +363,15 @@ def analyse(args: argparse.Namespace, runs: list[dict], out_dir: Path) -> dict[s
         "experiment": NAME,
         "paper": {"elevation_rmse_m_at_0.4": 0.0876, "gt_slip_m": 0.02},
         "protocol": {
-            "angles_deg": list(args.angles),
-            "seeds": list(args.seeds),
-            "runs_per_seed": args.runs,
-            "slippery_mu": {f"{a:g}": patch_mu(a, args.slippery) for a in args.angles},
+            "angles_deg": list(cfg.angles),
+            "seeds": list(cfg.seeds),
+            "runs_per_seed": cfg.runs,
+            "slippery_mu": {f"{a:g}": patch_mu(a, cfg.slippery) for a in cfg.angles},
             "resolutions_m": [MAP_RES, *EXTRA_RES],
             "rebinning": "estimators run once per run at 0.4 m; every foothold, stance and sample the "
             "mapper aggregated is re-aggregated at 0.2 and 0.1 m",
             "run_variation": "noise seed of the honest base state + start offset ±5 cm x, ±10 cm y",
-            "sim_seconds_cap": args.sim_seconds,
+            "sim_seconds_cap": cfg.sim_seconds,
         },
         "overall": overall,
         "by_angle": by_angle,
@@ -401,5 +402,5 @@ def _run_row(r: dict) -> dict[str, Any]:
     }
 
 
-def run(args: argparse.Namespace, pool: RunPool, out_dir: Path) -> dict[str, Any]:
-    return analyse(args, pool.run(specs(args), desc=NAME), out_dir)
+def run(cfg: ExperimentConfig, pool: RunPool, out_dir: Path) -> dict[str, Any]:
+    return analyse(cfg, pool.run(specs(cfg), desc=NAME), out_dir)

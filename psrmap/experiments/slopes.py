@@ -21,6 +21,7 @@ import numpy as np
 
 from psrmap.experiments import ramps
 from psrmap.experiments.common import RunPool, RunSpec, fmean, fstd
+from psrmap.experiments.config import ExperimentConfig
 
 __all__ = ["add_arguments", "analyse", "fit", "points", "run", "specs", "trends"]
 
@@ -36,8 +37,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     """Uses the ramps options (`--angles`)."""
 
 
-def specs(args: argparse.Namespace) -> list[RunSpec]:
-    return ramps.run_specs(args, args.angles, slippery=False)
+def specs(cfg: ExperimentConfig) -> list[RunSpec]:
+    return ramps.run_specs(cfg, cfg.angles, slippery=False)
 
 
 def points(runs: list[dict]) -> list[dict[str, Any]]:
@@ -139,7 +140,7 @@ def _arg(means: dict[str, dict[str, Any]], metric: str, fn) -> float | None:
     return fn(vals, key=vals.get) if vals else None
 
 
-def analyse(args: argparse.Namespace, runs: list[dict], out_dir: Path) -> dict[str, Any]:
+def analyse(cfg: ExperimentConfig, runs: list[dict], out_dir: Path) -> dict[str, Any]:
     from psrmap.experiments import plots
 
     pts = points(runs)
@@ -161,9 +162,9 @@ def analyse(args: argparse.Namespace, runs: list[dict], out_dir: Path) -> dict[s
         "experiment": NAME,
         "convention": "inclination_deg: negative = uphill, positive = downhill (the paper's figure)",
         "protocol": {
-            "angles_deg": list(args.angles),
-            "seeds": list(args.seeds),
-            "runs_per_seed": args.runs,
+            "angles_deg": list(cfg.angles),
+            "seeds": list(cfg.seeds),
+            "runs_per_seed": cfg.runs,
             "segment_cells": "up-ramp → −α, platform → 0, down-ramp → +α; mean over the segment's cells",
             "fit": f"numpy.polyfit degree {FIT_DEGREE} over every run's points",
         },
@@ -180,5 +181,5 @@ def analyse(args: argparse.Namespace, runs: list[dict], out_dir: Path) -> dict[s
     }
 
 
-def run(args: argparse.Namespace, pool: RunPool, out_dir: Path) -> dict[str, Any]:
-    return analyse(args, pool.run(specs(args), desc=NAME), out_dir)
+def run(cfg: ExperimentConfig, pool: RunPool, out_dir: Path) -> dict[str, Any]:
+    return analyse(cfg, pool.run(specs(cfg), desc=NAME), out_dir)

@@ -25,6 +25,7 @@ import numpy as np
 
 from psrmap.experiments import lunar, utility_scores
 from psrmap.experiments.common import MAP_RES, RunPool, RunSpec, jitter_start
+from psrmap.experiments.config import ExperimentConfig, ExperimentError
 
 __all__ = [
     "add_arguments",
@@ -97,31 +98,31 @@ def _spread(text: str) -> float:
     return v
 
 
-def slip_spread_m(args: argparse.Namespace) -> float:
+def slip_spread_m(cfg: ExperimentConfig) -> float:
     """The planner's slip spread radius [m] this run uses (`--slip-spread`, else the planner default)."""
     from consumer_planner.costs import CostConfig
 
-    v = getattr(args, "slip_spread", None)
+    v = getattr(cfg, "slip_spread", None)
     return CostConfig.slip_spread_m if v is None else float(v)
 
 
-def _scouts(args: argparse.Namespace) -> tuple[str, ...]:
+def _scouts(cfg: ExperimentConfig) -> tuple[str, ...]:
     from scout_agent.sim.terrain import LUNAR_ROUTES
 
-    names = tuple(s.strip() for s in args.scouts.split(",") if s.strip())
+    names = tuple(s.strip() for s in cfg.scouts.split(",") if s.strip())
     bad = [n for n in names if n not in LUNAR_ROUTES]
     if bad or not names:
-        raise SystemExit(f"psrmap experiment: --scouts {args.scouts!r}; routes: {', '.join(LUNAR_ROUTES)}")
+        raise ExperimentError(f"--scouts {cfg.scouts!r}; routes: {', '.join(LUNAR_ROUTES)}")
     return names
 
 
-def scout_specs(args: argparse.Namespace, seed: int) -> list[RunSpec]:
-    return lunar.route_specs(args, seed, _scouts(args), runs=1)
+def scout_specs(cfg: ExperimentConfig, seed: int) -> list[RunSpec]:
+    return lunar.route_specs(cfg, seed, _scouts(cfg), runs=1)
 
 
-def specs(args: argparse.Namespace) -> list[RunSpec]:
+def specs(cfg: ExperimentConfig) -> list[RunSpec]:
     """The scouting runs (the fresh robot's runs depend on the plan and come later)."""
-    return [s for seed in args.seeds for s in scout_specs(args, seed)]
+    return [s for seed in cfg.seeds for s in scout_specs(cfg, seed)]
 
 
 def simplify(points: np.ndarray, tol: float) -> np.ndarray:
@@ -143,27 +144,27 @@ def simplify(points: np.ndarray, tol: float) -> np.ndarray:
     return np.vstack([simplify(pts[: i + 1], tol)[:-1], simplify(pts[i:], tol)])
 
 
-def _cost_config(args: argparse.Namespace, unknown: str | None = None):
+def _cost_config(cfg: ExperimentConfig, unknown: str | None = None):
     from dataclasses import replace
 
     from consumer_planner.costs import UNKNOWN_POLICIES, CostConfig, parse_weights
 
-    policy: Any = unknown or args.unknown  # one of UNKNOWN_POLICIES, checked here
+    policy: Any = unknown or cfg.unknown  # one of UNKNOWN_POLICIES, checked here
     if policy not in UNKNOWN_POLICIES:
-        raise SystemExit(f"psrmap experiment: --unknown {policy!r}; policies: {', '.join(UNKNOWN_POLICIES)}")
+        raise ExperimentError(f"--unknown {policy!r}; policies: {', '.join(UNKNOWN_POLICIES)}")
     return replace(
-        CostConfig(), weights=parse_weights(args.weights), unknown=policy, slip_spread_m=slip_spread_m(args)
+        CostConfig(), weights=parse_weights(cfg.weights), unknown=policy, slip_spread_m=slip_spread_m(cfg)
     )
 
 
-def plan(args: argparse.Namespace, seed: int, scouts: list[dict], out_dir: Path) -> dict[str, Any]:
+def plan(cfg: ExperimentConfig, seed: int, scouts: list[dict], out_dir: Path) -> dict[str, Any]:
     from consumer_planner.compare import evaluate_route, plan_route
     from consumer_planner.costs import build_costs
     from consumer_planner.errors import PlannerError
 
     grid = lunar.merged_grid(scouts, out_dir / f"scouts_seed{seed}.npz", f"scouts{seed}")
-    costs = build_costs(grid, _cost_config(args))
-    start, goal = tuple(args.utility_from), tuple(args.utility_to)
+    costs = build_costs(grid, _cost_config(cfg))
+    start, goal = tuple(cfg.utility_from), tuple(cfg.utility_to)
     out: dict[str, Any] = {"grid": grid, "costs": costs}
     try:
         route = plan_route(grid, costs, start, goal, name="planned")
@@ -172,7 +173,7 @@ def plan(args: argparse.Namespace, seed: int, scouts: list[dict], out_dir: Path)
     straight = [start, goal]
     try:
         out["straight_predicted"] = evaluate_route(grid, costs, straight, name="straight").breakdown.as_dict()
-        pen = build_costs(grid, _cost_config(args, "penalty"))
+        pen = build_costs(grid, _cost_config(cfg, "penalty"))
         out["straight_predicted_penalty"] = evaluate_route(
             grid, pen, straight, name="straight"
         ).breakdown.as_dict()
@@ -180,7 +181,7 @@ def plan(args: argparse.Namespace, seed: int, scouts: list[dict], out_dir: Path)
         out["straight_error"] = str(exc)
     if route is None:
         out.setdefault(
-            "error", f"no passable route from {start} to {goal} on the scouts' map (unknown={args.unknown})"
+            "error", f"no passable route from {start} to {goal} on the scouts' map (unknown={cfg.unknown})"
         )
         return out
     wps = simplify(route.path, 0.15)
@@ -191,10 +192,10 @@ def plan(args: argparse.Namespace, seed: int, scouts: list[dict], out_dir: Path)
     return out
 
 
-def fresh_specs(args: argparse.Namespace, seed: int, routes: dict[str, list]) -> list[RunSpec]:
+def fresh_specs(cfg: ExperimentConfig, seed: int, routes: dict[str, list]) -> list[RunSpec]:
     out = []
     for name, wps in routes.items():
-        for r in range(args.runs):
+        for r in range(cfg.runs):
             noise = seed * 100 + FRESH_NOISE_OFFSET + r
             out.append(
                 RunSpec(
@@ -203,15 +204,15 @@ def fresh_specs(args: argparse.Namespace, seed: int, routes: dict[str, list]) ->
                     noise_seed=noise,
                     waypoints=tuple(tuple(p) for p in wps),
                     start=jitter_start(wps[0], noise, 0.1, 0.1),
-                    slippery_patches=args.slippery_patches,
-                    sim_seconds=args.sim_seconds,
+                    slippery_patches=cfg.slippery_patches,
+                    sim_seconds=cfg.sim_seconds,
                     label=f"utility{seed}-{name}-n{noise}",
                 )
             )
     return out
 
 
-def experienced(args: argparse.Namespace, run: dict, waypoints: list) -> dict[str, Any]:
+def experienced(cfg: ExperimentConfig, run: dict, waypoints: list) -> dict[str, Any]:
     """What the fresh robot lived through on one route, plus the planner's cost of that route on its map."""
     from consumer_planner.compare import evaluate_route
     from consumer_planner.costs import build_costs
@@ -249,7 +250,7 @@ def experienced(args: argparse.Namespace, run: dict, waypoints: list) -> dict[st
         region = own.region(ix0 - 2, iy0 - 2, ix1 + 2, iy1 + 2)
         grid = LayerGrid("own", MAP_RES, ix0 - 2, iy0 - 2, iy1 - iy0 + 5, ix1 - ix0 + 5, region)
         try:
-            costs = build_costs(grid, _cost_config(args, "penalty"))
+            costs = build_costs(grid, _cost_config(cfg, "penalty"))
             bd = evaluate_route(grid, costs, waypoints, name="walked").breakdown.as_dict()
             out["cost_on_own_map"] = bd["cost"]
             out["own_map_unknown_fraction"] = bd["unknown_fraction"]
@@ -258,30 +259,30 @@ def experienced(args: argparse.Namespace, run: dict, waypoints: list) -> dict[st
     return out
 
 
-def run(args: argparse.Namespace, pool: RunPool, out_dir: Path) -> dict[str, Any]:
+def run(cfg: ExperimentConfig, pool: RunPool, out_dir: Path) -> dict[str, Any]:
     from psrmap.experiments import plots
     from scout_agent.sim.terrain import LunarConfig, make_lunar
 
-    scouting = pool.run(specs(args), desc=f"{NAME} scouts")
+    scouting = pool.run(specs(cfg), desc=f"{NAME} scouts")
     per_seed: dict[str, Any] = {}
     plans: dict[int, dict] = {}
     fresh: list[RunSpec] = []
     tags: list[tuple[int, str]] = []  # (seed, route name) of each fresh spec
-    for seed in args.seeds:
+    for seed in cfg.seeds:
         mine = [r for r in scouting if r["spec"]["terrain_seed"] == seed]
-        p = plan(args, seed, mine, out_dir)
+        p = plan(cfg, seed, mine, out_dir)
         plans[seed] = p
         if "waypoints" in p:
             for name, wps in (
                 ("planned", p["waypoints"]),
-                ("straight", [args.utility_from, args.utility_to]),
+                ("straight", [cfg.utility_from, cfg.utility_to]),
             ):
-                new = fresh_specs(args, seed, {name: wps})
+                new = fresh_specs(cfg, seed, {name: wps})
                 fresh += new
                 tags += [(seed, name)] * len(new)
     walked = pool.run(fresh, desc=f"{NAME} fresh robot")  # same order as `fresh`
     figures: list[Path] = []
-    for seed in args.seeds:
+    for seed in cfg.seeds:
         p = plans[seed]
         entry: dict[str, Any] = {
             "scouts": [r["spec"]["label"] for r in scouting if r["spec"]["terrain_seed"] == seed],
@@ -305,8 +306,8 @@ def run(args: argparse.Namespace, pool: RunPool, out_dir: Path) -> dict[str, Any
         exp: dict[str, Any] = {}
         agree: dict[str, Any] = {}
         for name, rs in runs_by_route.items():
-            wps = p["waypoints"] if name == "planned" else [args.utility_from, args.utility_to]
-            rows = [experienced(args, r, wps) for r in rs]
+            wps = p["waypoints"] if name == "planned" else [cfg.utility_from, cfg.utility_to]
+            rows = [experienced(cfg, r, wps) for r in rs]
             exp[name] = utility_scores.pool_rows(rows) if rows else None
             dense_path = np.array(_densify(wps, MAP_RES / 2))
             agree[name] = utility_scores.agreement(scouts_local, rs[0], dense_path) if rs else None
@@ -330,7 +331,7 @@ def run(args: argparse.Namespace, pool: RunPool, out_dir: Path) -> dict[str, Any
             scouts_local,
             [r for r in scouting if r["spec"]["terrain_seed"] == seed],
             p["waypoints"],
-            [args.utility_from, args.utility_to],
+            [cfg.utility_from, cfg.utility_to],
             runs_by_route,
         )
         if fig is not None:
@@ -342,18 +343,18 @@ def run(args: argparse.Namespace, pool: RunPool, out_dir: Path) -> dict[str, Any
     return {
         "experiment": NAME,
         "protocol": {
-            "seeds": list(args.seeds),
-            "fresh_runs_per_route": args.runs,
-            "scouts": list(_scouts(args)),
-            "from": list(args.utility_from),
-            "to": list(args.utility_to),
-            "unknown": args.unknown,
-            "weights": args.weights or "planner defaults",
-            "slip_spread_m": slip_spread_m(args),
-            "slippery_patches": args.slippery_patches,
+            "seeds": list(cfg.seeds),
+            "fresh_runs_per_route": cfg.runs,
+            "scouts": list(_scouts(cfg)),
+            "from": list(cfg.utility_from),
+            "to": list(cfg.utility_to),
+            "unknown": cfg.unknown,
+            "weights": cfg.weights or "planner defaults",
+            "slip_spread_m": slip_spread_m(cfg),
+            "slippery_patches": cfg.slippery_patches,
             "fresh_noise_seed": f"seed·100 + {FRESH_NOISE_OFFSET} + run (scouts: seed·100)",
             "energy": "Σ E/(m·g) over the walk [m] = whole-walk CoT × distance",
-            "sim_seconds_cap": args.sim_seconds,
+            "sim_seconds_cap": cfg.sim_seconds,
         },
         "summary": summary,
         "per_seed": per_seed,
