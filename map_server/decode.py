@@ -10,10 +10,14 @@ Acceptance and errors are exactly `protocol.codec.decode`'s (the contract's refe
    Python's cyclic GC (`gc=False`: they hold only strings, numbers and bytes), so a batch of thousands
    of decoded deltas does not trigger collections.
 2. A delta's *shape* is its cell count per layer. Once a scout has sent a delta of some length and
-   shape, its next deltas of that length are decoded with Struct types whose arrays have exactly those
-   byte lengths (msgspec checks them in C); other deltas have their array lengths checked in Python.
-   Deltas of one shape then have equal-length arrays, so each layer of a shape group is one joined
-   buffer of equal rows that numpy cuts into columns.
+   shape, its next deltas of that length are decoded by msgspec with the header typed and each layer
+   kept as its raw msgpack bytes (`msgspec.Raw`, no object per array). Per shape and layer those bytes
+   must equal msgspec's own encoding of a cells Struct of that shape everywhere outside the arrays
+   (`_Template`, found by encoding the Struct with arrays of 0x00 and of 0xFF): then they hold exactly
+   those fields and lengths, and numpy cuts the arrays of the whole group out at once. Bytes in any
+   other layout (another key order, other int widths) take the typed path: Struct types whose arrays
+   have the shape's exact byte lengths (checked in C), else the generic Structs with the lengths
+   checked in Python; their equal-length rows are joined and cut the same way.
 3. Over the whole batch at once: ids against the key expression, `res` against the map, finite `t`;
    then, one numpy pass per layer, finite statistics, counts >= 0, indices within +-2**30, no cell twice
    in one delta and layer.
@@ -131,7 +135,7 @@ def _fixed(n: int) -> Any:
     return Annotated[bytes, msgspec.Meta(min_length=n, max_length=n)]
 
 
-def _shaped_decoder(shape: tuple[int, ...]) -> Any:
+def _shaped_decoders(shape: tuple[int, ...]) -> tuple[Any, Any]:
     """A decoder for deltas of exactly this shape: each present layer's arrays typed with their exact
     byte length, absent layers forbidden. What it accepts, the generic decoder accepts with that shape."""
     fields: list[tuple[str, Any, Any]] = []
@@ -152,7 +156,45 @@ def _shaped_decoder(shape: tuple[int, ...]) -> Any:
         [(f.name, f.type if f.name != "layers" else layers) for f in msgspec.structs.fields(_Delta)],
         gc=False,
     )
-    return msgspec.msgpack.Decoder(delta).decode
+    raw_layers = msgspec.defstruct(
+        "Layers_raw",
+        [(f[0], msgspec.Raw if f[2] is msgspec.NODEFAULT else f[1], f[2]) for f in fields],
+        forbid_unknown_fields=True,
+        gc=False,
+        kw_only=True,
+    )
+    raw_delta = msgspec.defstruct(
+        "Delta_raw",
+        [(f.name, f.type if f.name != "layers" else raw_layers) for f in msgspec.structs.fields(_Delta)],
+        gc=False,
+    )
+    return msgspec.msgpack.Decoder(delta).decode, msgspec.msgpack.Decoder(raw_delta).decode
+
+
+class _Template:
+    """A layer's cells of `cells` cells as msgspec encodes them (a map: ix, iy, then the stats in the
+    layer's order, each a bin of its exact length): the byte positions outside the arrays and their
+    values, and where each array starts. Found by encoding the Struct twice, arrays all 0x00 and all
+    0xFF: the bytes that differ are exactly the arrays."""
+
+    def __init__(self, layer: Layer, cells: int) -> None:
+        fields = [("ix", bytes), ("iy", bytes), *((st, bytes) for st in layer.stats)]
+        struct = msgspec.defstruct(f"{layer.name}_template", fields)
+        sizes = [4 * cells, 4 * cells, *([8 * cells] * len(layer.stats))]
+        zero = np.frombuffer(msgspec.msgpack.encode(struct(*(b"\x00" * s for s in sizes))), np.uint8)
+        ones = np.frombuffer(msgspec.msgpack.encode(struct(*(b"\xff" * s for s in sizes))), np.uint8)
+        differ = zero != ones
+        self.size = zero.size
+        self.cells = cells
+        self.frame_idx = np.flatnonzero(~differ)
+        self.frame_vals = zero[self.frame_idx].copy()
+        # each array: a run of differing bytes, in field order
+        edges = np.flatnonzero(np.diff(np.r_[0, differ.astype(np.int8), 0]) == 1)
+        starts = [int(e) for e in edges]
+        if cells == 0:  # no array bytes: the positions do not matter
+            starts = [0] * len(sizes)
+        self.ix, self.iy = starts[0], starts[1]
+        self.stats = starts[2:]
 
 
 # --------------------------------------------------------------- batch checks of the numbers
@@ -226,7 +268,8 @@ class DeltaDecoder:
         self._ids: dict[str | tuple[str, str], tuple[str, str] | None] = {}
         # (key expression, payload length) -> the shape its last delta had; shape -> its decoder
         self._shape_of: dict[tuple[str | None, int], tuple[int, ...]] = {}
-        self._shaped: dict[tuple[int, ...], Any] = {}
+        self._shaped: dict[tuple[int, ...], tuple[Any, Any]] = {}
+        self._templates: dict[tuple[str, int], _Template] = {}
 
     def _learn(self, key: str | None, size: int, shape: tuple[int, ...]) -> None:
         """Remember the shape of a delta of `size` bytes on `key` (bounded: cleared when full)."""
@@ -234,7 +277,7 @@ class DeltaDecoder:
             if len(self._shaped) >= self._MAX_SHAPES:
                 self._shaped.clear()
                 self._shape_of.clear()
-            self._shaped[shape] = _shaped_decoder(shape)
+            self._shaped[shape] = _shaped_decoders(shape)
         if len(self._shape_of) >= self._MAX_KEYS:
             self._shape_of.clear()
         self._shape_of[(key, size)] = shape
@@ -288,14 +331,11 @@ class DeltaDecoder:
         layers as arrays (views into the columns)."""
         n = len(samples)
         results: list[Any] = [None] * n
-        slow: list[int] = []
-        ok_idx: list[int] = []  # samples msgspec decoded, their Structs and their shapes
-        ok_delta: list[Any] = []
-        ok_shape: list[tuple[int, ...]] = []
-        dec = self._msgspec.decode
+        slow: list[int] = []  # decided by the reference decoder
+        typed: list[tuple[int, Any, tuple[int, ...]]] = []  # (sample, typed Struct, shape)
+        fast: list[tuple[int, Any, tuple[int, ...]]] = []  # (sample, Struct with raw layers, shape)
         max_bytes = self.max_bytes
         shape_of = self._shape_of
-        shaped = self._shaped
         errors = (msgspec.MsgspecError, ValueError, TypeError)
         for i, (key, payload) in enumerate(samples):
             size = len(payload)
@@ -303,67 +343,25 @@ class DeltaDecoder:
                 slow.append(i)
                 continue
             shape = shape_of.get((key, size))
-            d = None
             if shape is not None:  # this scout sent a delta of this length and shape before
                 try:
-                    d = shaped[shape](payload)  # the Struct types fix every array's length
+                    fast.append((i, self._shaped[shape][1](payload), shape))
+                    continue
                 except errors:
-                    d = None
-            if d is None:
-                try:
-                    d = dec(payload)
-                except errors:  # the reference decoder names what is wrong
-                    slow.append(i)
-                    continue
-                shape = _shape(d)
-                if shape is None:  # arrays of one layer disagree in length
-                    slow.append(i)
-                    continue
-                self._learn(key, size, shape)
-            ok_idx.append(i)
-            ok_delta.append(d)
-            ok_shape.append(shape)  # type: ignore[arg-type]  # set on both paths above
-        # header checks over the batch: ids against the key expression, finite t, res of the map
-        if ok_delta:
-            heads = [(samples[i][0], d.map, d.scout) for i, d in zip(ok_idx, ok_delta, strict=True)]
-            ids_ok = self._ids_ok(heads)
-            t = np.array([d.t for d in ok_delta], np.float64)
-            r = np.array([d.res for d in ok_delta], np.float64)
-            good = ids_ok & np.isfinite(t) & np.isfinite(r) & (r > 0)
-            if self.res is not None:
-                good &= r == self.res
-            if not good.all():
-                slow.extend(np.asarray(ok_idx)[~good].tolist())
-                keep = np.flatnonzero(good).tolist()
-                ok_idx = [ok_idx[k] for k in keep]
-                ok_delta = [ok_delta[k] for k in keep]
-                ok_shape = [ok_shape[k] for k in keep]
-        # the cells: deltas of one shape have equal-length arrays, so each layer of a shape group is
-        # one joined buffer of equal rows (ix | iy | stats), cut into columns by numpy
-        groups: dict[tuple[int, ...], tuple[list[int], list[Any]]] = {}
-        for i, d, shape in zip(ok_idx, ok_delta, ok_shape, strict=True):
-            g = groups.get(shape)
-            if g is None:
-                g = groups[shape] = ([], [])
-            g[0].append(i)
-            g[1].append(d.layers)
+                    pass
+            self._decode_typed(i, key, payload, typed, slow)
+        fast = self._checked_headers(samples, fast, slow)
         parts: dict[str, list[LayerColumns]] = {}
-        for shape, (gidx, glayers) in groups.items():
-            idx = np.array(gidx, np.int64)
-            for name, k, get in zip(_LAYER_NAMES, shape, _LAYER_GETTERS, strict=True):
-                if k < 0:
-                    continue
-                layer = LAYERS[name]
-                S = len(layer.stats)
-                m = idx.size
-                rows = np.frombuffer(
-                    b"".join(chain.from_iterable(map(_astuple, map(get, glayers)))), np.uint8
-                ).reshape(m, 8 * k * (S + 1))
-                # dtype views of the rows' byte ranges (each row's last axis is contiguous), one copy each
-                ix = rows[:, : 4 * k].view(_I32).reshape(-1)
-                iy = rows[:, 4 * k : 8 * k].view(_I32).reshape(-1)
-                vals = rows[:, 8 * k :].view(_F64).reshape(m, S, k).transpose(1, 0, 2).reshape(S, m * k)
-                parts.setdefault(name, []).append(LayerColumns(layer, np.repeat(idx, k), ix, iy, vals))
+        retry = self._fast_columns(fast, parts)  # rows not in msgspec's own layout: the typed path
+        for i in retry:
+            key, payload = samples[i]
+            self._decode_typed(i, key, payload, typed, slow, learn=False)
+        typed = self._checked_headers(samples, typed, slow)
+        self._typed_columns(typed, parts)
+        again = set(retry)
+        done = sorted([(i, d) for i, d, _ in typed] + [(i, d) for i, d, _ in fast if i not in again])
+        ok_idx = [i for i, _ in done]
+        ok_delta = [d for _, d in done]
         bad: set[int] = set()
         columns: dict[str, LayerColumns] = {}
         last_index: tuple[np.ndarray, np.ndarray, np.ndarray, set[int]] | None = None
@@ -430,6 +428,145 @@ class DeltaDecoder:
         if views:
             self._attach_views(results, columns, names_of)
         return DeltaBatch(results, columns)
+
+    def _decode_typed(
+        self,
+        i: int,
+        key: str | None,
+        payload: bytes,
+        typed: list[tuple[int, Any, tuple[int, ...]]],
+        slow: list[int],
+        learn: bool = True,
+    ) -> None:
+        """Decode one sample with typed Structs (shape-typed when its shape is known, else generic)."""
+        errors = (msgspec.MsgspecError, ValueError, TypeError)
+        size = len(payload)
+        shape = self._shape_of.get((key, size))
+        if shape is not None:
+            try:
+                typed.append((i, self._shaped[shape][0](payload), shape))  # array lengths checked in C
+                return
+            except errors:
+                pass
+        try:
+            d = self._msgspec.decode(payload)
+        except errors:  # the reference decoder names what is wrong
+            slow.append(i)
+            return
+        shape = _shape(d)
+        if shape is None:  # arrays of one layer disagree in length
+            slow.append(i)
+            return
+        if learn:
+            self._learn(key, size, shape)
+        typed.append((i, d, shape))
+
+    def _checked_headers(
+        self,
+        samples: Sequence[tuple[str | None, bytes]],
+        decoded: list[tuple[int, Any, tuple[int, ...]]],
+        slow: list[int],
+    ) -> list[tuple[int, Any, tuple[int, ...]]]:
+        """The decoded samples whose header passes, over the batch at once: ids against the key
+        expression, finite t, res of the map. The others go to `slow`."""
+        if not decoded:
+            return decoded
+        heads = [(samples[i][0], d.map, d.scout) for i, d, _ in decoded]
+        t = np.array([d.t for _, d, _ in decoded], np.float64)
+        r = np.array([d.res for _, d, _ in decoded], np.float64)
+        good = self._ids_ok(heads) & np.isfinite(t) & np.isfinite(r) & (r > 0)
+        if self.res is not None:
+            good &= r == self.res
+        if good.all():
+            return decoded
+        slow.extend(i for (i, _, _), g in zip(decoded, good.tolist(), strict=True) if not g)
+        return [x for x, g in zip(decoded, good.tolist(), strict=True) if g]
+
+    def _fast_columns(
+        self, fast: list[tuple[int, Any, tuple[int, ...]]], parts: dict[str, list[LayerColumns]]
+    ) -> list[int]:
+        """Columns of the deltas decoded with raw layers: per shape and layer, the rows (each layer's
+        msgpack bytes) must equal msgspec's own encoding of a cells Struct of that shape outside the
+        arrays (`_template`), so they hold exactly those fields; the arrays are cut out by numpy.
+        Returns the samples whose rows differ (another key order, other int widths): the typed path."""
+        groups: dict[tuple[int, ...], list[tuple[int, Any]]] = {}
+        for i, d, shape in fast:
+            groups.setdefault(shape, []).append((i, d.layers))
+        retry: list[int] = []
+        for shape, members in groups.items():
+            idx = np.array([i for i, _ in members], np.int64)
+            layers = [lay for _, lay in members]
+            ok = np.ones(idx.size, bool)
+            rows_of: dict[str, tuple[np.ndarray, _Template]] = {}
+            for name, k, get in zip(_LAYER_NAMES, shape, _LAYER_GETTERS, strict=True):
+                if k < 0:
+                    continue
+                tpl = self._template(name, k)
+                raws = list(map(get, layers))
+                buf = b"".join(raws)
+                if len(buf) != idx.size * tpl.size:
+                    lens = np.fromiter(map(len, raws), np.int64, len(raws))
+                    ok &= lens == tpl.size
+                    buf = b"".join(
+                        r if s == tpl.size else bytes(tpl.size)
+                        for r, s in zip(raws, lens.tolist(), strict=True)
+                    )
+                rows = np.frombuffer(buf, np.uint8).reshape(idx.size, tpl.size)
+                ok &= (rows[:, tpl.frame_idx] == tpl.frame_vals).all(axis=1)
+                rows_of[name] = (rows, tpl)
+            if not ok.all():
+                retry.extend(idx[~ok].tolist())
+                idx = idx[ok]
+                rows_of = {nm: (rows[ok], tpl) for nm, (rows, tpl) in rows_of.items()}
+            if not idx.size:
+                continue
+            m = idx.size
+            for name, (rows, tpl) in rows_of.items():
+                k = tpl.cells
+                ix = rows[:, tpl.ix : tpl.ix + 4 * k].view(_I32).reshape(-1)
+                iy = rows[:, tpl.iy : tpl.iy + 4 * k].view(_I32).reshape(-1)
+                vals = np.empty((len(tpl.stats), m * k))
+                for r, a in enumerate(tpl.stats):
+                    vals[r] = rows[:, a : a + 8 * k].view(_F64).reshape(-1)
+                parts.setdefault(name, []).append(LayerColumns(LAYERS[name], np.repeat(idx, k), ix, iy, vals))
+        return retry
+
+    def _typed_columns(
+        self, typed: list[tuple[int, Any, tuple[int, ...]]], parts: dict[str, list[LayerColumns]]
+    ) -> None:
+        """Columns of the typed-decoded deltas: deltas of one shape have equal-length arrays, so each layer
+        of a shape group is one joined buffer of equal rows (ix | iy | stats), cut into columns by numpy."""
+        groups: dict[tuple[int, ...], tuple[list[int], list[Any]]] = {}
+        for i, d, shape in typed:
+            g = groups.get(shape)
+            if g is None:
+                g = groups[shape] = ([], [])
+            g[0].append(i)
+            g[1].append(d.layers)
+        for shape, (gidx, glayers) in groups.items():
+            idx = np.array(gidx, np.int64)
+            for name, k, get in zip(_LAYER_NAMES, shape, _LAYER_GETTERS, strict=True):
+                if k < 0:
+                    continue
+                layer = LAYERS[name]
+                S = len(layer.stats)
+                m = idx.size
+                rows = np.frombuffer(
+                    b"".join(chain.from_iterable(map(_astuple, map(get, glayers)))), np.uint8
+                ).reshape(m, 8 * k * (S + 1))
+                # dtype views of the rows' byte ranges (each row's last axis is contiguous), one copy each
+                ix = rows[:, : 4 * k].view(_I32).reshape(-1)
+                iy = rows[:, 4 * k : 8 * k].view(_I32).reshape(-1)
+                vals = rows[:, 8 * k :].view(_F64).reshape(m, S, k).transpose(1, 0, 2).reshape(S, m * k)
+                parts.setdefault(name, []).append(LayerColumns(layer, np.repeat(idx, k), ix, iy, vals))
+
+    def _template(self, name: str, k: int) -> _Template:
+        got = self._templates.get((name, k))
+        if got is None:
+            if len(self._templates) >= 4 * self._MAX_SHAPES:
+                self._templates.clear()
+            got = self._templates[(name, k)] = _Template(LAYERS[name], k)
+        return got
 
     @staticmethod
     def _attach_views(

@@ -15,6 +15,7 @@ import logging
 from collections import Counter
 from collections.abc import Iterable
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 import xxhash
@@ -103,8 +104,9 @@ class MergeBook:
         return out
 
 
-@dataclass(frozen=True, slots=True)
-class Accepted:
+class Accepted(NamedTuple):
+    """A merged delta: its header, its payload (the store logs it) and its digest."""
+
     delta: CellDelta
     payload: bytes
     digest: int = 0  # `payload_digest(payload)`
@@ -183,6 +185,7 @@ class Merger:
         touched = res.touched
         # scout -> (epoch, (scout, epoch), its SeqState): one dict lookup per delta, no key tuple
         memo: dict[str, tuple[int, tuple[str, int], SeqState]] = {}
+        xxh3 = xxhash.xxh3_64_intdigest  # payload_digest, inlined: this loop runs once per delta
         for i, delta in enumerate(batch.results):
             if type(delta) is CellDelta and (delta.map != map_id or i in no_layer):
                 delta = (
@@ -209,7 +212,7 @@ class Merger:
                 memo[delta.scout] = (delta.epoch, sk, st)
             seq = delta.seq
             payload = samples[i][1]
-            dig = payload_digest(payload)
+            dig = xxh3(payload) or 1
             if seq <= st.hw or seq in st.above:
                 known = st.digest(seq)
                 if known and known != dig:
@@ -230,7 +233,10 @@ class Merger:
                     st.hw = seq
                 else:
                     st.mark(seq)
-                st.set_digest(seq, dig)
+                if seq < st.dense.size:  # set_digest's common case, inlined
+                    st.dense[seq] = dig
+                else:
+                    st.set_digest(seq, dig)
                 take[i] = True
                 accepted.append(Accepted(delta, payload, dig))
                 touched.add(sk)

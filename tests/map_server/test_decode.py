@@ -217,3 +217,28 @@ def test_every_shape_decodes_on_the_shaped_path_like_the_reference(layers):
     for name, cells in want.layers.items():
         for s, a in cells.items():
             np.testing.assert_array_equal(got.layers[name][s], a)
+
+
+def test_a_known_shape_in_another_key_order_is_still_decoded_exactly():
+    # same length and shape as a learnt delta, but the elevation stats in another order: the raw-layer
+    # fast path sees bytes that are not msgspec's own layout and hands the delta to the typed path
+    import msgpack
+
+    decoder = DeltaDecoder(res=RES)
+    key = delta_key(MAP, SCOUT)
+    decoder.decode([(key, encode(make_delta(seq=0, seed=0)))])  # learns the shape
+    d = msgpack.unpackb(encode(make_delta(seq=1, seed=1)), raw=False)
+    elev = d["layers"]["elevation"]
+    d["layers"]["elevation"] = {
+        k: elev[k] for k in ("ix", "iy", *reversed([s for s in elev if s not in ("ix", "iy")]))
+    }
+    swapped = msgpack.packb(d, use_bin_type=True)
+    plain = encode(make_delta(seq=2, seed=2))
+    assert len(swapped) == len(plain)
+    batch = decoder.decode([(key, swapped), (key, plain)], views=True)
+    for payload, got in zip((swapped, plain), batch.results, strict=True):
+        want = decode(payload)
+        assert isinstance(got, CellDelta)
+        for name, cells in want.layers.items():
+            for s, a in cells.items():
+                np.testing.assert_array_equal(got.layers[name][s], a)
