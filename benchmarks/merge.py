@@ -1,7 +1,8 @@
 """Decode + validate + exactly-once merge throughput of the map core, against raw `np.add.at`.
 
-Prints one JSON object. Updates = cells x statistics. Two delta sizes: the 20 cells x 5 layers a
-walking scout sends at 5 Hz, and bulk deltas of 1000 cells x 5 layers (e.g. a replayed log).
+Prints one JSON object. Updates = cells x statistics. Three delta sets: the 20 cells x 5 layers a walking
+scout sends at 5 Hz (every delta the same shape), 8 scouts interleaved whose layers each carry 1-29 cells
+(shapes and lengths vary, as in a mission), and bulk deltas of 1000 cells x 5 layers (e.g. a replayed log).
 Three raw references on the same arrays (no decoding, no validation, no bookkeeping; each the median
 of 3 timings):
 - `raw_add_at`: one np.add.at per (layer, stat) over every delta's cells concatenated, into one small
@@ -34,6 +35,27 @@ from protocol.messages import CellDelta
 
 LAYERS5 = ("elevation", "slip", "cot", "giim", "giam")
 RES = 0.4
+
+
+def make_varied_deltas(n: int, max_cells: int, rng: np.random.Generator, scouts: int = 8) -> list[CellDelta]:
+    """Deltas as walking scouts send them: `scouts` scouts interleaved, each layer with its own number of
+    cells (1 .. max_cells - 1), so deltas differ in shape and length."""
+    out = []
+    for k in range(n):
+        cx, cy = rng.integers(-300, 300, 2)
+        layers = {}
+        for name in LAYERS5:
+            cells = int(rng.integers(1, max_cells))
+            flat = rng.choice(64 * 64, size=cells, replace=False)
+            c: dict[str, np.ndarray] = {
+                "ix": (cx + flat % 64).astype(np.int32),
+                "iy": (cy + flat // 64).astype(np.int32),
+            }
+            for s in LAYERS[name].stats:
+                c[s] = rng.uniform(0.0, 2.0, cells)
+            layers[name] = c
+        out.append(CellDelta("bench", f"s{k % scouts}", 1, k // scouts, 0.0, RES, layers))
+    return out
 
 
 def make_deltas(n: int, cells: int, rng: np.random.Generator) -> list[CellDelta]:
@@ -141,8 +163,13 @@ def main() -> None:
     args = ap.parse_args()
     rng = np.random.default_rng(0)
     out: dict[str, object] = {"benchmark": "merge", "batch": args.batch}
-    for label, n, cells in (("scout_20x5", args.deltas, 20), ("bulk_1000x5", args.bulk, 1000)):
-        deltas = make_deltas(n, cells, rng)
+    cases = (
+        ("scout_20x5", args.deltas, lambda: make_deltas(args.deltas, 20, rng)),
+        ("scouts_varied_1-29x5", args.deltas, lambda: make_varied_deltas(args.deltas, 30, rng)),
+        ("bulk_1000x5", args.bulk, lambda: make_deltas(args.bulk, 1000, rng)),
+    )
+    for label, n, build in cases:
+        deltas = build()
         ingest(deltas[: max(1, n // 10)], args.batch)  # warm-up
         t_raw, u_raw, raw_bytes = raw_add_at(deltas)
         t_store, u_store, store_bytes = raw_add_at_store(deltas)

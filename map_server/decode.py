@@ -4,28 +4,25 @@
 rejected it, and the cells of every accepted delta as one set of columns per layer, ready to merge.
 Acceptance and errors are exactly `protocol.codec.decode`'s (the contract's reference decoder):
 
-1. Each payload is decoded by msgspec into typed Structs built from the layer table
-   (`protocol.layers.LAYERS`): the header fields with their types and ranges, one Struct per layer whose
-   fields are that layer's stats, unknown layers and stats refused. The Structs are not tracked by
-   Python's cyclic GC (`gc=False`: they hold only strings, numbers and bytes), so a batch of thousands
-   of decoded deltas does not trigger collections.
-2. A delta's *shape* is its cell count per layer. Once a scout has sent a delta of some length and
-   shape, its next deltas of that length are decoded by msgspec with the header typed and each layer
-   kept as its raw msgpack bytes (`msgspec.Raw`, no object per array). Per shape and layer those bytes
-   must equal msgspec's own encoding of a cells Struct of that shape everywhere outside the arrays
-   (`_Template`, found by encoding the Struct with arrays of 0x00 and of 0xFF): then they hold exactly
-   those fields and lengths, and numpy cuts the arrays of the whole group out at once. Bytes in any
-   other layout (another key order, other int widths) take the typed path: Struct types whose arrays
-   have the shape's exact byte lengths (checked in C), else the generic Structs with the lengths
-   checked in Python; their equal-length rows are joined and cut the same way.
+1. Each payload is decoded by msgspec with the header typed (types and ranges checked in C) and each
+   layer kept as its raw msgpack bytes (`msgspec.Raw`: no Python object per array); unknown layers are
+   refused there. Structs are not tracked by Python's cyclic GC (`gc=False`).
+2. Per layer, the rows (that layer's bytes in each delta) of equal byte length form a group. Every row
+   must equal msgspec's own encoding of a cells Struct of that many cells everywhere outside the arrays (`_Template`, found by
+   encoding the Struct with arrays of 0x00 and of 0xFF; learnt per layer and length from one delta
+   decoded with the typed Structs): then the row holds exactly those fields with those lengths, and
+   numpy cuts the arrays of the whole group out at once. Rows in any other layout (another key order,
+   other int widths) take the typed path: Structs built from the layer table (one per layer, its stats
+   as fields, unknown stats refused), array lengths checked in Python, equal-length rows joined and cut
+   the same way.
 3. Over the whole batch at once: ids against the key expression, `res` against the map, finite `t`;
    then, one numpy pass per layer, finite statistics, counts >= 0, indices within +-2**30, no cell twice
    in one delta and layer.
 4. Any payload msgspec refuses, or that a batch check flags, goes through `codec.decode` alone, which
    gives the exact reason and message (or accepts it: e.g. an int `t`, extra top-level fields).
 
-Caches (key expression -> ids; (key, length) -> shape; shape -> decoder) belong to the decoder
-instance and are bounded.
+Caches (key expression -> ids; (layer, byte length) -> template) belong to the decoder instance and are
+bounded.
 """
 
 from __future__ import annotations
@@ -131,44 +128,18 @@ def _shape(d: Any) -> tuple[int, ...] | None:
     return tuple(out)
 
 
-def _fixed(n: int) -> Any:
-    return Annotated[bytes, msgspec.Meta(min_length=n, max_length=n)]
-
-
-def _shaped_decoders(shape: tuple[int, ...]) -> tuple[Any, Any]:
-    """A decoder for deltas of exactly this shape: each present layer's arrays typed with their exact
-    byte length, absent layers forbidden. What it accepts, the generic decoder accepts with that shape."""
-    fields: list[tuple[str, Any, Any]] = []
-    for (name, layer), k in zip(LAYERS.items(), shape, strict=True):
-        if k < 0:
-            fields.append((name, msgspec.UnsetType, msgspec.UNSET))
-            continue
-        cells = msgspec.defstruct(
-            f"{name}_cells_{k}",
-            [("ix", _fixed(4 * k)), ("iy", _fixed(4 * k)), *((st, _fixed(8 * k)) for st in layer.stats)],
-            forbid_unknown_fields=True,
-            gc=False,
-        )
-        fields.append((name, cells, msgspec.NODEFAULT))
-    layers = msgspec.defstruct("Layers_shaped", fields, forbid_unknown_fields=True, gc=False, kw_only=True)
-    delta = msgspec.defstruct(
-        "Delta_shaped",
-        [(f.name, f.type if f.name != "layers" else layers) for f in msgspec.structs.fields(_Delta)],
-        gc=False,
-    )
-    raw_layers = msgspec.defstruct(
-        "Layers_raw",
-        [(f[0], msgspec.Raw if f[2] is msgspec.NODEFAULT else f[1], f[2]) for f in fields],
-        forbid_unknown_fields=True,
-        gc=False,
-        kw_only=True,
-    )
-    raw_delta = msgspec.defstruct(
-        "Delta_raw",
-        [(f.name, f.type if f.name != "layers" else raw_layers) for f in msgspec.structs.fields(_Delta)],
-        gc=False,
-    )
-    return msgspec.msgpack.Decoder(delta).decode, msgspec.msgpack.Decoder(raw_delta).decode
+# every layer as its raw msgpack bytes (an absent layer: empty); unknown layers still refused
+_LayersRaw = msgspec.defstruct(
+    "LayersRaw",
+    [(name, msgspec.Raw, msgspec.Raw()) for name in _LAYER_NAMES],
+    forbid_unknown_fields=True,
+    gc=False,
+)
+_DeltaRaw = msgspec.defstruct(
+    "DeltaRaw",
+    [(f.name, f.type if f.name != "layers" else _LayersRaw) for f in msgspec.structs.fields(_Delta)],
+    gc=False,
+)
 
 
 class _Template:
@@ -259,28 +230,16 @@ class DeltaDecoder:
     """
 
     _MAX_KEYS = 4096
-    _MAX_SHAPES = 256
+    _MAX_TEMPLATES = 4096  # (layer, length) pairs: every cell count up to the limits, for every layer
 
     def __init__(self, res: float | None = None, max_bytes: int = DEFAULT_MAX_BYTES) -> None:
         self.res = res
         self.max_bytes = max_bytes
         self._msgspec = msgspec.msgpack.Decoder(_Delta)
         self._ids: dict[str | tuple[str, str], tuple[str, str] | None] = {}
-        # (key expression, payload length) -> the shape its last delta had; shape -> its decoder
-        self._shape_of: dict[tuple[str | None, int], tuple[int, ...]] = {}
-        self._shaped: dict[tuple[int, ...], tuple[Any, Any]] = {}
-        self._templates: dict[tuple[str, int], _Template] = {}
-
-    def _learn(self, key: str | None, size: int, shape: tuple[int, ...]) -> None:
-        """Remember the shape of a delta of `size` bytes on `key` (bounded: cleared when full)."""
-        if shape not in self._shaped:
-            if len(self._shaped) >= self._MAX_SHAPES:
-                self._shaped.clear()
-                self._shape_of.clear()
-            self._shaped[shape] = _shaped_decoders(shape)
-        if len(self._shape_of) >= self._MAX_KEYS:
-            self._shape_of.clear()
-        self._shape_of[(key, size)] = shape
+        self._raw = msgspec.msgpack.Decoder(_DeltaRaw)
+        # (layer index, raw byte length) -> the template of msgspec's own encoding of that many cells
+        self._templates: dict[tuple[int, int], _Template] = {}
 
     def _key_ids(self, key: str) -> tuple[str, str] | None:
         """(map, scout) a delta key expression names, None if it is no valid delta key (cached)."""
@@ -333,35 +292,35 @@ class DeltaDecoder:
         results: list[Any] = [None] * n
         slow: list[int] = []  # decided by the reference decoder
         typed: list[tuple[int, Any, tuple[int, ...]]] = []  # (sample, typed Struct, shape)
-        fast: list[tuple[int, Any, tuple[int, ...]]] = []  # (sample, Struct with raw layers, shape)
+        fast: list[tuple[int, Any, tuple[Any, ...]]] = []  # (sample, Struct with raw layers, the raw layers)
         max_bytes = self.max_bytes
-        shape_of = self._shape_of
-        errors = (msgspec.MsgspecError, ValueError, TypeError)
-        for i, (key, payload) in enumerate(samples):
-            size = len(payload)
-            if size > max_bytes:
+        raw = self._raw.decode
+        astuple = _astuple
+        for i, (_, payload) in enumerate(samples):
+            if len(payload) > max_bytes:
                 slow.append(i)
                 continue
-            shape = shape_of.get((key, size))
-            if shape is not None:  # this scout sent a delta of this length and shape before
-                try:
-                    fast.append((i, self._shaped[shape][1](payload), shape))
-                    continue
-                except errors:
-                    pass
-            self._decode_typed(i, key, payload, typed, slow)
+            try:
+                d: Any = raw(payload)  # header typed and checked in C, layers as raw bytes
+            except (msgspec.MsgspecError, ValueError, TypeError):  # the reference decoder names it
+                slow.append(i)
+                continue
+            fast.append((i, d, astuple(d.layers)))
         fast = self._checked_headers(samples, fast, slow)
         parts: dict[str, list[LayerColumns]] = {}
-        retry = self._fast_columns(fast, parts)  # rows not in msgspec's own layout: the typed path
+        retry = self._fast_columns(fast, parts, samples)  # rows not in msgspec's own layout: typed path
         for i in retry:
-            key, payload = samples[i]
-            self._decode_typed(i, key, payload, typed, slow, learn=False)
+            self._decode_typed(i, samples[i][1], typed, slow)
         typed = self._checked_headers(samples, typed, slow)
         self._typed_columns(typed, parts)
-        again = set(retry)
-        done = sorted([(i, d) for i, d, _ in typed] + [(i, d) for i, d, _ in fast if i not in again])
-        ok_idx = [i for i, _ in done]
-        ok_delta = [d for _, d in done]
+        if typed or retry:
+            again = set(retry)
+            done = sorted([(i, d) for i, d, _ in typed] + [(i, d) for i, d, _ in fast if i not in again])
+            ok_idx = [i for i, _ in done]
+            ok_delta = [d for _, d in done]
+        else:  # every delta on the fast path, in sample order
+            ok_idx = [i for i, _, _ in fast]
+            ok_delta = [d for _, d, _ in fast]
         bad: set[int] = set()
         columns: dict[str, LayerColumns] = {}
         last_index: tuple[np.ndarray, np.ndarray, np.ndarray, set[int]] | None = None
@@ -398,7 +357,7 @@ class DeltaDecoder:
                 names_of[i] = tuple(
                     nm
                     for nm, c in zip(_LAYER_NAMES, _astuple(d.layers), strict=True)
-                    if c is not msgspec.UNSET
+                    if c is not msgspec.UNSET and not (type(c) is msgspec.Raw and len(c) == 0)
                 )
         # the reference decoder decides everything the batch path did not vouch for
         extra: list[LayerColumns] = []
@@ -430,35 +389,18 @@ class DeltaDecoder:
         return DeltaBatch(results, columns)
 
     def _decode_typed(
-        self,
-        i: int,
-        key: str | None,
-        payload: bytes,
-        typed: list[tuple[int, Any, tuple[int, ...]]],
-        slow: list[int],
-        learn: bool = True,
+        self, i: int, payload: bytes, typed: list[tuple[int, Any, tuple[int, ...]]], slow: list[int]
     ) -> None:
-        """Decode one sample with typed Structs (shape-typed when its shape is known, else generic)."""
-        errors = (msgspec.MsgspecError, ValueError, TypeError)
-        size = len(payload)
-        shape = self._shape_of.get((key, size))
-        if shape is not None:
-            try:
-                typed.append((i, self._shaped[shape][0](payload), shape))  # array lengths checked in C
-                return
-            except errors:
-                pass
+        """Decode one sample with the typed Structs, its array lengths checked in Python."""
         try:
             d = self._msgspec.decode(payload)
-        except errors:  # the reference decoder names what is wrong
+        except (msgspec.MsgspecError, ValueError, TypeError):  # the reference decoder names what is wrong
             slow.append(i)
             return
         shape = _shape(d)
         if shape is None:  # arrays of one layer disagree in length
             slow.append(i)
             return
-        if learn:
-            self._learn(key, size, shape)
         typed.append((i, d, shape))
 
     def _checked_headers(
@@ -483,53 +425,63 @@ class DeltaDecoder:
         return [x for x, g in zip(decoded, good.tolist(), strict=True) if g]
 
     def _fast_columns(
-        self, fast: list[tuple[int, Any, tuple[int, ...]]], parts: dict[str, list[LayerColumns]]
+        self,
+        fast: list[tuple[int, Any, tuple[Any, ...]]],
+        parts: dict[str, list[LayerColumns]],
+        samples: Sequence[tuple[str | None, bytes]],
     ) -> list[int]:
-        """Columns of the deltas decoded with raw layers: per shape and layer, the rows (each layer's
-        msgpack bytes) must equal msgspec's own encoding of a cells Struct of that shape outside the
-        arrays (`_template`), so they hold exactly those fields; the arrays are cut out by numpy.
-        Returns the samples whose rows differ (another key order, other int widths): the typed path."""
-        groups: dict[tuple[int, ...], list[tuple[int, Any]]] = {}
-        for i, d, shape in fast:
-            groups.setdefault(shape, []).append((i, d.layers))
-        retry: list[int] = []
-        for shape, members in groups.items():
-            idx = np.array([i for i, _ in members], np.int64)
-            layers = [lay for _, lay in members]
-            ok = np.ones(idx.size, bool)
-            rows_of: dict[str, tuple[np.ndarray, _Template]] = {}
-            for name, k, get in zip(_LAYER_NAMES, shape, _LAYER_GETTERS, strict=True):
-                if k < 0:
+        """Columns of the deltas decoded with raw layers. Per layer, the rows of equal byte length form a
+        group; every row must equal msgspec's own encoding of a cells Struct of that many cells outside
+        the arrays (`_Template`), so it holds exactly those fields and lengths, and numpy cuts the arrays
+        of the whole group out at once. Returns the samples with a row in any other layout (another key
+        order, other int widths, wrong lengths): they take the typed path, with all their layers."""
+        if not fast:
+            return []
+        idx_all = np.array([i for i, _, _ in fast], np.int64)
+        n_layers = len(_LAYER_NAMES)
+        lays = [lay for _, _, lay in fast]
+        lens_all = np.fromiter(
+            map(len, chain.from_iterable(lays)), np.int64, idx_all.size * n_layers
+        ).reshape(-1, n_layers)  # (n, layers): each layer's byte length, 0 where absent
+        by_layer = list(zip(*lays, strict=True))  # per layer: the raws of every delta
+        bad = np.zeros(idx_all.size, bool)
+        all_rows = np.arange(idx_all.size)
+        checked: list[tuple[str, np.ndarray, np.ndarray, _Template]] = []  # (layer, rows of fast, rows, tpl)
+        for j, name in enumerate(_LAYER_NAMES):
+            sizes = lens_all[:, j]
+            raws = by_layer[j]
+            lo, hi = int(sizes.min()), int(sizes.max())
+            if lo == hi:  # one size for every delta (or absent from all)
+                sizes_here = [hi] if hi > 0 else []
+            else:
+                sizes_here = np.unique(sizes[sizes > 0]).tolist()
+            for size in sizes_here:
+                sel = all_rows if lo == hi else np.flatnonzero(sizes == size)
+                tpl = self._template(j, size, samples[int(idx_all[sel[0]])][1])
+                if tpl is None:
+                    bad[sel] = True
                     continue
-                tpl = self._template(name, k)
-                raws = list(map(get, layers))
-                buf = b"".join(raws)
-                if len(buf) != idx.size * tpl.size:
-                    lens = np.fromiter(map(len, raws), np.int64, len(raws))
-                    ok &= lens == tpl.size
-                    buf = b"".join(
-                        r if s == tpl.size else bytes(tpl.size)
-                        for r, s in zip(raws, lens.tolist(), strict=True)
-                    )
-                rows = np.frombuffer(buf, np.uint8).reshape(idx.size, tpl.size)
-                ok &= (rows[:, tpl.frame_idx] == tpl.frame_vals).all(axis=1)
-                rows_of[name] = (rows, tpl)
-            if not ok.all():
-                retry.extend(idx[~ok].tolist())
-                idx = idx[ok]
-                rows_of = {nm: (rows[ok], tpl) for nm, (rows, tpl) in rows_of.items()}
-            if not idx.size:
+                rows = np.frombuffer(b"".join([raws[x] for x in sel.tolist()]), np.uint8).reshape(
+                    sel.size, size
+                )
+                bad[sel] |= ~(rows[:, tpl.frame_idx] == tpl.frame_vals).all(axis=1)
+                checked.append((name, sel, rows, tpl))
+        for name, sel, rows, tpl in checked:
+            keep = ~bad[sel]
+            if not keep.all():
+                sel, rows = sel[keep], rows[keep]
+            if not sel.size:
                 continue
-            m = idx.size
-            for name, (rows, tpl) in rows_of.items():
-                k = tpl.cells
-                ix = rows[:, tpl.ix : tpl.ix + 4 * k].view(_I32).reshape(-1)
-                iy = rows[:, tpl.iy : tpl.iy + 4 * k].view(_I32).reshape(-1)
-                vals = np.empty((len(tpl.stats), m * k))
-                for r, a in enumerate(tpl.stats):
-                    vals[r] = rows[:, a : a + 8 * k].view(_F64).reshape(-1)
-                parts.setdefault(name, []).append(LayerColumns(LAYERS[name], np.repeat(idx, k), ix, iy, vals))
-        return retry
+            m, k = sel.size, tpl.cells
+            ix = rows[:, tpl.ix : tpl.ix + 4 * k].view(_I32).reshape(-1)
+            iy = rows[:, tpl.iy : tpl.iy + 4 * k].view(_I32).reshape(-1)
+            vals = np.empty((len(tpl.stats), m * k))
+            for r, a in enumerate(tpl.stats):
+                vals[r] = rows[:, a : a + 8 * k].view(_F64).reshape(-1)
+            parts.setdefault(name, []).append(
+                LayerColumns(LAYERS[name], np.repeat(idx_all[sel], k), ix, iy, vals)
+            )
+        return idx_all[bad].tolist()
 
     def _typed_columns(
         self, typed: list[tuple[int, Any, tuple[int, ...]]], parts: dict[str, list[LayerColumns]]
@@ -560,13 +512,29 @@ class DeltaDecoder:
                 vals = rows[:, 8 * k :].view(_F64).reshape(m, S, k).transpose(1, 0, 2).reshape(S, m * k)
                 parts.setdefault(name, []).append(LayerColumns(layer, np.repeat(idx, k), ix, iy, vals))
 
-    def _template(self, name: str, k: int) -> _Template:
-        got = self._templates.get((name, k))
-        if got is None:
-            if len(self._templates) >= 4 * self._MAX_SHAPES:
-                self._templates.clear()
-            got = self._templates[(name, k)] = _Template(LAYERS[name], k)
-        return got
+    def _template(self, j: int, size: int, payload: bytes) -> _Template | None:
+        """The template of layer `j` whose encoding is `size` bytes long, learnt from `payload` (a delta
+        with that layer of that size): None when that payload's layer is not msgspec's own layout."""
+        got = self._templates.get((j, size))
+        if got is not None:
+            return got
+        try:
+            d = self._msgspec.decode(payload)
+        except (msgspec.MsgspecError, ValueError, TypeError):
+            return None
+        cells = _astuple(d.layers)[j]
+        if cells is msgspec.UNSET:
+            return None
+        nb = len(_astuple(cells)[0])
+        if nb % 4:
+            return None
+        tpl = _Template(LAYERS[_LAYER_NAMES[j]], nb // 4)
+        if tpl.size != size:  # not the canonical encoding of that many cells: no template for this size
+            return None
+        if len(self._templates) >= self._MAX_TEMPLATES:
+            self._templates.clear()
+        self._templates[(j, size)] = tpl
+        return tpl
 
     @staticmethod
     def _attach_views(

@@ -209,7 +209,7 @@ def test_every_shape_decodes_on_the_shaped_path_like_the_reference(layers):
     second = encode(make_delta(seq=2, seed=2, layers=layers))
     assert len(first) == len(second)
     decoder.decode([(key, first)])
-    assert decoder._shape_of  # learnt
+    assert decoder._templates  # learnt
     batch = decoder.decode([(key, second)], views=True)
     want = decode(second)
     got = batch.results[0]
