@@ -16,6 +16,7 @@ from typing import Any
 
 import zenoh
 
+from common.errors import QueryError
 from protocol.codec import decode
 from protocol.errors import ProtocolError
 from protocol.keys import status_key
@@ -24,10 +25,6 @@ from protocol.messages import Status
 __all__ = ["QueryError", "Replies", "get_one", "get_replies", "get_status"]
 
 log = logging.getLogger(__name__)
-
-
-class QueryError(Exception):
-    """No server answered a query in time, or every answer was an error; the message says which."""
 
 
 @dataclass

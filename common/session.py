@@ -7,14 +7,13 @@ import ipaddress
 import json
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
-__all__ = ["MODES", "InsecureListen", "zenoh_config"]
+from common.errors import InsecureListen, SessionError
+
+__all__ = ["MODES", "InsecureListen", "SessionError", "open_session", "zenoh_config"]
 
 MODES = ("peer", "client", "router")
-
-
-class InsecureListen(ValueError):
-    """Listening on a non-loopback endpoint without credentials, and `--insecure` was not given."""
 
 
 def _loopback(endpoint: str) -> bool:
@@ -82,3 +81,14 @@ def _authenticated(conf) -> bool:  # type: ignore[no-untyped-def]
     usr = get("transport/auth/usrpwd") or {}
     tls = get("transport/link/tls") or {}
     return bool(usr.get("dictionary_file") or usr.get("user")) or bool(tls.get("enable_mtls"))
+
+
+def open_session(conf: Any) -> Any:
+    """`zenoh.open(conf)`, or a SessionError saying what went wrong (endpoints look like tcp/HOST:PORT;
+    to connect, a router must be listening there)."""
+    import zenoh
+
+    try:
+        return zenoh.open(conf)
+    except zenoh.ZError as exc:
+        raise SessionError(f"cannot open a Zenoh session: {exc}") from None

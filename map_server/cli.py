@@ -65,11 +65,11 @@ def _logging(args: argparse.Namespace) -> None:
 
 def _open(conf: Any, args: argparse.Namespace) -> Any:
     """A Zenoh session, or a usage error that names the endpoints and what would have worked."""
-    import zenoh
+    from common.session import SessionError, open_session
 
     try:
-        return zenoh.open(conf)
-    except zenoh.ZError as exc:
+        return open_session(conf)
+    except SessionError as exc:
         eps = ", ".join(
             [*_endpoints(getattr(args, "listen", None)), *_endpoints(getattr(args, "connect", None))]
         )

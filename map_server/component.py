@@ -58,8 +58,6 @@ def run(
     """Serve the map until `stop` is set (default: SIGINT / SIGTERM) or the merge worker fails.
     `on_up` is called once the service answers. Raises MapServerConfigError for a configuration or store
     that cannot serve (the message names what would)."""
-    import zenoh
-
     if not config.connect and not config.listen:
         raise MapServerConfigError(
             "give connect endpoints (a router) and/or listen endpoints, e.g. tcp/127.0.0.1:7447"
@@ -72,7 +70,7 @@ def run(
         service.start()
     except MapServerError:
         raise
-    except (ValueError, zenoh.ZError) as exc:
+    except (ValueError, ConnectionError) as exc:
         raise MapServerConfigError(str(exc)) from None
     with service:
         if on_up is not None:

@@ -17,7 +17,7 @@ from typing import Any
 
 import zenoh
 
-from common.session import zenoh_config
+from common.session import open_session, zenoh_config
 from map_server.limits import Limits
 from map_server.merge import Merger
 from map_server.store import MapStore
@@ -122,7 +122,7 @@ class MapService:
             conf.insert_json5("transport/shared_memory/enabled", "false")
         # Zenoh itself drops a message far over the delta limit before buffering it (a margin for framing)
         conf.insert_json5("transport/link/rx/max_message_size", str(c.limits.max_message_bytes + (1 << 20)))
-        self._session = zenoh.open(conf)
+        self._session = open_session(conf)  # SessionError (a ConnectionError) when it cannot
         s = self._session
         self._sub = s.declare_subscriber(
             delta_pattern(c.map_id), zenoh.handlers.FifoChannel(c.channel_capacity)

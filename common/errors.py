@@ -1,0 +1,21 @@
+"""The shared modules' exceptions: one root, `CommonError`."""
+
+from __future__ import annotations
+
+__all__ = ["CommonError", "InsecureListen", "QueryError", "SessionError"]
+
+
+class CommonError(Exception):
+    """Root of every error `common` raises on purpose."""
+
+
+class InsecureListen(CommonError, ValueError):
+    """Listening on a non-loopback endpoint without credentials, and `--insecure` was not given."""
+
+
+class SessionError(CommonError, ConnectionError):
+    """A Zenoh session that cannot be opened (no router where the endpoints point, a refused config)."""
+
+
+class QueryError(CommonError):
+    """No server answered a query in time, or every answer was an error; the message says which."""
