@@ -150,15 +150,7 @@ class Merger:
             payload, expected_type="cell_delta", key=key, res=self.map.res, max_bytes=self.max_bytes
         )
         assert isinstance(delta, CellDelta)
-        if delta.map != self.map_id:
-            raise ProtocolError(
-                "key_mismatch", f"delta for map {delta.map!r}; this server holds {self.map_id!r}"
-            )
-        for name in delta.layers:
-            if name not in self.map.grids:
-                raise ProtocolError(
-                    "unknown_layer", f"map has no layer {name!r}; layers: {', '.join(self.map.grids)}"
-                )
+        self._check_map(delta)
         return delta
 
     def ingest(self, samples: Iterable[tuple[str, bytes]]) -> IngestResult:
