@@ -49,7 +49,7 @@ class NoiseConfig:
     init_yaw: float = 0.002  # σ of the launch yaw [rad]
     init_vel: float = 0.05  # [m/s]
     init_pos: float = 0.005  # [m]
-    init_gyro_bias: float = 0.01  # [rad/s]
+    init_gyro_bias: float = 5e-4  # [rad/s] ≈ 4.5× the power-on calibration's residual (estimator.py)
     init_acc_bias: float = 0.1  # [m/s²]
 
 

@@ -18,10 +18,13 @@ foot still sinking in excluded: in the first 0.1 s of stance its centre still mo
 through the four latest footholds (on a 20° ramp, taking it vertical biased the climb rate by ≈ 9 mm/s).
 
 Tuning: the process noise is the IMU datasheet's (BMI088) densities ×3 (covers the tick averaging and model
-error), bias walks ×10 the sensor model's (the filter must not be over-confident in its biases); leg velocity
-noise 0.04 m/s per axis (encoder-velocity noise through a 0.5 m leg is ≈ 5 mm/s; the rest is touchdown
-transients and foot rolling off the sphere model); gate at χ²₃ = 7.8 (p = 0.05): at p = 0.001 a slow slide
-passed the gate and the robot on its estimate fell on 3 of 4 walks over a μ 0.15 patch at 5° (1 of 4 at p = 0.05).
+error), bias walks ×10 the sensor model's (the filter must not be over-confident in its biases); the initial
+gyro-bias σ is 5e-4 rad/s, ≈ 4.5× what the power-on calibration leaves (1.1e-4 rad/s, sensors/imu.py). It was
+0.01 rad/s, and then a sliding foot, whose leg odometry disagrees with the gripping foot's across a 0.5 m lever
+arm exactly like a turn the gyro does not see, moved the yaw-rate bias, which integrated into heading: 2–3°
+at the goal of the lunar routes, 42° in 10 s of a 5 cm/s slide in the unit test; and the robot balancing on
+that estimate fell on 3 of 4 walks over the 5° ramp's μ 0.15 patch (none since). Leg velocity noise 0.04 m/s per axis (encoder-velocity noise through a 0.5 m leg is ≈ 5 mm/s; the rest is touchdown
+transients and foot rolling off the sphere model); gate at χ²₃ = 7.8 (p = 0.05), so a fast slip is dropped.
 
 Observable: roll, pitch, velocity, gyro bias about horizontal axes. Not observable, so drifting: yaw (the gyro
 bias about gravity left by the power-on calibration integrates into heading), position (integrated velocity
