@@ -9,6 +9,8 @@ A short trot on the ramps is simulated once and its samples recorded; then the w
 (kinematics, slip, CoT, stability, elevation, non-foot contacts) and the map bookkeeping (`record` into a
 `CellAccumulator`, flushed at 5 Hz) are replayed over them, `--repeats` times, and the best repeat is kept
 (the machine is shared; times are CPU time of this process). The parts are timed the same way on the same inputs. Goal: < 50 µs per tick.
+The EKF steps are numba kernels (`scout_agent/state_estimation/kernels.py`); numba compiles them on first use, so
+the warm-up walk that records the samples also loads them before anything is timed.
 
     python benchmarks/estimators.py [--seconds 6] [--slope 10] [--repeats 5]
 """

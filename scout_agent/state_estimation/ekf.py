@@ -27,13 +27,10 @@ import numpy as np
 
 from scout_agent.robot.vectors import cross, skew
 
+from . import kernels
+from .kernels import so3_exp
 
-def so3_exp(w: np.ndarray) -> np.ndarray:
-    th = float(np.sqrt(w @ w))
-    K = skew(w)
-    if th < 1e-8:
-        return np.eye(3) + K + 0.5 * K @ K
-    return np.eye(3) + (np.sin(th) / th) * K + ((1.0 - np.cos(th)) / (th * th)) * K @ K
+__all__ = ["ErrorStateEKF", "NoiseConfig", "so3_exp"]
 
 
 @dataclass(frozen=True)
@@ -80,9 +77,6 @@ class ErrorStateEKF:
             [n.init_acc_bias] * 3,
         ]
         self.P = np.diag(sd**2)
-        self._F = np.eye(15)
-        self._I15 = np.eye(15)
-        self._I3 = np.eye(3)
         self._q = np.r_[
             [n.gyro**2] * 3,
             [n.acc**2] * 3,
@@ -90,26 +84,22 @@ class ErrorStateEKF:
             [n.gyro_bias_walk**2] * 3,
             [n.acc_bias_walk**2] * 3,
         ]  # process noise densities², per unit time
-        self._diag = np.diag_indices(15)
 
     def propagate(self, gyro: np.ndarray, acc: np.ndarray, dt: float) -> np.ndarray:
         """One IMU step; returns the bias-corrected angular velocity ω (base frame) [rad/s]."""
-        w = gyro - self.bg
-        f = acc - self.ba
-        R = self.R
-        a = R @ f + self.g
-        self.p += self.v * dt + 0.5 * a * dt * dt
-        self.v += a * dt
-        self.R = R @ so3_exp(w * dt)
-        F, eye = self._F, self._I3
-        F[0:3, 0:3] = eye - skew(w) * dt
-        F[0:3, 9:12] = -eye * dt
-        F[3:6, 0:3] = -(R @ skew(f)) * dt
-        F[3:6, 12:15] = -R * dt
-        F[6:9, 3:6] = eye * dt
-        self.P = F @ self.P @ F.T
-        self.P[self._diag] += self._q * dt
-        return w
+        return kernels.propagate(
+            self.R,
+            self.v,
+            self.p,
+            self.bg,
+            self.ba,
+            self.P,
+            self.g,
+            self._q,
+            np.asarray(gyro, dtype=float),
+            np.asarray(acc, dtype=float),
+            float(dt),
+        )
 
     def velocity_rows(self, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Predicted z = Rᵀv + [r]× bg (3,) and its Jacobian H (3, 15)."""
@@ -122,15 +112,7 @@ class ErrorStateEKF:
 
     def velocity_rows_many(self, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """`velocity_rows` for k lever arms r (k, 3) at once: predictions (k, 3), stacked Jacobian (3k, 15)."""
-        k = len(r)
-        vb = self.R.T @ self.v
-        H = np.zeros((k, 3, 15))
-        H[:, :, 0:3] = skew(vb)
-        H[:, :, 3:6] = self.R.T
-        H[:, 0, 10], H[:, 0, 11] = -r[:, 2], r[:, 1]
-        H[:, 1, 9], H[:, 1, 11] = r[:, 2], -r[:, 0]
-        H[:, 2, 9], H[:, 2, 10] = -r[:, 1], r[:, 0]
-        return vb + cross(r, self.bg), H.reshape(3 * k, 15)
+        return kernels.velocity_rows_many(self.R, self.v, self.bg, np.ascontiguousarray(r, dtype=float))
 
     def position_z_rows(self) -> np.ndarray:
         """Jacobian (1, 15) of a measurement of the base height p_z."""
@@ -143,32 +125,16 @@ class ErrorStateEKF:
     ) -> np.ndarray:
         """Kalman update with stacked 3-row measurements; the error is folded into the nominal state. With
         `gate_chi2`, each 3-row block whose Mahalanobis distance² exceeds it is dropped first (an outlier, e.g.
-        a slipping foot). Returns the kept blocks' mask."""
-        P = self.P
-        PHt = P @ H.T
-        S = H @ PHt
-        S[np.diag_indices_from(S)] += noise_var
-        keep = np.ones(len(residual) // 3, bool)
-        if gate_chi2 is not None:
-            n = len(keep)
-            idx = np.arange(n)
-            blocks = S.reshape(n, 3, n, 3)[idx, :, idx, :]  # (n, 3, 3) diagonal blocks
-            r3 = residual.reshape(n, 3)
-            d2 = np.einsum("ki,ki->k", r3, np.linalg.solve(blocks, r3[..., None])[..., 0])
-            keep = d2 <= gate_chi2
-            if not keep.all():
-                if not keep.any():
-                    return keep
-                rows = np.repeat(keep, 3)
-                residual, H, noise_var, PHt = residual[rows], H[rows], noise_var[rows], PHt[:, rows]
-                S = S[np.ix_(rows, rows)]
-        K = np.linalg.solve(S, PHt.T).T
-        dx = K @ residual
-        IKH = self._I15 - K @ H
-        self.P = IKH @ P @ IKH.T + (K * noise_var) @ K.T
-        self.R = self.R @ so3_exp(dx[0:3])
-        self.v += dx[3:6]
-        self.p += dx[6:9]
-        self.bg += dx[9:12]
-        self.ba += dx[12:15]
-        return keep
+        a slipping foot). Returns the kept blocks' mask. Joseph-form covariance update (kernels.update)."""
+        return kernels.update(
+            self.R,
+            self.v,
+            self.p,
+            self.bg,
+            self.ba,
+            self.P,
+            np.ascontiguousarray(residual, dtype=float),
+            np.ascontiguousarray(H, dtype=float),
+            np.ascontiguousarray(noise_var, dtype=float),
+            0.0 if gate_chi2 is None else float(gate_chi2),
+        )
