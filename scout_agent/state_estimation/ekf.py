@@ -85,15 +85,14 @@ class ErrorStateEKF:
             [n.acc_bias_walk**2] * 3,
         ]  # process noise densities², per unit time
 
+    def _arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The nominal state and covariance the kernels update in place: R, v, p, bg, ba, P."""
+        return self.R, self.v, self.p, self.bg, self.ba, self.P
+
     def propagate(self, gyro: np.ndarray, acc: np.ndarray, dt: float) -> np.ndarray:
         """One IMU step; returns the bias-corrected angular velocity ω (base frame) [rad/s]."""
         return kernels.propagate(
-            self.R,
-            self.v,
-            self.p,
-            self.bg,
-            self.ba,
-            self.P,
+            *self._arrays(),
             self.g,
             self._q,
             np.asarray(gyro, dtype=float),
@@ -127,12 +126,7 @@ class ErrorStateEKF:
         `gate_chi2`, each 3-row block whose Mahalanobis distance² exceeds it is dropped first (an outlier, e.g.
         a slipping foot). Returns the kept blocks' mask. Joseph-form covariance update (kernels.update)."""
         return kernels.update(
-            self.R,
-            self.v,
-            self.p,
-            self.bg,
-            self.ba,
-            self.P,
+            *self._arrays(),
             np.ascontiguousarray(residual, dtype=float),
             np.ascontiguousarray(H, dtype=float),
             np.ascontiguousarray(noise_var, dtype=float),
