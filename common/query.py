@@ -19,10 +19,20 @@ import zenoh
 from common.errors import QueryError
 from protocol.codec import decode
 from protocol.errors import ProtocolError
-from protocol.keys import status_key
-from protocol.messages import Status
+from protocol.keys import partition_key, status_key
+from protocol.messages import ScoutStatus, Status
+from protocol.partition import Partition
 
-__all__ = ["QueryError", "Replies", "get_one", "get_replies", "get_status"]
+__all__ = [
+    "QueryError",
+    "Replies",
+    "aggregate_status",
+    "get_one",
+    "get_partition",
+    "get_replies",
+    "get_status",
+    "get_statuses",
+]
 
 log = logging.getLogger(__name__)
 
@@ -76,11 +86,94 @@ def get_one(session: zenoh.Session, selector: str, timeout_s: float) -> bytes:
     raise QueryError(f"no reply on {selector!r} within {timeout_s:g} s (is a server for this map up?)")
 
 
+def get_statuses(
+    session: zenoh.Session, map_id: str, timeout_s: float = 2.0, trusted: Iterable[str] = ()
+) -> list[Status]:
+    """Every server's (every shard's) status of `map_id`, fanned out; undecodable replies are skipped;
+    trusted: Zenoh ids of the servers to believe (empty: any)."""
+    out = []
+    for payload in get_replies(session, status_key(map_id), timeout_s, fan_out=True, trusted=trusted).ok:
+        try:
+            st = decode(payload, expected_type="status")
+        except ProtocolError as exc:
+            log.warning("undecodable status reply: %s", exc)
+            continue
+        assert isinstance(st, Status)
+        out.append(st)
+    return out
+
+
+def aggregate_status(parts: list[Status]) -> Status:
+    """One status for a map from its shards' statuses (one per shard; an unsharded map's own is returned).
+
+    Counters (cells, merged, duplicates, rejected, version) are sums: shards own disjoint tiles and number
+    their versions on their own. A scout's `last_seq` is the number of parts merged in order over all
+    shards minus one (each shard has its own seq stream of the scout); alive if any shard sees it. `health`
+    holds the worst worker state, `shards_answered` and `shards_missing`."""
+    if not parts:
+        raise ValueError("no status to aggregate")
+    if all(p.shards == 1 for p in parts):  # unsharded (several replies: one server seen over two routes)
+        return max(parts, key=lambda p: p.version)
+    first = parts[0]
+    by_shard = {p.shard: p for p in parts}  # a shard that answered twice (two routes) counts once
+    k = first.shards
+    rejected: dict[str, int] = {}
+    scouts: dict[str, list[ScoutStatus]] = {}
+    for p in by_shard.values():
+        for r, n in p.rejected.items():
+            rejected[r] = rejected.get(r, 0) + n
+        for name, sc in p.scouts.items():
+            scouts.setdefault(name, []).append(sc)
+    order = ("failed", "waiting_for_store", "ok")
+    states = [str(p.health.get("worker", "ok")) for p in by_shard.values()]
+    worst = min(states, key=lambda x: order.index(x) if x in order else 0)
+    missing = sorted(set(range(k)) - {p.shard for p in by_shard.values()})
+    health: dict[str, str | float | None] = {
+        "worker": worst,
+        "shards_answered": float(len(by_shard)),
+        "shards_missing": ",".join(map(str, missing)) or None,
+    }
+    return Status(
+        first.map,
+        first.res,
+        sum(p.version for p in by_shard.values()),
+        sum(p.cells for p in by_shard.values()),
+        sum(p.merged for p in by_shard.values()),
+        sum(p.duplicates for p in by_shard.values()),
+        rejected,
+        {
+            n: ScoutStatus(
+                max(s.epoch for s in v), sum(s.last_seq + 1 for s in v) - 1, any(s.alive for s in v)
+            )
+            for n, v in scouts.items()
+        },
+        health,
+        max(p.t for p in by_shard.values()),
+        None,
+        k,
+    )
+
+
+def get_partition(session: zenoh.Session, map_id: str, timeout_s: float = 2.0) -> Partition | None:
+    """The map's partition as its servers publish it (`psr/<map>/partition`); None when none answered.
+    Raises QueryError when servers disagree (a misconfigured deployment must not be guessed around)."""
+    import msgpack
+
+    found: set[Partition] = set()
+    for payload in get_replies(session, partition_key(map_id), timeout_s, fan_out=True).ok:
+        try:
+            found.add(Partition.from_dict(msgpack.unpackb(payload, raw=False)))
+        except (ProtocolError, ValueError) as exc:
+            log.warning("bad partition reply: %s", exc)
+    if len(found) > 1:
+        raise QueryError(
+            f"the servers of map {map_id!r} publish different partitions: {sorted(map(str, found))}"
+        )
+    return found.pop() if found else None
+
+
 def get_status(session: zenoh.Session, map_id: str, timeout_s: float = 2.0) -> Status | None:
-    """The map's status, or None when no server answered (or the answer was not a valid status)."""
-    try:
-        msg = decode(get_one(session, status_key(map_id), timeout_s), expected_type="status")
-    except (QueryError, ProtocolError):
-        return None
-    assert isinstance(msg, Status)
-    return msg
+    """The map's status — aggregated over its shards when it is sharded (`aggregate_status`) — or None when
+    no server answered (or no answer was a valid status)."""
+    parts = get_statuses(session, map_id, timeout_s)
+    return aggregate_status(parts) if parts else None

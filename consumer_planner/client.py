@@ -1,4 +1,5 @@
-"""The planner's only Zenoh module: region queries of the `map` queryable, fanned out to every shard.
+"""The planner's only Zenoh module: region queries of the `map` queryable, fanned out to every shard, and
+region change notifications (`RegionWatch`).
 
 `get(psr/<map>/map?x0=..;y0=..;x1=..;y1=..;stats=all)` goes out through `common.query` with
 `fan_out=True` (target ALL, no consolidation), so every map-server shard that owns part of the box
@@ -10,21 +11,24 @@ answers; the replies are decoded with `protocol.codec.decode` (validated) and st
 from __future__ import annotations
 
 import logging
+import threading
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+import numpy as np
 import zenoh
 
-from common.query import get_replies
+from common.query import get_replies, get_statuses
 from common.session import zenoh_config
 from consumer_planner.errors import PlannerError
 from mapcore import LayerGrid, MapCoreError, stitch
 from protocol.codec import decode
 from protocol.errors import ProtocolError
-from protocol.keys import map_key, status_key
-from protocol.messages import MapRegion, RegionQuery, Status
+from protocol.keys import changes_pattern, map_key
+from protocol.layers import cell_index
+from protocol.messages import MapRegion, RegionQuery, TileChanges
 
-__all__ = ["ClientConfig", "MapClient", "query_region", "trusted_servers"]
+__all__ = ["ClientConfig", "MapClient", "RegionChange", "RegionWatch", "query_region", "trusted_servers"]
 
 log = logging.getLogger(__name__)
 
@@ -131,17 +135,72 @@ class MapClient:
         where the recording logs a plan made now), None when no server answers."""
         if self._session is None:
             raise RuntimeError("MapClient used outside its `with` block")
-        best: float | None = None
-        replies = get_replies(
-            self._session, status_key(map_id), self.config.timeout_s, fan_out=True,
-            trusted=self.config.trusted_servers,
-        )  # fmt: skip
-        for payload in replies.ok:
-            try:
-                st = decode(payload, expected_type="status")
-            except ProtocolError as exc:
-                log.warning("undecodable status reply: %s", exc)
-                continue
-            assert isinstance(st, Status)
-            best = st.t if best is None else max(best, st.t)
-        return best
+        parts = get_statuses(self._session, map_id, self.config.timeout_s, self.config.trusted_servers)
+        return max((st.t for st in parts), default=None)
+
+
+# ---------------------------------------------------------------------------------------------- changes
+# Every map server (every shard) publishes a `TileChanges` after each committed batch on
+# `psr/<map>/changes/<server>`; `RegionWatch` subscribes to all of them, keeps the changes that touch its box
+# and remembers each shard's newest version, so a planner re-queries and replans only when its corridor
+# changed (`changed()`), not on every delta anywhere on the map.
+
+
+@dataclass(frozen=True)
+class RegionChange:
+    shard: int | None  # which shard (None: an unsharded map)
+    version: int  # that shard's map version holding the change
+    tiles: np.ndarray  # (n, 2) tx, ty of the changed tiles that overlap the watched box
+
+
+class RegionWatch:
+    """`with RegionWatch(session, map_id, res, (x0, y0, x1, y1)) as w: ... w.changed(timeout)`."""
+
+    def __init__(
+        self, session: zenoh.Session, map_id: str, res: float, box: tuple[float, float, float, float]
+    ):
+        x0, y0, x1, y1 = box
+        lo = cell_index(min(x0, x1), min(y0, y1), res)
+        hi = cell_index(max(x0, x1), max(y0, y1), res)
+        self.cells = (int(lo[0]), int(lo[1]), int(hi[0]), int(hi[1]))  # inclusive cell box
+        self.versions: dict[
+            int | None, int
+        ] = {}  # newest version seen per shard (any change, in the box or not)
+        self._pending: list[RegionChange] = []
+        self._cond = threading.Condition()
+        self.ignored = 0  # undecodable notifications
+        self._sub = session.declare_subscriber(changes_pattern(map_id), self._on)
+
+    def _on(self, sample: zenoh.Sample) -> None:
+        try:
+            msg = decode(sample.payload.to_bytes(), expected_type="tile_changes")
+        except ProtocolError as exc:
+            self.ignored += 1
+            log.warning("ignoring a bad tile_changes on %s: %s", sample.key_expr, exc)
+            return
+        assert isinstance(msg, TileChanges)
+        b = msg.boxes()
+        ix0, iy0, ix1, iy1 = self.cells
+        hit = (b[:, 0] <= ix1) & (b[:, 2] >= ix0) & (b[:, 1] <= iy1) & (b[:, 3] >= iy0)
+        with self._cond:
+            self.versions[msg.shard] = max(self.versions.get(msg.shard, -1), msg.version)
+            if hit.any():
+                self._pending.append(RegionChange(msg.shard, msg.version, np.asarray(msg.tiles)[hit]))
+                self._cond.notify_all()
+
+    def changed(self, timeout_s: float = 0.0) -> list[RegionChange]:
+        """The changes inside the box since the previous call (waiting up to `timeout_s` for the first)."""
+        with self._cond:
+            if not self._pending and timeout_s > 0:
+                self._cond.wait(timeout_s)
+            out, self._pending = self._pending, []
+        return out
+
+    def close(self) -> None:
+        self._sub.undeclare()
+
+    def __enter__(self) -> RegionWatch:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

@@ -117,6 +117,8 @@ def server_config(args: argparse.Namespace) -> Any:
         rrd=args.rrd,
         zenoh_config=args.zenoh_config,
         insecure=args.insecure,
+        shards=args.shards,
+        shard=args.shard,
         limits=Limits(**{f.name: getattr(args, f"limit_{f.name}") for f in dataclasses.fields(Limits)}),
     )
 
@@ -130,6 +132,10 @@ def cmd_server(args: argparse.Namespace) -> int:
         args.parser.error("give --connect tcp/HOST:PORT (a router) and/or --listen tcp/HOST:PORT")
     if not args.res > 0:
         args.parser.error(f"--res {args.res}: need a cell size > 0 [m]")
+    if args.shards > 1 and (args.shard is None or not 0 <= args.shard < args.shards):
+        args.parser.error(f"--shards {args.shards}: give --shard I with 0 ≤ I ≤ {args.shards - 1}")
+    if args.shards == 1 and args.shard not in (None, 0):
+        args.parser.error(f"--shard {args.shard}: a sharded map needs --shards K > 1 as well")
     cfg = server_config(args)
 
     def up(service: Any) -> None:
@@ -156,13 +162,17 @@ def _get_one(args: argparse.Namespace, selector: str) -> bytes:
 
 
 def cmd_status(args: argparse.Namespace) -> int:
-    from protocol.codec import decode
-    from protocol.keys import status_key
-    from protocol.messages import Status
+    """The map's status; for a sharded map the aggregate over its shards, each shard's own under `shards`."""
+    from common.query import aggregate_status, get_statuses
 
-    st = decode(_get_one(args, status_key(args.map)), expected_type="status")
-    assert isinstance(st, Status)
-    out = st.to_json()
+    with _open(_conf(args, _endpoints(args.connect)), args) as s:
+        parts = get_statuses(s, args.map, args.timeout)
+    if not parts:
+        print(f"error: no server of map {args.map!r} answered within {args.timeout:g} s", file=sys.stderr)
+        return 1
+    out = aggregate_status(parts).to_json()
+    if parts[0].shards > 1:
+        out["shard_status"] = [p.to_json() for p in sorted(parts, key=lambda p: p.shard or 0)]
     print(json.dumps(out, indent=2))
     return 0
 
@@ -280,6 +290,13 @@ def register(subparsers: Any) -> None:
     )
     p.add_argument("--listen", action="append", default=None, help="also run as a router listening here")
     p.add_argument("--rrd", default=None, help="log merged layers to this Rerun .rrd file")
+    p.add_argument(
+        "--shards", type=_positive_int, default=1, metavar="K",
+        help="the map is split over K shard servers by tile (protocol.partition; default 1: unsharded)",
+    )  # fmt: skip
+    p.add_argument(
+        "--shard", type=int, default=None, metavar="I", help="with --shards K: this server's shard, 0..K-1"
+    )
     add_security_arguments(p, listens=True)
     g = p.add_argument_group("limits (a message or query over one is rejected, naming it)")
     for f in dataclasses.fields(Limits):

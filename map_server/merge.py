@@ -26,6 +26,7 @@ from mapcore import TiledMap
 from protocol.codec import DEFAULT_MAX_BYTES, decode
 from protocol.errors import ProtocolError
 from protocol.messages import Ack, CellDelta
+from protocol.partition import Partition
 
 __all__ = ["Accepted", "IngestResult", "MergeBook", "Merger", "SeqState", "payload_digest"]
 
@@ -135,9 +136,17 @@ class Merger:
         *,
         max_bytes: int = DEFAULT_MAX_BYTES,
         limits: Limits | None = None,
+        partition: Partition | None = None,
+        shard: int | None = None,
     ) -> None:
+        """partition, shard: this merger holds shard `shard` of a sharded map and rejects deltas with cells
+        of other shards (`wrong_shard`); None: an unsharded map."""
         self.map = tiled
         self.map_id = map_id
+        self.partition = partition if partition is not None and partition.shards > 1 else None
+        self.shard = shard if self.partition is not None else None
+        if self.partition is not None:
+            self.partition.check_shard(shard)  # type: ignore[arg-type]
         self.book = book or MergeBook()
         self.limits = limits or Limits(max_message_bytes=max_bytes)
         self.max_bytes = self.limits.max_message_bytes
@@ -170,6 +179,8 @@ class Merger:
         map_id = self.map_id
         unknown = {name for name in batch.columns if name not in self.map.grids}
         no_layer = self._without_layer(batch, unknown) if unknown else {}
+        if self.partition is not None:
+            no_layer.update(self._foreign(batch, no_layer))
         no_layer.update(self._over_limits(batch, no_layer))
         take = [False] * len(samples)
         acked: dict[tuple[str, int], CellDelta] = {}
@@ -297,6 +308,28 @@ class Merger:
                 )
             else:
                 created |= new
+        return out
+
+    def _foreign(self, batch: DeltaBatch, already: dict[int, ProtocolError]) -> dict[int, ProtocolError]:
+        """Deltas with a cell another shard owns -> `wrong_shard` (nothing of them is merged)."""
+        part, me = self.partition, self.shard
+        assert part is not None
+        out: dict[int, ProtocolError] = {}
+        for c in batch.columns.values():
+            sh = part.shard_of(c.ix, c.iy)
+            bad = sh != me
+            if not bad.any():
+                continue
+            for i in np.unique(c.seg[bad]).tolist():
+                if i in out or i in already:
+                    continue
+                others = sorted(set(np.unique(sh[(c.seg == i) & bad]).tolist()))
+                out[int(i)] = ProtocolError(
+                    "wrong_shard",
+                    f"delta has cells of shard(s) {others}; this server is shard {me} of {part.shards} "
+                    f"(partition {part.scheme}, tile {part.tile}): send each shard only its cells "
+                    "(protocol.partition.Partition.split)",
+                )
         return out
 
     def _without_layer(self, batch: DeltaBatch, unknown: set[str]) -> dict[int, ProtocolError]:

@@ -15,6 +15,8 @@ import time
 from dataclasses import dataclass, field
 from typing import Any
 
+import msgpack
+import numpy as np
 import zenoh
 
 from common.session import open_session, zenoh_config
@@ -28,14 +30,18 @@ from protocol.keys import (
     ack_key,
     alive_key,
     alive_pattern,
+    changes_key,
     delta_key,
     delta_pattern,
     map_key,
     parse_alive_key,
+    partition_key,
+    server_who,
     status_key,
 )
 from protocol.layers import cell_index
-from protocol.messages import MapRegion, RegionQuery, ScoutStatus, Status
+from protocol.messages import MapRegion, RegionQuery, ScoutStatus, Status, TileChanges
+from protocol.partition import Partition
 
 __all__ = ["MapService", "ServerConfig"]
 
@@ -74,6 +80,31 @@ class ServerConfig:
     # delta costs a copy of 5 KiB instead
     shared_memory: bool = False
     checkpoint_s: float = 0.5  # WAL checkpoint period of the background checkpointer
+    # sharded map (protocol.partition): this server is shard `shard` of `shards`; it subscribes only its own
+    # delta key, rejects cells of other shards (`wrong_shard`) and answers queries for the cells it owns
+    shards: int = 1
+    shard: int | None = None
+    changes: bool = (
+        True  # publish the tiles each committed batch changed (TileChanges on psr/<map>/changes/…)
+    )
+
+    def __post_init__(self) -> None:
+        part = Partition(self.shards, self.tile)  # ProtocolError naming what is valid
+        if self.shards > 1:
+            if self.shard is None:
+                raise ValueError(f"shards={self.shards}: give this server's shard, 0..{self.shards - 1}")
+            part.check_shard(self.shard)
+        elif self.shard not in (None, 0):
+            raise ValueError(f"shard={self.shard} of an unsharded map (shards=1): give shards=K > 1 too")
+
+    @property
+    def partition(self) -> Partition:
+        return Partition(self.shards, self.tile)
+
+    @property
+    def shard_id(self) -> int | None:
+        """None for an unsharded map (contract v1 keys), else the shard index."""
+        return self.shard if self.shards > 1 else None
 
 
 class MapService:
@@ -83,7 +114,9 @@ class MapService:
         self.config = config
         self.map = TiledMap(config.res, config.tile)
         self.newest_t = 0.0  # newest merged sample's scout clock [s] (the recording's sim_time)
-        self.merger = Merger(self.map, config.map_id, limits=config.limits)
+        self.merger = Merger(
+            self.map, config.map_id, limits=config.limits, partition=config.partition, shard=config.shard_id
+        )
         self.store = (
             MapStore(config.db, config.map_id, config.res, config.tile, auto_checkpoint=False)
             if config.db
@@ -102,6 +135,7 @@ class MapService:
         self._entities: list[Any] = []
         self._threads: list[threading.Thread] = []
         self._viz: Any = None
+        self._changes_pub: Any = None
         self._last_step = 0.0  # monotonic time of the last snapshot slice
         if config.rrd:
             from map_server.viz import MapViz
@@ -125,12 +159,15 @@ class MapService:
         self._session = open_session(conf)  # SessionError (a ConnectionError) when it cannot
         s = self._session
         self._sub = s.declare_subscriber(
-            delta_pattern(c.map_id), zenoh.handlers.FifoChannel(c.channel_capacity)
+            delta_pattern(c.map_id, c.shard_id), zenoh.handlers.FifoChannel(c.channel_capacity)
         )
+        self._changes_pub = s.declare_publisher(changes_key(c.map_id, c.shard_id)) if c.changes else None
         self._entities += [
             self._sub,
+            *([self._changes_pub] if self._changes_pub is not None else []),
             s.declare_queryable(map_key(c.map_id), self._queries.put),
             s.declare_queryable(status_key(c.map_id), self._queries.put),
+            s.declare_queryable(partition_key(c.map_id), self._queries.put),
             s.liveliness().declare_subscriber(alive_pattern(c.map_id), self._on_alive, history=True),
         ]
         self._threads = [
@@ -143,7 +180,7 @@ class MapService:
             )
         for t in self._threads:
             t.start()
-        self._entities.append(s.liveliness().declare_token(alive_key(c.map_id, "server")))
+        self._entities.append(s.liveliness().declare_token(alive_key(c.map_id, server_who(c.shard_id))))
         self.ready.set()
         log.info(
             "map %s (res %.3f m) up; %d cells, %d deltas replayed",
@@ -160,7 +197,7 @@ class MapService:
             return
         self._stopping.set()
         if self._session is not None:
-            self._session.put(delta_key(self.config.map_id, _WAKE), b"")
+            self._session.put(delta_key(self.config.map_id, _WAKE, self.config.shard_id), b"")
             self._queries.put(None)
             for t in self._threads:
                 t.join(timeout=10)
@@ -288,7 +325,9 @@ class MapService:
                     self.store.commit(res.accepted, self.merger.book, res.touched)
                 except sqlite3.Error as exc:
                     store_error = exc
-            touched = self.map.take_touched() if self._viz is not None else set()
+            touched = (
+                self.map.take_touched() if self._viz is not None or self._changes_pub is not None else set()
+            )
             version = self.merger.book.version
         if res.accepted:
             self.newest_t = max(self.newest_t, *(a.delta.t for a in res.accepted))
@@ -297,8 +336,11 @@ class MapService:
                 self._commit_until_durable(res, store_error)
             except _Stopped:
                 return  # stopping with the batch not durable: no acks, the scouts resend it
+        shard = self.config.shard_id
         for ack in res.acks.values():
-            self._session.put(ack_key(ack.map, ack.scout), encode(ack))
+            self._session.put(ack_key(ack.map, ack.scout, shard), encode(ack))
+        if self._changes_pub is not None and touched:
+            self._publish_changes(touched, version)
         store = self.store
         if store is not None:
             # only this thread changes the map, so snapshot slices read it without the lock (queries
@@ -316,6 +358,16 @@ class MapService:
                 self._snapshot_step()
         if self._viz is not None and touched:
             self._viz.log_tiles(self.map, touched, self.lock, version, self.newest_t)
+
+    def _publish_changes(self, touched: set[tuple[str, int, int]], version: int) -> None:
+        """Tell watchers which tiles this batch changed (once it is durable: after the commit above)."""
+        tiles = np.array(sorted({(tx, ty) for _, tx, ty in touched}), np.int32).reshape(-1, 2)
+        c = self.config
+        msg = TileChanges(c.map_id, c.shard_id, version, self.map.res, self.map.tile, tiles)
+        try:
+            self._changes_pub.put(encode(msg))
+        except zenoh.ZError as exc:  # a notification is advisory: never let it stop the merge worker
+            log.warning("could not publish tile changes: %s", exc)
 
     def _snapshot_step(self) -> None:
         assert self.store is not None
@@ -350,6 +402,8 @@ class MapService:
                     key = str(query.key_expr)
                     if key == status_key(self.config.map_id):
                         query.reply(key, encode(self.status()))
+                    elif key == partition_key(self.config.map_id):
+                        query.reply(key, msgpack.packb(self.config.partition.to_dict()))
                     else:
                         rq = RegionQuery.parse(str(query.parameters))
                         query.reply(key, encode(self.region(rq)))
@@ -400,6 +454,8 @@ class MapService:
                 scouts,
                 health,
                 self.newest_t,
+                self.config.shard_id,
+                self.config.shards,
             )
 
     def region(self, rq: RegionQuery) -> MapRegion:
@@ -440,15 +496,15 @@ def free_endpoint(host: str = "127.0.0.1") -> str:
         return f"tcp/{host}:{s.getsockname()[1]}"
 
 
-def wait_for_server(session: Any, map_id: str, timeout_s: float = 10.0) -> bool:
-    """Block until the server's liveliness token of `map_id` is visible from `session`."""
+def wait_for_server(session: Any, map_id: str, timeout_s: float = 10.0, shard: int | None = None) -> bool:
+    """Block until the server's liveliness token of `map_id` (of its shard `shard`) is visible from `session`."""
     seen = threading.Event()
 
     def on(sample: zenoh.Sample) -> None:
         if sample.kind == zenoh.SampleKind.PUT:
             seen.set()
 
-    sub = session.liveliness().declare_subscriber(alive_key(map_id, "server"), on, history=True)
+    sub = session.liveliness().declare_subscriber(alive_key(map_id, server_who(shard)), on, history=True)
     try:
         return seen.wait(timeout_s)
     finally:

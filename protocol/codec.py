@@ -11,14 +11,14 @@ import numpy as np
 from protocol.errors import DEFAULT_MAX_BYTES, ProtocolError
 from protocol.keys import parse_ack_key, parse_delta_key, validate_id
 from protocol.layers import Layer, get_layer
-from protocol.messages import VERSION, Ack, CellDelta, MapRegion, ScoutStatus, Status
+from protocol.messages import VERSION, Ack, CellDelta, MapRegion, ScoutStatus, Status, TileChanges
 
 __all__ = ["DEFAULT_MAX_BYTES", "INDEX_LIMIT", "Message", "decode", "encode"]
 
 INDEX_LIMIT = 2**30  # |ix|, |iy| must not exceed this
 INT64_MAX = 2**63 - 1
-Message = CellDelta | Ack | MapRegion | Status
-TYPES = ("cell_delta", "ack", "map_region", "status")
+Message = CellDelta | Ack | MapRegion | Status | TileChanges
+TYPES = ("cell_delta", "ack", "map_region", "status", "tile_changes")
 
 _I32 = np.dtype("<i4")
 _F64 = np.dtype("<f8")
@@ -92,8 +92,22 @@ def encode(msg: Message) -> bytes:
             "health": dict(msg.health),
             "t": float(msg.t),
         }
+        if msg.shards > 1:
+            body["shard"], body["shards"] = int(msg.shard or 0), int(msg.shards)
+    elif isinstance(msg, TileChanges):
+        body = {
+            "type": "tile_changes",
+            "map": msg.map,
+            "shard": -1 if msg.shard is None else int(msg.shard),
+            "version": int(msg.version),
+            "res": float(msg.res),
+            "tile": int(msg.tile),
+            "tiles": _arr(np.asarray(msg.tiles).reshape(-1), _I32),
+        }
     else:
-        raise TypeError(f"cannot encode {type(msg).__name__}; messages: CellDelta, Ack, MapRegion, Status")
+        raise TypeError(
+            f"cannot encode {type(msg).__name__}; messages: CellDelta, Ack, MapRegion, Status, TileChanges"
+        )
     body["v"] = VERSION
     return msgpack.packb(body, use_bin_type=True)
 
@@ -325,6 +339,8 @@ def _decode_status(d: dict) -> Status:
     t = d.get("t", 0.0)  # optional: senders before it was added do not set it
     if isinstance(t, bool) or not isinstance(t, int | float) or not math.isfinite(t):
         raise ProtocolError("wrong_type", f"{w}.t must be a finite number of seconds")
+    shards = _int(d, "shards", w, 1, 1024) if "shards" in d else 1
+    shard = _int(d, "shard", w, 0, shards - 1) if shards > 1 else None
     return Status(
         validate_id(_get(d, "map", w), "map"),
         _float(d, "res", w, positive=True),
@@ -336,6 +352,25 @@ def _decode_status(d: dict) -> Status:
         scouts,
         health,
         float(t),
+        shard,
+        shards,
+    )
+
+
+def _decode_changes(d: dict) -> TileChanges:
+    w = "tile_changes"
+    shard = _int(d, "shard", w, -1, 1023)
+    tiles = _buf(_get(d, "tiles", w), _I32, f"{w}.tiles")
+    if len(tiles) % 2:
+        raise ProtocolError("length_mismatch", f"{w}.tiles holds {len(tiles)} int32s; need (tx, ty) pairs")
+    tile = _int(d, "tile", w, 1, 1 << 20)
+    return TileChanges(
+        validate_id(_get(d, "map", w), "map"),
+        None if shard < 0 else shard,
+        _int(d, "version", w),
+        _float(d, "res", w, positive=True),
+        tile,
+        tiles.reshape(-1, 2),
     )
 
 
@@ -360,6 +395,8 @@ def decode(
         return _decode_ack(d, key)
     if typ == "map_region":
         return _decode_region(d, res)
+    if typ == "tile_changes":
+        return _decode_changes(d)
     return _decode_status(d)
 
 

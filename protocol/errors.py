@@ -33,6 +33,7 @@ REASONS: tuple[str, ...] = (
     "limit_tiles",  # a delta that would grow the map beyond max_tiles (its extent budget)
     "limit_query_cells",  # a query box of more cells than max_query_cells
     "limit_reply_bytes",  # a reply that would exceed max_reply_bytes
+    "wrong_shard",  # a delta with a cell another shard of a sharded map owns (protocol.partition)
 )
 
 

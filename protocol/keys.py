@@ -14,6 +14,10 @@ __all__ = [
     "ack_pattern",
     "alive_key",
     "alive_pattern",
+    "changes_key",
+    "changes_pattern",
+    "partition_key",
+    "server_who",
     "delta_key",
     "delta_pattern",
     "map_key",
@@ -52,20 +56,49 @@ def id_arg(what: str) -> Callable[[str], str]:
     return parse
 
 
-def delta_key(map_id: str, scout_id: str) -> str:
-    return f"{PREFIX}/{validate_id(map_id, 'map')}/delta/{validate_id(scout_id, 'scout')}"
+def _scope(map_id: str, shard: int | None) -> str:
+    """`psr/<map>` for an unsharded map (shard None), `psr/<map>/shard/<i>` for shard i of a sharded one."""
+    base = f"{PREFIX}/{validate_id(map_id, 'map')}"
+    if shard is None:
+        return base
+    if isinstance(shard, bool) or not isinstance(shard, int) or shard < 0:
+        raise ProtocolError("bad_value", f"shard {shard!r}: valid is an integer ≥ 0")
+    return f"{base}/shard/{shard}"
 
 
-def delta_pattern(map_id: str) -> str:
-    return f"{PREFIX}/{validate_id(map_id, 'map')}/delta/*"
+def delta_key(map_id: str, scout_id: str, shard: int | None = None) -> str:
+    return f"{_scope(map_id, shard)}/delta/{validate_id(scout_id, 'scout')}"
 
 
-def ack_key(map_id: str, scout_id: str) -> str:
-    return f"{PREFIX}/{validate_id(map_id, 'map')}/ack/{validate_id(scout_id, 'scout')}"
+def delta_pattern(map_id: str, shard: int | None = None) -> str:
+    return f"{_scope(map_id, shard)}/delta/*"
 
 
-def ack_pattern(map_id: str) -> str:
-    return f"{PREFIX}/{validate_id(map_id, 'map')}/ack/*"
+def ack_key(map_id: str, scout_id: str, shard: int | None = None) -> str:
+    return f"{_scope(map_id, shard)}/ack/{validate_id(scout_id, 'scout')}"
+
+
+def ack_pattern(map_id: str, shard: int | None = None) -> str:
+    return f"{_scope(map_id, shard)}/ack/*"
+
+
+def server_who(shard: int | None = None) -> str:
+    """The `who` of a server's liveliness token: `server`, or `server-<i>` for shard i."""
+    return SERVER if shard is None else f"{SERVER}-{int(shard)}"
+
+
+def partition_key(map_id: str) -> str:
+    """Queryable every server of the map answers with its `protocol.partition.Partition`."""
+    return f"{PREFIX}/{validate_id(map_id, 'map')}/partition"
+
+
+def changes_key(map_id: str, shard: int | None = None) -> str:
+    """Where a server publishes the tiles each committed batch changed (`protocol.messages.TileChanges`)."""
+    return f"{PREFIX}/{validate_id(map_id, 'map')}/changes/{server_who(shard)}"
+
+
+def changes_pattern(map_id: str) -> str:
+    return f"{PREFIX}/{validate_id(map_id, 'map')}/changes/*"
 
 
 def map_key(map_id: str) -> str:
@@ -87,13 +120,18 @@ def alive_pattern(map_id: str) -> str:
 
 def _parse(key: str, kind: str) -> tuple[str, str]:
     parts = str(key).split("/")
+    if len(parts) == 6 and parts[2] == "shard" and parts[3].isdigit():  # psr/<map>/shard/<i>/<kind>/<id>
+        parts = [parts[0], parts[1], parts[4], parts[5]]
     if len(parts) != 4 or parts[0] != PREFIX or parts[2] != kind:
-        raise ProtocolError("key_mismatch", f"key {key!r} is not of the form {PREFIX}/<map>/{kind}/<id>")
+        raise ProtocolError(
+            "key_mismatch", f"key {key!r} is not of the form {PREFIX}/<map>[/shard/<i>]/{kind}/<id>"
+        )
     return validate_id(parts[1], "map"), validate_id(parts[3], kind)
 
 
 def parse_delta_key(key: str) -> tuple[str, str]:
-    """`psr/<map>/delta/<scout>` -> (map_id, scout_id); ProtocolError('key_mismatch') otherwise."""
+    """`psr/<map>/delta/<scout>` or `psr/<map>/shard/<i>/delta/<scout>` -> (map_id, scout_id);
+    ProtocolError('key_mismatch') otherwise."""
     return _parse(key, "delta")
 
 

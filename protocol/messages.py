@@ -20,6 +20,7 @@ __all__ = [
     "RegionQuery",
     "ScoutStatus",
     "Status",
+    "TileChanges",
 ]
 
 VERSION = 1
@@ -75,6 +76,26 @@ class MapRegion:
     layers: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
 
 
+@dataclass(frozen=True, eq=False)
+class TileChanges:
+    """Server -> subscribers, after each committed batch: the tiles (tile-index pairs (n, 2) int32: tx, ty; a
+    tile covers cells [tx·tile, (tx+1)·tile) × [ty·tile, (ty+1)·tile)) whose statistics changed, and the map
+    version (of this shard) that holds the change. A planner watching a region re-queries only when a tile
+    it covers changed (consumer_planner.watch)."""
+
+    map: str
+    shard: int | None
+    version: int
+    res: float
+    tile: int
+    tiles: np.ndarray
+
+    def boxes(self) -> np.ndarray:
+        """(n, 4) cell boxes ix0, iy0, ix1, iy1 (inclusive) of the changed tiles."""
+        t = np.asarray(self.tiles, np.int64).reshape(-1, 2) * self.tile
+        return np.column_stack([t[:, 0], t[:, 1], t[:, 0] + self.tile - 1, t[:, 1] + self.tile - 1])
+
+
 @dataclass(frozen=True)
 class ScoutStatus:
     epoch: int
@@ -96,6 +117,8 @@ class Status:
     # store ok | error | none, store_error (the original error of the last failed commit), last_commit_unix
     health: dict[str, str | float | None] = field(default_factory=dict)
     t: float = 0.0  # newest merged sample's scout clock [s] since the server started (mission time; 0: none)
+    shard: int | None = None  # which shard of a sharded map answered (None: an unsharded map)
+    shards: int = 1  # K of the map's partition (protocol.partition)
 
     def to_json(self) -> dict:
         """Plain JSON-ready dict (what `psrmap status` prints and a mission's summary.json keeps)."""
@@ -113,6 +136,8 @@ class Status:
             },
             "health": dict(self.health),
             "t": self.t,
+            "shard": self.shard,
+            "shards": self.shards,
         }
 
 

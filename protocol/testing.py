@@ -76,13 +76,17 @@ def _f64(*v: float) -> bytes:
 # (seq_conflict needs an earlier delta: tested on its own)
 QUERY_REASONS = ("duplicate_name", "limit_query_cells", "limit_reply_bytes")
 LIMIT_REASONS = ("limit_cells", "limit_new_tiles", "limit_tiles")
-DECODE_REASONS = tuple(r for r in REASONS if r not in (*QUERY_REASONS, *LIMIT_REASONS, "seq_conflict"))
-DELTA_REASONS = DECODE_REASONS + LIMIT_REASONS
+SHARD_REASONS = ("wrong_shard",)  # a shard of a sharded map: a cell another shard owns
+DECODE_REASONS = tuple(
+    r for r in REASONS if r not in (*QUERY_REASONS, *LIMIT_REASONS, *SHARD_REASONS, "seq_conflict")
+)
+DELTA_REASONS = DECODE_REASONS + LIMIT_REASONS + SHARD_REASONS
 
 
 def broken(reason: str) -> tuple[str, bytes, dict[str, Any]]:
     """(key, payload, kwargs) of a cell_delta that must be rejected with `reason`; kwargs: decode's, plus
-    `limits` (a server's `Limits` fields) for the limit reasons."""
+    `limits` (a server's `Limits` fields) for the limit reasons, `partition` ({shards, tile}) and `shard`
+    for wrong_shard (the merger is shard 0 of 2 with 8-cell tiles; cell (9, 0) is in tile (1, 0), shard 1)."""
     key = delta_key(MAP, SCOUT)
     kw: dict[str, Any] = {"key": key, "res": RES}
     d = raw_delta()
@@ -129,6 +133,9 @@ def broken(reason: str) -> tuple[str, bytes, dict[str, Any]]:
     elif reason == "limit_tiles":
         slip["ix"] = np.array([100, 101, 102], dtype="<i4").tobytes()  # one tile the map does not have yet
         kw["limits"] = {"max_tiles": 1}
+    elif reason == "wrong_shard":
+        slip["ix"] = np.array([0, 9, 2], dtype="<i4").tobytes()
+        kw["partition"], kw["shard"] = {"shards": 2, "tile": 8}, 0
     elif reason == "duplicate_cell":
         slip["ix"] = np.array([4, 4, 1], dtype="<i4").tobytes()
         slip["iy"] = np.array([4, 4, 1], dtype="<i4").tobytes()

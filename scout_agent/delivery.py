@@ -89,6 +89,7 @@ class DeltaPublisher:
         clock: Callable[[], float] = time.monotonic,
         outbox: Outbox | None = None,
         resume: Mapping[int, list[tuple[int, bytes]]] | None = None,
+        shard: int | None = None,
     ) -> None:
         """outbox: persists each delta before it is sent, forgets it when acked. resume: unacknowledged
         deltas of earlier epochs (an outbox's `pending()` after a crash), resent under their original epoch
@@ -105,7 +106,8 @@ class DeltaPublisher:
         self.max_unacked = max_unacked
         self.resend_after_s = resend_after_s
         self.clock = clock
-        self.key = delta_key(map_id, scout_id)
+        self.shard = shard  # the shard of a sharded map this stream feeds (None: unsharded)
+        self.key = delta_key(map_id, scout_id, shard)
         self.next_seq = 0
         self.acked_seq = -1  # highest seq acknowledged (cumulative)
         self.resent = 0

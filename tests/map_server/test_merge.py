@@ -11,11 +11,23 @@ from mapcore import TiledMap
 from protocol import encode
 from protocol.keys import delta_key
 from protocol.messages import CellDelta
+from protocol.partition import Partition
 from protocol.testing import DELTA_REASONS, MAP, RES, SCOUT, broken, layer_cells, make_delta
 
 
-def merger(max_bytes: int = 8 * 1024 * 1024, limits: dict | None = None) -> Merger:
-    return Merger(TiledMap(RES, tile=8), MAP, limits=Limits(max_message_bytes=max_bytes, **(limits or {})))
+def merger(
+    max_bytes: int = 8 * 1024 * 1024,
+    limits: dict | None = None,
+    partition: dict | None = None,
+    shard: int | None = None,
+) -> Merger:
+    return Merger(
+        TiledMap(RES, tile=8),
+        MAP,
+        limits=Limits(max_message_bytes=max_bytes, **(limits or {})),
+        partition=Partition(**partition) if partition else None,
+        shard=shard,
+    )
 
 
 def sample(d: CellDelta) -> tuple[str, bytes]:
@@ -88,7 +100,12 @@ def test_out_of_order_acks_are_cumulative_high_water_marks():
 @pytest.mark.parametrize("reason", DELTA_REASONS)
 def test_each_rejection_reason_leaves_the_map_unchanged(reason):
     key, payload, kw = broken(reason)
-    m = merger(max_bytes=kw.get("max_bytes", 8 * 1024 * 1024), limits=kw.get("limits"))
+    m = merger(
+        max_bytes=kw.get("max_bytes", 8 * 1024 * 1024),
+        limits=kw.get("limits"),
+        partition=kw.get("partition"),
+        shard=kw.get("shard"),
+    )
     if reason != "oversize":  # a small valid delta first, so "unchanged" is a non-empty map
         m.ingest([sample(make_delta(seq=5, scout="s9", cells=((1, 1),)))])
     snapshot = {n: {k: t.copy() for k, t in g.tiles.items()} for n, g in m.map.grids.items()}

@@ -1,0 +1,142 @@
+"""A map split over two shard servers on a real router: scouts discover the partition, split their deltas,
+each shard merges exactly its own tiles; queries fan out and stitch to what one server would hold; status
+aggregates; a misrouted delta is rejected; planners are told which tiles changed."""
+
+from __future__ import annotations
+
+import contextlib
+import time
+from collections.abc import Iterator
+
+import numpy as np
+import pytest
+import zenoh
+
+from common.query import aggregate_status, get_partition, get_status, get_statuses
+from common.session import zenoh_config
+from consumer_planner.client import ClientConfig, RegionWatch, query_region
+from map_server.merge import Merger
+from map_server.service import MapService, ServerConfig, wait_for_server
+from mapcore import TiledMap
+from protocol import encode
+from protocol.keys import delta_key
+from protocol.partition import Partition
+from protocol.testing import MAP, RES, make_delta
+from scout_agent.publisher import ScoutPublisher
+
+TILE = 8  # small tiles: a few metres of walk cross many, so both shards get cells
+
+
+@contextlib.contextmanager
+def shards(router: str, tmp_path, k: int = 2) -> Iterator[tuple[list[MapService], zenoh.Session]]:
+    cfgs = [
+        ServerConfig(map_id=MAP, res=RES, tile=TILE, db=str(tmp_path / f"s{i}.db"), connect=(router,), shards=k, shard=i)
+        for i in range(k)
+    ]  # fmt: skip
+    with contextlib.ExitStack() as stack:
+        services = [stack.enter_context(MapService(c)) for c in cfgs]
+        client = stack.enter_context(zenoh.open(zenoh_config(connect=[router], mode="client")))
+        for i in range(k):
+            assert wait_for_server(client, MAP, shard=i)
+        yield services, client
+
+
+def walk(n: int, scout: str = "s1") -> list:
+    """n deltas of a scout walking along x: 3 cells each, crossing a tile every few deltas."""
+    return [
+        make_delta(seq=i, scout=scout, cells=((2 * i, 1), (2 * i + 1, 1), (2 * i, 9)), layers=("slip", "cot"), seed=i)
+        for i in range(n)
+    ]  # fmt: skip
+
+
+def test_partition_is_deterministic_and_splits_every_cell_once():
+    p = Partition(4, 8)
+    rng = np.random.default_rng(0)
+    ix, iy = rng.integers(-500, 500, 2000), rng.integers(-500, 500, 2000)
+    s = p.shard_of(ix, iy)
+    assert set(np.unique(s).tolist()) == {0, 1, 2, 3}  # a hash: every shard gets cells
+    assert (s == p.shard_of(ix, iy)).all()
+    same_tile = p.shard_of(ix - np.mod(ix, 8), iy - np.mod(iy, 8))
+    assert (s == same_tile).all()  # a tile belongs to one shard
+    layers = {"slip": {"ix": ix, "iy": iy, "n": np.ones(ix.size)}}
+    parts = p.split(layers)
+    assert sum(part["slip"]["ix"].size for part in parts.values()) == ix.size
+    for k, part in parts.items():
+        assert (p.shard_of(part["slip"]["ix"], part["slip"]["iy"]) == k).all()
+    with pytest.raises(ValueError, match="power of two"):
+        Partition(2, 12)
+    with pytest.raises(ValueError, match="1..1024"):
+        Partition(0, 8)
+
+
+def test_two_shards_hold_what_one_server_would(router, tmp_path):
+    deltas = walk(40)
+    ref = Merger(TiledMap(RES, TILE), MAP)  # one unsharded server's merge of the same deltas
+    with (
+        shards(router, tmp_path) as (services, client),
+        RegionWatch(client, MAP, RES, (0.0, 0.0, 40.0, 4.0)) as watch,
+    ):
+        assert get_partition(client, MAP) == Partition(2, TILE)
+        with ScoutPublisher(MAP, "s1", RES, [router], outbox=None) as pub:
+            assert pub.partition == Partition(2, TILE)  # discovered from the servers
+            for d in deltas:
+                assert pub.send(d.layers, d.t)
+                ref.ingest([(delta_key(MAP, "s1"), encode(pub.publisher.build(d.layers, d.t, d.seq)))])
+            assert pub.wait_acked(20)
+            sent = pub.stats()["sent_per_shard"]
+        assert all(n > 0 for n in sent) and sum(sent) > len(deltas)  # both shards fed; some deltas split
+        # each shard holds only its own tiles, together exactly the reference map
+        part = Partition(2, TILE)
+        for i, svc in enumerate(services):
+            grid = svc.map.grids["slip"]
+            assert grid.tiles and all(
+                int(part.shard_of_tiles(np.array(tx), np.array(ty))) == i for tx, ty in grid.tiles
+            )
+        grid = query_region(client, MAP, (0.0, 0.0, 40.0, 4.0), ClientConfig(connect=(router,)))
+        box = (grid.ix0, grid.iy0, grid.ix0 + grid.w - 1, grid.iy0 + grid.h - 1)
+        region = ref.map.region(*box, ("slip", "cot"), ("all",))
+        for layer in ("slip", "cot"):
+            for stat, want in region[layer].items():
+                np.testing.assert_allclose(grid.layers[layer][stat], want, equal_nan=True)
+        st = get_status(client, MAP)
+        assert st is not None and st.shards == 2 and st.shard is None
+        assert (st.merged, st.cells) == (sum(sent), ref.map.cells)
+        assert st.scouts["s1"].last_seq == sum(sent) - 1 and st.health["shards_answered"] == 2
+        # every tile the walk touched was announced, by the shard that owns it
+        seen: dict[tuple[int, int], int | None] = {}
+        deadline = time.monotonic() + 5
+        want_tiles = {
+            (int(x) // TILE, int(y) // TILE)
+            for d in deltas
+            for x, y in zip(d.layers["slip"]["ix"], d.layers["slip"]["iy"], strict=True)
+        }
+        while set(seen) != want_tiles and time.monotonic() < deadline:
+            for ch in watch.changed(0.5):
+                for tx, ty in ch.tiles.tolist():
+                    seen[(tx, ty)] = ch.shard
+        assert set(seen) == want_tiles
+        assert all(int(part.shard_of_tiles(np.array(t[0]), np.array(t[1]))) == s for t, s in seen.items())
+        assert watch.versions.keys() == {0, 1}
+
+
+def test_a_misrouted_delta_is_rejected_and_merges_nothing(router, tmp_path):
+    with shards(router, tmp_path) as (services, client):
+        d = make_delta(seq=0, scout="s2", cells=((0, 0), (9, 0)), layers=("slip",))  # tiles of both shards
+        client.put(delta_key(MAP, "s2", 0), encode(d))
+        deadline = time.monotonic() + 5
+        while time.monotonic() < deadline:
+            parts = get_statuses(client, MAP)
+            if aggregate_status(parts).rejected:
+                break
+            time.sleep(0.05)
+        st = aggregate_status(get_statuses(client, MAP))
+        assert st.rejected == {"wrong_shard": 1} and st.cells == 0 and st.merged == 0
+
+
+def test_a_sharded_server_needs_its_shard():
+    with pytest.raises(ValueError, match="0..1"):
+        ServerConfig(map_id=MAP, shards=2)
+    with pytest.raises(ValueError, match="0..1"):
+        ServerConfig(map_id=MAP, shards=2, shard=2)
+    with pytest.raises(ValueError, match="shards=K > 1"):
+        ServerConfig(map_id=MAP, shard=1)
