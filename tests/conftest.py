@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import subprocess
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -40,3 +41,16 @@ def served_map(router: str, tmp_path: Path):
     """`with served_map(map_id, res) as (service, client):` a map server on the module's router, persisting
     under the test's tmp_path, and a client session that has seen it answer."""
     return lambda map_id, res: _served_map(router, tmp_path / f"{map_id}.db", map_id, res)
+
+
+@pytest.fixture
+def procs() -> Iterator[list[subprocess.Popen]]:
+    """Processes a test starts (append them): killed and reaped when the test ends, whatever happened."""
+    started: list[subprocess.Popen] = []
+    yield started
+    for p in started:
+        if p.poll() is None:
+            p.kill()
+            p.wait()
+        if p.stdout is not None:
+            p.stdout.close()

@@ -13,7 +13,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-import pytest
 import zenoh
 
 from common.session import zenoh_config
@@ -84,18 +83,6 @@ def scout_layers(k: int, i: int) -> dict:
     ix = np.arange(20) + i % 7 + 60 * k  # scouts overlap: cells are shared across scouts and deltas
     iy = np.full(20, (i // 7) % 5 - 2)
     return {name: layer_cells(name, ix, iy, rng) for name in LAYERS5}
-
-
-@pytest.fixture
-def procs():
-    started: list[subprocess.Popen] = []
-    yield started
-    for p in started:
-        if p.poll() is None:
-            p.kill()
-            p.wait()
-        if p.stdout is not None:
-            p.stdout.close()
 
 
 def test_two_scouts_duplicates_reordering_kill9_restart_exact_totals(tmp_path, procs):

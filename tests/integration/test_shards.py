@@ -5,18 +5,20 @@ aggregates; a misrouted delta is rejected; planners are told which tiles changed
 from __future__ import annotations
 
 import contextlib
+import signal
 import time
 from collections.abc import Iterator
 
 import numpy as np
 import pytest
 import zenoh
+from test_map_service import spawn, wait_line
 
 from common.query import aggregate_status, get_partition, get_status, get_statuses
 from common.session import zenoh_config
 from consumer_planner.client import ClientConfig, RegionWatch, query_region
 from map_server.merge import Merger
-from map_server.service import MapService, ServerConfig, wait_for_server
+from map_server.service import MapService, ServerConfig, free_endpoint, wait_for_server
 from mapcore import TiledMap
 from protocol import encode
 from protocol.keys import delta_key
@@ -140,3 +142,56 @@ def test_a_sharded_server_needs_its_shard():
         ServerConfig(map_id=MAP, shards=2, shard=2)
     with pytest.raises(ValueError, match="shards=K > 1"):
         ServerConfig(map_id=MAP, shard=1)
+
+
+def test_a_shard_killed_with_sigkill_recovers_and_nothing_is_lost_or_doubled(tmp_path, procs):
+    """Two shard processes; shard 1 is killed with -9 mid-walk and restarted from its SQLite file; the scout
+    resends what that shard never acknowledged; the fanned-out map equals one server's merge of the walk."""
+    ep = free_endpoint()
+    router = spawn("router", "--listen", ep)
+    procs.append(router)
+    wait_line(router, "router")
+
+    def shard(i: int):
+        p = spawn("server", "--map", MAP, "--res", str(RES), "--tile", str(TILE), "--db", str(tmp_path / f"s{i}.db"),
+                  "--connect", ep, "--shards", "2", "--shard", str(i))  # fmt: skip
+        procs.append(p)
+        wait_line(p, "server")
+        return p
+
+    servers = [shard(0), shard(1)]
+    deltas = walk(60)
+    ref = TiledMap(RES, TILE)
+    with (
+        zenoh.open(zenoh_config(connect=[ep], mode="client")) as client,
+        ScoutPublisher(MAP, "s1", RES, [ep], outbox=None, resend_after_s=0.5) as pub,
+    ):
+        assert pub.partition == Partition(2, TILE)
+        for i, d in enumerate(deltas):
+            assert pub.send(d.layers, d.t)
+            ref.merge(d.layers)
+            pub.poll()
+            time.sleep(0.01)
+            if i == 20:
+                servers[1].send_signal(signal.SIGKILL)
+                servers[1].wait()
+            if i == 40:
+                servers[1] = shard(1)
+        assert pub.wait_acked(30)
+        assert pub.stats()["resent"] > 0  # the kill forced resends
+        sent = pub.stats()["sent_per_shard"]
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline:
+            st = get_status(client, MAP)
+            if st is not None and st.health["shards_answered"] == 2 and st.merged == sum(sent):
+                break
+            time.sleep(0.05)
+        assert st is not None and st.merged == sum(sent) and not st.rejected
+        grid = query_region(client, MAP, (0.0, 0.0, 60.0, 4.0), ClientConfig(connect=(ep,)))
+        box = (grid.ix0, grid.iy0, grid.ix0 + grid.w - 1, grid.iy0 + grid.h - 1)
+        expect = ref.region(*box, ("slip", "cot"), ("all",))
+        for layer, stats in expect.items():
+            for stat, want in stats.items():
+                np.testing.assert_allclose(
+                    grid.layers[layer][stat], want, equal_nan=True, err_msg=f"{layer}.{stat}"
+                )

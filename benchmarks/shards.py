@@ -1,0 +1,250 @@
+"""Ingest scaling with map-server shards: one shard against K shards, in the same run, on a real router.
+
+For each K (default 1 then 2): a router, K `psrmap server --shards K --shard i` processes (SQLite each), and
+`--publishers` scout processes that pre-encode their deltas (20 cells × 5 layers, the boustrophedon sweep of
+benchmarks/ingest.py, split by the map's partition with one seq stream per shard) and then send them as fast
+as the shards' acks allow (at most `--window` unacknowledged per shard). The merged rate is the aggregated
+`status` over a measurement window after a warm-up; the CPU seconds each process used in that window show
+how the machine's cores were shared. Prints one JSON object.
+
+    python benchmarks/shards.py [--shards 1,2] [--publishers 2] [--seconds 8] [--warmup 2]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import multiprocessing as mp
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import psutil
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from ingest import LAYERS5, MAP, RES, layers_for  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+TILE = 64
+
+
+def spawn(*args: str, core: int | None = None) -> subprocess.Popen:
+    """A `python -m map_server ...` process (on one core, every thread of it, when `core` is given)."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    p = subprocess.Popen(
+        [sys.executable, "-m", "map_server", *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        env=env,
+        cwd=ROOT,
+    )
+    assert p.stdout is not None
+    p.stdout.readline()  # its "up" line
+    if core is not None:  # every thread it runs (threads it starts later inherit their creator's affinity)
+        for t in psutil.Process(p.pid).threads():
+            os.sched_setaffinity(t.id, {core})
+    return p
+
+
+def publisher(pid: int, endpoint: str, shards: int, n: int, window: int, ready, go, stop, results) -> None:
+    """Pre-encode n deltas (split by shard), then send them as fast as acks allow until `stop`."""
+    import zenoh
+
+    from common.session import zenoh_config
+    from protocol import decode, encode
+    from protocol.keys import ack_key, delta_key
+    from protocol.messages import CellDelta
+    from protocol.partition import Partition
+
+    part = Partition(shards, TILE)
+    rng = np.random.default_rng(pid)
+    scout = f"p{pid}"
+    queues: dict[int, list[bytes]] = {k: [] for k in range(shards)}
+    for k in range(n):
+        for shard, layers in part.split(layers_for(pid, k, rng)).items():
+            seq = len(queues[shard])
+            queues[shard].append(encode(CellDelta(MAP, scout, 1, seq, float(k), RES, layers)))
+    acked = dict.fromkeys(range(shards), -1)
+    cond = threading.Condition()
+
+    def on_ack(sample) -> None:
+        a = decode(sample.payload.to_bytes())
+        key = str(sample.key_expr)
+        shard = int(key.split("/")[3]) if shards > 1 else 0
+        with cond:
+            acked[shard] = max(acked[shard], a.seq)
+            cond.notify_all()
+
+    with zenoh.open(zenoh_config(connect=[endpoint], mode="client")) as s:
+        keys = {k: delta_key(MAP, scout, k if shards > 1 else None) for k in range(shards)}
+        pubs = {  # as the scouts publish (scout_agent.publisher.ZenohTransport): reliable, blocking
+            k: s.declare_publisher(
+                keys[k],
+                congestion_control=zenoh.CongestionControl.BLOCK,
+                reliability=zenoh.Reliability.RELIABLE,
+            )
+            for k in range(shards)
+        }
+        subs = [
+            s.declare_subscriber(ack_key(MAP, scout, k if shards > 1 else None), on_ack)
+            for k in range(shards)
+        ]
+        sent = dict.fromkeys(range(shards), 0)
+        ready.set()
+        go.wait()
+        while not stop.is_set():
+            progressed = False
+            for k in range(shards):
+                q = queues[k]
+                while sent[k] < len(q) and sent[k] - acked[k] <= window:
+                    pubs[k].put(q[sent[k]])
+                    sent[k] += 1
+                    progressed = True
+            if all(sent[k] >= len(queues[k]) for k in range(shards)):
+                break
+            if not progressed:
+                with cond:
+                    cond.wait(0.01)
+        for sub in subs:
+            sub.undeclare()
+        results.put((pid, sum(sent.values()), sum(len(q) for q in queues.values())))
+
+
+def run(k: int, args: argparse.Namespace) -> dict:
+    import zenoh
+
+    from common.query import aggregate_status, get_statuses
+    from common.session import zenoh_config
+    from map_server.service import free_endpoint, wait_for_server
+
+    ep = free_endpoint()
+    tmp = tempfile.TemporaryDirectory()
+    router = spawn("router", "--listen", ep)
+    servers = []
+    for i in range(k):
+        shard = ["--shards", str(k), "--shard", str(i)] if k > 1 else []
+        servers.append(
+            spawn("server", "--map", MAP, "--res", str(RES), "--tile", str(TILE), "--db", str(Path(tmp.name) / f"s{i}.db"),
+                  "--connect", ep, *shard, core=i % (psutil.cpu_count() or 1) if args.pin else None)
+        )  # fmt: skip
+    ctx = mp.get_context("spawn")
+    ready = [ctx.Event() for _ in range(args.publishers)]
+    go, stop, results = ctx.Event(), ctx.Event(), ctx.Queue()
+    n = int(args.max_rate * (args.seconds + args.warmup + 5) / args.publishers)
+    procs = [
+        ctx.Process(target=publisher, args=(p, ep, k, n, args.window, ready[p], go, stop, results))
+        for p in range(args.publishers)
+    ]
+    out: dict = {"shards": k, "pinned": args.pin}  # pinned: shard i on core i mod cores, others float
+    try:
+        for p in procs:
+            p.start()
+        for e in ready:
+            e.wait(600)
+        with zenoh.open(zenoh_config(connect=[ep], mode="client")) as s:
+            for i in range(k):
+                assert wait_for_server(s, MAP, shard=i if k > 1 else None)
+
+            def merged() -> int:
+                for _ in range(50):
+                    parts = get_statuses(s, MAP, 10.0)
+                    if len(parts) == k:
+                        return aggregate_status(parts).merged
+                raise RuntimeError("not every shard answered status")
+
+            go.set()
+            time.sleep(args.warmup)
+            ps = {"router": psutil.Process(router.pid)}
+            ps.update({f"shard{i}": psutil.Process(sv.pid) for i, sv in enumerate(servers)})
+            ps.update({f"publisher{j}": psutil.Process(p.pid) for j, p in enumerate(procs)})
+            cpu0 = {name: sum(pr.cpu_times()[:2]) for name, pr in ps.items()}
+            m0, t0 = merged(), time.perf_counter()
+            time.sleep(args.seconds)
+            m1, t1 = merged(), time.perf_counter()
+            cpu1 = {name: sum(pr.cpu_times()[:2]) for name, pr in ps.items()}
+            stop.set()
+            got = [results.get(timeout=120) for _ in procs]
+            dt = t1 - t0
+            out.update(
+                {
+                    "deltas_per_s": round((m1 - m0) / dt, 1),
+                    "window_s": round(dt, 2),
+                    "parts_prepared": sum(g[2] for g in got),
+                    "cpu_cores_used": {name: round((cpu1[name] - cpu0[name]) / dt, 2) for name in ps},
+                }
+            )
+            out["cpu_cores_used_total"] = round(sum(out["cpu_cores_used"].values()), 2)
+    finally:
+        stop.set()
+        go.set()
+        for p in procs:
+            p.join(30)
+            if p.is_alive():
+                p.kill()
+        for p in (*servers, router):
+            p.send_signal(signal.SIGTERM)
+            try:
+                p.wait(15)
+            except subprocess.TimeoutExpired:
+                p.kill()
+            if p.stdout:
+                p.stdout.close()
+        tmp.cleanup()
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument(
+        "--shards",
+        default="1,2,1,2,1,2",
+        help="comma-separated K, run in this order (the first K is the baseline)",
+    )
+    ap.add_argument("--publishers", type=int, default=2)
+    ap.add_argument("--seconds", type=float, default=8.0, help="measurement window per K [s]")
+    ap.add_argument("--warmup", type=float, default=2.0, help="sending before the window starts [s]")
+    ap.add_argument("--window", type=int, default=256, help="unacknowledged deltas per shard per publisher")
+    ap.add_argument(
+        "--max-rate", type=float, default=30000.0, help="deltas/s to pre-encode for (all publishers)"
+    )
+    ap.add_argument(
+        "--pin", action="store_true", help="pin shard i to core i (same CPU per shard whatever K; Linux only)"
+    )
+    args = ap.parse_args()
+    ks = [int(x) for x in args.shards.split(",")]
+    runs = [run(k, args) for k in ks]
+    per_k: dict[int, list[float]] = {}
+    cpu_k: dict[int, list[float]] = {}
+    for r in runs:
+        per_k.setdefault(r["shards"], []).append(r["deltas_per_s"])
+        if r["deltas_per_s"]:
+            cpu_k.setdefault(r["shards"], []).append(1e6 * r["cpu_cores_used_total"] / r["deltas_per_s"])
+    med = {k: float(np.median(v)) for k, v in per_k.items()}
+    base = med[ks[0]]
+    out = {
+        "benchmark": "shards",
+        "cells_per_layer": 20,
+        "layers": len(LAYERS5),
+        "publishers": args.publishers,
+        "machine_cores": psutil.cpu_count(),
+        "runs": runs,
+        "median_deltas_per_s": {str(k): round(v, 1) for k, v in med.items()},
+        "ratio_of_medians_vs_first": {str(k): round(v / base, 3) if base else None for k, v in med.items()},
+        "median_cpu_us_per_delta_all_processes": {
+            str(k): round(float(np.median(v)), 1) for k, v in cpu_k.items()
+        },
+        "goal": "2 shards >= 1.5x one shard's saturated deltas/s",
+        "note": "runs alternate in the order of --shards; medians per K; cpu_cores_used = CPU seconds per second of "
+        "the window, per process (router, shards, publishers): how the machine's cores were shared",
+    }
+    print(json.dumps(out))
+
+
+if __name__ == "__main__":
+    main()
