@@ -88,7 +88,9 @@ def publisher(pid: int, endpoint: str, rate: float, seconds: float, offset: int,
             results.put((pid, k, ok))
 
 
-def spawn(*args: str, malloc_arenas: int | None = None) -> subprocess.Popen:
+def spawn(*args: str, malloc_arenas: int | None = None, core: int | None = None) -> subprocess.Popen:
+    """A `python -m map_server ...` process, once it printed its "up" line; `core`: run every thread of it
+    on that core (threads it starts later inherit their creator's affinity)."""
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     if malloc_arenas:
         env["MALLOC_ARENA_MAX"] = str(malloc_arenas)
@@ -101,6 +103,9 @@ def spawn(*args: str, malloc_arenas: int | None = None) -> subprocess.Popen:
     )
     assert p.stdout is not None
     p.stdout.readline()  # its "up" line
+    if core is not None:
+        for t in psutil.Process(p.pid).threads():
+            os.sched_setaffinity(t.id, {core})
     return p
 
 

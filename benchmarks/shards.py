@@ -15,7 +15,6 @@ from __future__ import annotations
 import argparse
 import json
 import multiprocessing as mp
-import os
 import signal
 import subprocess
 import sys
@@ -28,28 +27,10 @@ import numpy as np
 import psutil
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from ingest import LAYERS5, MAP, RES, layers_for  # noqa: E402
+from ingest import LAYERS5, MAP, RES, layers_for, spawn  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 TILE = 64
-
-
-def spawn(*args: str, core: int | None = None) -> subprocess.Popen:
-    """A `python -m map_server ...` process (on one core, every thread of it, when `core` is given)."""
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    p = subprocess.Popen(
-        [sys.executable, "-m", "map_server", *args],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.DEVNULL,
-        env=env,
-        cwd=ROOT,
-    )
-    assert p.stdout is not None
-    p.stdout.readline()  # its "up" line
-    if core is not None:  # every thread it runs (threads it starts later inherit their creator's affinity)
-        for t in psutil.Process(p.pid).threads():
-            os.sched_setaffinity(t.id, {core})
-    return p
 
 
 def publisher(pid: int, endpoint: str, shards: int, n: int, window: int, ready, go, stop, results) -> None:

@@ -149,16 +149,17 @@ def cmd_server(args: argparse.Namespace) -> int:
     return summary.exit_code
 
 
-def _get_one(args: argparse.Namespace, selector: str) -> bytes:
-    """The first good reply (`common.query`), or exit 1 saying why there is none."""
-    from common.query import QueryError, get_one
+def _get_all(args: argparse.Namespace, selector: str) -> list[bytes]:
+    """Every server's (every shard's) good reply (`common.query`, fanned out), or exit 1 saying why none."""
+    from common.query import get_replies
 
     with _open(_conf(args, _endpoints(args.connect)), args) as s:
-        try:
-            return get_one(s, selector, args.timeout)
-        except QueryError as exc:
-            print(f"error: {exc}", file=sys.stderr)
-            raise SystemExit(1) from None
+        replies = get_replies(s, selector, args.timeout, fan_out=True)
+    if replies.ok:
+        return replies.ok
+    why = "; ".join(replies.errors) or f"no reply within {args.timeout:g} s (is a server for this map up?)"
+    print(f"error: {selector!r}: {why}", file=sys.stderr)
+    raise SystemExit(1)
 
 
 def cmd_status(args: argparse.Namespace) -> int:
@@ -233,8 +234,17 @@ def cmd_query(args: argparse.Namespace) -> int:
         args.parser.error(f"--box {args.box!r}: give x0,y0,x1,y1 in map-frame metres")
     layers = tuple(args.layers.split(",")) if args.layers else None
     rq = RegionQuery(x0, y0, x1, y1, layers, tuple(args.stats.split(",")))
-    region = decode(_get_one(args, f"{map_key(args.map)}?{rq.to_parameters()}"), expected_type="map_region")
-    assert isinstance(region, MapRegion)
+    regions = []
+    for payload in _get_all(args, f"{map_key(args.map)}?{rq.to_parameters()}"):
+        r = decode(payload, expected_type="map_region")
+        assert isinstance(r, MapRegion)
+        regions.append(r)
+    region = regions[0]
+    if len(regions) > 1:  # a sharded map: each shard answers for the tiles it owns
+        from mapcore import stitch
+
+        g = stitch(regions)
+        region = MapRegion(g.map, g.res, g.ix0, g.iy0, g.w, g.h, sum(r.version for r in regions), g.layers)
     summary: dict[str, Any] = {
         "map": region.map,
         "res": region.res,
@@ -257,16 +267,10 @@ def cmd_query(args: argparse.Namespace) -> int:
     if args.out and fmt != "npz":
         summary["out"] = _write_interop(args, region, fmt)
         summary["format"] = fmt
-    elif args.out:
-        arrays: dict[str, Any] = {
-            f"{name}.{s}": a for name, stats in region.layers.items() for s, a in stats.items()
-        }
-        meta: dict[str, Any] = {
-            "ix0": np.int64(region.ix0),
-            "iy0": np.int64(region.iy0),
-            "res": np.float64(region.res),
-        }
-        np.savez(args.out, **meta, **arrays)
+    elif args.out:  # the map core's one .npz layout (<layer>/<stat> arrays; mapcore.read_npz reads it)
+        from mapcore import LayerGrid, write_npz
+
+        write_npz(args.out, LayerGrid.from_region(region))
         summary["out"] = args.out
     print(json.dumps(summary, indent=2))
     return 0
