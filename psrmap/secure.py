@@ -2,11 +2,13 @@
 machinery (`transport/auth/usrpwd`, `access_control`; mutual TLS as an option).
 
 What each identity may do (everything else is denied by the router):
-- a scout `S`: put on `psr/<map>/delta/S`, declare the liveliness token `psr/<map>/alive/S`, receive acks on
-  `psr/<map>/ack/S`, see the server's liveliness token;
+- a scout `S`: put on `psr/<map>/delta/S` (a sharded map: `psr/<map>/shard/<i>/delta/S`), declare the liveliness
+  token `psr/<map>/alive/S`, receive acks on `psr/<map>/ack/S` (`psr/<map>/shard/<i>/ack/S`), see the servers'
+  liveliness tokens, ask the map's partition (`psr/<map>/partition`);
 - a server: receive every delta, put acks, declare the `map` and `status` queryables and reply to queries,
   declare its token and watch the scouts' tokens;
-- a planner: query `psr/<map>/map` and `psr/<map>/status` and receive the replies — nothing else.
+- a planner: query `psr/<map>/map`, `psr/<map>/status` and `psr/<map>/partition` and receive the replies, and
+  subscribe to the tile change notifications `psr/<map>/changes/**` — nothing else.
 The files: `credentials.txt` (the router's `user:password` dictionary), `router.json5`, one `<agent>.json5` per
 agent holding its user name and password, and `servers.json` ({server: Zenoh id}; each server's config pins its
 Zenoh id) from which planners learn whose replies to believe. With `--tls` the router listens on a `tls/`
@@ -45,23 +47,34 @@ def acl(
     rules, subjects, policies = [], [], []
     for s in scouts:
         rid = f"scout_{s}"
-        rules.append(_rule(f"{rid}_writes", ["put"], [f"{base}/delta/{s}"]))
+        rules.append(_rule(f"{rid}_writes", ["put"], [f"{base}/delta/{s}", f"{base}/shard/*/delta/{s}"]))
         # the router must tell the scout that the server subscribes to the deltas (egress only: the scout may
         # not subscribe itself), or Zenoh's write filter stops sending after the first put
         rules.append(
             {
-                **_rule(f"{rid}_server_listens", ["declare_subscriber"], [f"{base}/delta/**"]),
+                **_rule(
+                    f"{rid}_server_listens",
+                    ["declare_subscriber"],
+                    [f"{base}/delta/**", f"{base}/shard/*/delta/**"],
+                ),
                 "flows": ["egress"],
             }
         )
         rules.append(_rule(f"{rid}_token", ["liveliness_token"], [f"{base}/alive/{s}"]))
-        rules.append(_rule(f"{rid}_acks", ["declare_subscriber", "put"], [f"{base}/ack/{s}"]))
+        rules.append(
+            _rule(
+                f"{rid}_acks", ["declare_subscriber", "put"], [f"{base}/ack/{s}", f"{base}/shard/*/ack/{s}"]
+            )
+        )
         rules.append(
             _rule(
                 f"{rid}_server_up",
                 ["declare_liveliness_subscriber", "liveliness_token", "liveliness_query"],
-                [f"{base}/alive/server"],
+                [f"{base}/alive/server", f"{base}/alive/server-$*"],
             )
+        )
+        rules.append(
+            _rule(f"{rid}_partition", ["query", "reply", "declare_queryable"], [f"{base}/partition"])
         )
         subjects.append({"id": rid, "usernames": [s]})
         policies.append(
@@ -72,6 +85,7 @@ def acl(
                     f"{rid}_token",
                     f"{rid}_acks",
                     f"{rid}_server_up",
+                    f"{rid}_partition",
                 ],
                 "subjects": [rid],
             }
@@ -98,16 +112,23 @@ def acl(
         policies.append({"rules": [rid], "subjects": [rid]})
     for p in planners:
         rid = f"planner_{p}"
-        rules.append(_rule(rid, ["query", "reply", "declare_queryable"], [f"{base}/map", f"{base}/status"]))
+        rules.append(
+            _rule(
+                rid,
+                ["query", "reply", "declare_queryable"],
+                [f"{base}/map", f"{base}/status", f"{base}/partition"],
+            )
+        )
         rules.append(
             _rule(
                 f"{rid}_server_up",
                 ["declare_liveliness_subscriber", "liveliness_token", "liveliness_query"],
-                [f"{base}/alive/server"],
+                [f"{base}/alive/server", f"{base}/alive/server-$*"],
             )
         )
+        rules.append(_rule(f"{rid}_changes", ["declare_subscriber", "put"], [f"{base}/changes/**"]))
         subjects.append({"id": rid, "usernames": [p]})
-        policies.append({"rules": [rid, f"{rid}_server_up"], "subjects": [rid]})
+        policies.append({"rules": [rid, f"{rid}_server_up", f"{rid}_changes"], "subjects": [rid]})
     return {
         "enabled": True,
         "default_permission": "deny",

@@ -175,3 +175,36 @@ def test_mutual_tls_admits_only_clients_with_a_certificate_from_the_ca(tmp_path)
         conf.insert_json5("transport/link/tls/connect_private_key", json.dumps(""))
         with pytest.raises(zenoh.ZError):  # the right password, but no client certificate
             zenoh.open(conf)
+
+
+def test_a_sharded_map_works_under_the_acl(tmp_path):
+    """Two shard servers with their own identities; a scout discovers the partition, writes each shard its own
+    part on its own keys and gets acks; a planner reads the stitched map and the tile changes."""
+    from common.query import get_status
+    from consumer_planner.client import RegionWatch
+    from protocol.partition import Partition
+
+    ep = free_endpoint()
+    lay = secure_init(tmp_path / "sec", MAP, ["s1"], ["p1"], servers=["m0", "m1"], endpoint=ep)
+    with zenoh.open(zenoh_config(config_file=lay.router)):
+        cfgs = [
+            ServerConfig(map_id=MAP, res=RES, tile=8, connect=(ep,), zenoh_config=str(lay.agents[f"m{i}"]),
+                         shards=2, shard=i)
+            for i in range(2)
+        ]  # fmt: skip
+        with MapService(cfgs[0]), MapService(cfgs[1]), _open(lay, "p1") as p1:
+            for i in range(2):
+                assert wait_for_server(p1, MAP, shard=i)
+            with RegionWatch(p1, MAP, RES, (0.0, 0.0, 10.0, 1.0)) as watch:
+                with ScoutPublisher(
+                    MAP, "s1", RES, [ep], outbox=None, zenoh_config_file=str(lay.agents["s1"])
+                ) as pub:
+                    assert pub.partition == Partition(2, 8)
+                    d = make_delta(seq=0, scout="s1", layers=("slip",), cells=((0, 0), (9, 0)))  # both shards
+                    assert pub.send(d.layers, d.t) == 2
+                    assert pub.wait_acked(10)
+                assert _wait(lambda: len({c.shard for c in watch.changed(0.2)}) > 0)
+            st = get_status(p1, MAP)
+            assert st is not None and st.merged == 2 and st.cells == 2 and st.health["shards_answered"] == 2
+            grid = query_region(p1, MAP, (0.0, 0.0, 4.0, 0.3), ClientConfig(connect=(ep,)))
+            assert int(np.count_nonzero(grid.layers["slip"]["n"] > 0)) == 2
