@@ -109,6 +109,22 @@ def spawn(*args: str, malloc_arenas: int | None = None, core: int | None = None)
     return p
 
 
+def shutdown(workers: list, services: list[subprocess.Popen]) -> None:
+    """Join the benchmark's worker processes (killing stragglers), then stop the services (SIGTERM, then kill)."""
+    for p in workers:
+        p.join(30)
+        if p.is_alive():
+            p.kill()
+    for p in services:
+        p.send_signal(signal.SIGTERM)
+        try:
+            p.wait(15)
+        except subprocess.TimeoutExpired:
+            p.kill()
+        if p.stdout:
+            p.stdout.close()
+
+
 def run_load(n: int, endpoint: str, rate_total: float, seconds: float, offset: int) -> int:
     ctx = mp.get_context("spawn")
     results = ctx.Queue()
@@ -303,14 +319,7 @@ def main() -> None:
                 "merged_total": st.merged,
             }
     finally:
-        for p in (server, router):
-            p.send_signal(signal.SIGTERM)
-            try:
-                p.wait(15)
-            except subprocess.TimeoutExpired:
-                p.kill()
-            if p.stdout:
-                p.stdout.close()
+        shutdown([], [server, router])
         tmp.cleanup()
     off, mem = out["offered"], out["memory"]
     assert isinstance(off, dict) and isinstance(mem, dict)

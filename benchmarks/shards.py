@@ -15,8 +15,6 @@ from __future__ import annotations
 import argparse
 import json
 import multiprocessing as mp
-import signal
-import subprocess
 import sys
 import tempfile
 import threading
@@ -27,7 +25,7 @@ import numpy as np
 import psutil
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from ingest import LAYERS5, MAP, RES, layers_for, spawn  # noqa: E402
+from ingest import LAYERS5, MAP, RES, layers_for, shutdown, spawn  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 TILE = 64
@@ -164,18 +162,7 @@ def run(k: int, args: argparse.Namespace) -> dict:
     finally:
         stop.set()
         go.set()
-        for p in procs:
-            p.join(30)
-            if p.is_alive():
-                p.kill()
-        for p in (*servers, router):
-            p.send_signal(signal.SIGTERM)
-            try:
-                p.wait(15)
-            except subprocess.TimeoutExpired:
-                p.kill()
-            if p.stdout:
-                p.stdout.close()
+        shutdown(procs, [*servers, router])
         tmp.cleanup()
     return out
 
@@ -190,7 +177,7 @@ def main() -> None:
     ap.add_argument("--publishers", type=int, default=2)
     ap.add_argument("--seconds", type=float, default=8.0, help="measurement window per K [s]")
     ap.add_argument("--warmup", type=float, default=2.0, help="sending before the window starts [s]")
-    ap.add_argument("--window", type=int, default=256, help="unacknowledged deltas per shard per publisher")
+    ap.add_argument("--window", type=int, default=1024, help="unacknowledged deltas per shard per publisher")
     ap.add_argument(
         "--max-rate", type=float, default=30000.0, help="deltas/s to pre-encode for (all publishers)"
     )

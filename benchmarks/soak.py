@@ -22,7 +22,6 @@ import json
 import multiprocessing as mp
 import os
 import pickle
-import signal
 import sys
 import tempfile
 import threading
@@ -33,7 +32,7 @@ import numpy as np
 import psutil
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from ingest import spawn  # noqa: E402
+from ingest import shutdown, spawn  # noqa: E402
 
 MAP, RES, TILE = "soak", 0.4, 64
 SPACING_CELLS = 100  # virtual scouts' patches are this many cells (40 m) apart
@@ -77,7 +76,7 @@ def record(seconds: float) -> list[dict]:
         on_tick=lambda sample, truth, sim: mapper.update(sample),
         progress=False,
     )
-    mapper.close()
+    mapper.flush()  # the last partial delta
     with path.open("wb") as f:
         pickle.dump(deltas, f)
     return deltas
@@ -267,7 +266,7 @@ def main() -> None:
                     ms = np.array(lat) * 1e3 if lat else np.array([np.nan])
                     line = {
                         "t_min": round((now - t0) / 60, 2),
-                        "merged_per_s": round((st.merged - merged0) / (now - last), 1),
+                        "merged_parts_per_s": round((st.merged - merged0) / (now - last), 1),
                         "acked_parts": len(lat),
                         "p50_ms": round(float(np.percentile(ms, 50)), 2),
                         "p99_ms": round(float(np.percentile(ms, 99)), 2),
@@ -317,18 +316,7 @@ def main() -> None:
             )
     finally:
         stop.set()
-        for p in procs:
-            p.join(30)
-            if p.is_alive():
-                p.kill()
-        for p in (*servers, router):
-            p.send_signal(signal.SIGTERM)
-            try:
-                p.wait(15)
-            except Exception:
-                p.kill()
-            if p.stdout:
-                p.stdout.close()
+        shutdown(procs, [*servers, router])
         tmp.cleanup()
     print(json.dumps(summary))
 
