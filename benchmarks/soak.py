@@ -7,9 +7,9 @@ one loop and then stops growing. Virtual scouts are light: `--procs` processes, 
 one `DeltaPublisher` per (scout, shard) over it; deltas are split by the map's partition, acks are
 dispatched by key. A router and K `psrmap server --shards K --shard i` processes (SQLite each) serve.
 
-Every `--report-s` (default 60 s) one JSON line: deltas/s acknowledged, p50/p99 publish→ack latency of the
-parts acknowledged in that period (an ack follows the commit that makes a delta visible to queries),
-each shard's RSS. At the end: parts sent, merged (aggregated status), duplicates, per-scout gaps — 0 lost
+Every `--report-s` (default 60 s) one JSON line: parts/s merged, p50/p99 publish→ack latency of the parts
+acknowledged in that period (an ack follows the commit that makes a delta visible to queries), each shard's
+RSS and the size of its SQLite file and WAL. At the end: parts sent, merged (aggregated status), duplicates, per-scout gaps — 0 lost
 and 0 doubled means merged == parts sent and every (scout, shard) stream merged without a gap.
 
     python benchmarks/soak.py [--scouts 500] [--shards 2] [--minutes 10] [--procs 4]
@@ -80,6 +80,13 @@ def record(seconds: float) -> list[dict]:
     with path.open("wb") as f:
         pickle.dump(deltas, f)
     return deltas
+
+
+def _size(path: Path) -> int:
+    try:
+        return path.stat().st_size
+    except OSError:
+        return 0
 
 
 def shifted(layers: dict, dx: int, dy: int) -> dict:
@@ -272,6 +279,10 @@ def main() -> None:
                         "p99_ms": round(float(np.percentile(ms, 99)), 2),
                         "rss_mib": [
                             round(psutil.Process(sv.pid).memory_info().rss / 2**20, 1) for sv in servers
+                        ],
+                        "db_wal_mib": [
+                            [round(_size(Path(tmp.name) / f"s{i}.db{x}") / 2**20, 1) for x in ("", "-wal")]
+                            for i in range(args.shards)
                         ],
                         "cells": st.cells,
                     }

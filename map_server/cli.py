@@ -119,6 +119,7 @@ def server_config(args: argparse.Namespace) -> Any:
         insecure=args.insecure,
         shards=args.shards,
         shard=args.shard,
+        tile_budget_mib=args.tile_budget_mib,
         limits=Limits(**{f.name: getattr(args, f"limit_{f.name}") for f in dataclasses.fields(Limits)}),
     )
 
@@ -134,12 +135,14 @@ def cmd_server(args: argparse.Namespace) -> int:
         args.parser.error(f"--res {args.res}: need a cell size > 0 [m]")
     if args.shards > 1 and (args.shard is None or not 0 <= args.shard < args.shards):
         args.parser.error(f"--shards {args.shards}: give --shard I with 0 ≤ I ≤ {args.shards - 1}")
+    if args.tile_budget_mib is not None and (not args.tile_budget_mib > 0 or not args.db):
+        args.parser.error(f"--tile-budget-mib {args.tile_budget_mib}: need a budget > 0 MiB and --db PATH")
     if args.shards == 1 and args.shard not in (None, 0):
         args.parser.error(f"--shard {args.shard}: a sharded map needs --shards K > 1 as well")
     cfg = server_config(args)
 
     def up(service: Any) -> None:
-        print(json.dumps({"server": "up", "map": cfg.map_id, "cells": service.map.cells,
+        print(json.dumps({"server": "up", "map": cfg.map_id, "cells": service.cells,
                           "replayed": service.replayed}), flush=True)  # fmt: skip
 
     try:
@@ -300,6 +303,13 @@ def register(subparsers: Any) -> None:
     )  # fmt: skip
     p.add_argument(
         "--shard", type=int, default=None, metavar="I", help="with --shards K: this server's shard, 0..K-1"
+    )
+    p.add_argument(
+        "--tile-budget-mib",
+        type=float,
+        default=None,
+        metavar="MIB",
+        help="keep at most this many MiB of tiles in memory, the rest in the --db file (a map bigger than memory)",
     )
     add_security_arguments(p, listens=True)
     g = p.add_argument_group("limits (a message or query over one is rejected, naming it)")

@@ -90,7 +90,7 @@ def run(
         merged=book.merged,
         duplicates=book.duplicates,
         rejected=dict(book.rejected),
-        cells=service.map.cells,
+        cells=service.cells,
         failure=service.worker_error if failed else None,
         exit_code=EX_SOFTWARE if failed else 0,
     )

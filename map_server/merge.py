@@ -143,6 +143,7 @@ class Merger:
         of other shards (`wrong_shard`); None: an unsharded map."""
         self.map = tiled
         self.map_id = map_id
+        self.extra_tiles = 0  # tiles of the map not in `tiled` (paged out to the store: map_server.paging)
         self.partition = partition if partition is not None and partition.shards > 1 else None
         self.shard = shard if self.partition is not None else None
         if self.partition is not None:
@@ -300,10 +301,10 @@ class Merger:
                     "limit_new_tiles",
                     f"delta would create {len(new)} tiles; limit max_new_tiles_per_delta={lim.max_new_tiles_per_delta}",
                 )
-            elif len(known) + len(created) + len(new) > lim.max_tiles:
+            elif len(known) + self.extra_tiles + len(created) + len(new) > lim.max_tiles:
                 out[i] = ProtocolError(
                     "limit_tiles",
-                    f"delta would grow the map to {len(known) + len(created) + len(new)} tiles; limit "
+                    f"delta would grow the map to {len(known) + self.extra_tiles + len(created) + len(new)} tiles; limit "
                     f"max_tiles={lim.max_tiles} (the map's extent budget)",
                 )
             else:

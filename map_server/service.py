@@ -20,8 +20,10 @@ import numpy as np
 import zenoh
 
 from common.session import open_session, zenoh_config
+from map_server.errors import MapServerConfigError
 from map_server.limits import Limits
 from map_server.merge import Merger
+from map_server.paging import TilePager
 from map_server.store import MapStore
 from mapcore import TiledMap
 from protocol.codec import INDEX_LIMIT, encode
@@ -79,14 +81,14 @@ class ServerConfig:
     # ever sent a payload above 3 KiB (a delta is ~5 KiB) and keep it resident; over loopback TCP a
     # delta costs a copy of 5 KiB instead
     shared_memory: bool = False
-    checkpoint_s: float = 0.5  # WAL checkpoint period of the background checkpointer
+    checkpoint_s: float = 0.05  # WAL checkpoint period of the background checkpointer (short: it keeps up)
     # sharded map (protocol.partition): this server is shard `shard` of `shards`; it subscribes only its own
     # delta key, rejects cells of other shards (`wrong_shard`) and answers queries for the cells it owns
     shards: int = 1
     shard: int | None = None
-    changes: bool = (
-        True  # publish the tiles each committed batch changed (TileChanges on psr/<map>/changes/…)
-    )
+    changes: bool = True  # publish the tiles each committed batch changed (TileChanges, psr/<map>/changes/…)
+    # a map bigger than memory: keep at most this many MiB of tiles in memory, the rest in the store (needs db)
+    tile_budget_mib: float | None = None
 
     def __post_init__(self) -> None:
         part = Partition(self.shards, self.tile)  # ProtocolError naming what is valid
@@ -123,6 +125,14 @@ class MapService:
             else None
         )
         self.replayed = self.store.load(self.merger) if self.store else 0
+        self.pager: TilePager | None = None
+        if config.tile_budget_mib is not None:  # (after load: the map replays whole, then sheds cold tiles)
+            if self.store is None:
+                raise MapServerConfigError(
+                    "a tile budget needs a database file (--db PATH): the tiles out of memory live there"
+                )
+            self.pager = TilePager(self.store, int(config.tile_budget_mib * 2**20))
+            self._set_map(self.pager.evict(self.map))
         self.lock = threading.Lock()  # guards map + book between the worker and the query thread
         self.alive: dict[str, bool] = {}
         self.ready = threading.Event()
@@ -141,6 +151,17 @@ class MapService:
             from map_server.viz import MapViz
 
             self._viz = MapViz(config.rrd, config.map_id)
+
+    def _set_map(self, tiled: TiledMap) -> None:
+        self.map = tiled
+        self.merger.map = tiled
+        if self.pager is not None:
+            self.merger.extra_tiles = len(self.pager.cold)
+
+    @property
+    def cells(self) -> int:
+        """Cells holding data, in memory or paged out."""
+        return self.map.cells + (self.pager.cold_cells if self.pager is not None else 0)
 
     # ------------------------------------------------------------------ lifecycle
 
@@ -211,6 +232,8 @@ class MapService:
         if self.store is not None:
             with self.lock:
                 self.store.snapshot(self.map)
+            if self.pager is not None:
+                self.pager.close()
             self.store.close()
         if self._viz is not None:
             self._viz.log_tiles(self.map, set(), self.lock, self.merger.book.version, force=True)
@@ -319,6 +342,13 @@ class MapService:
         # merge + commit under the lock: a query sees a delta only once it is durable
         store_error: Exception | None = None
         with self.lock:
+            keys: list[tuple[int, int]] = []
+            if self.pager is not None:  # the batch's tiles in memory first (exact merge, exact tile limits)
+                for c in batch.columns.values():
+                    keys.extend(TilePager.tiles_of(self.map, c.ix, c.iy))
+                keys = sorted(set(keys))
+                self.pager.page_in(self.map, keys)
+                self.merger.extra_tiles = len(self.pager.cold)
             res = self.merger.apply(samples, batch)
             if self.store is not None and (res.accepted or res.rejected or res.duplicates):
                 try:
@@ -329,6 +359,9 @@ class MapService:
                 self.map.take_touched() if self._viz is not None or self._changes_pub is not None else set()
             )
             version = self.merger.book.version
+            if self.pager is not None and store_error is None:  # durable: the map may shed cold tiles now
+                # (the batch's own tiles too: the budget holds between batches; during one, its tiles are in)
+                self._set_map(self.pager.evict(self.map))
         if res.accepted:
             self.newest_t = max(self.newest_t, *(a.delta.t for a in res.accepted))
         if store_error is not None:
@@ -447,7 +480,7 @@ class MapService:
                 self.config.map_id,
                 self.map.res,
                 book.version,
-                self.map.cells,
+                self.cells,
                 book.merged,
                 book.duplicates,
                 dict(book.rejected),
@@ -482,7 +515,10 @@ class MapService:
                 f"max_reply_bytes={lim.max_reply_bytes} (ask for fewer layers/stats or a smaller box)",
             )
         with self.lock:
-            layers = self.map.region(ix0, iy0, ix1, iy1, rq.layers, rq.stats)
+            if self.pager is not None:
+                layers = self.pager.region(self.map, ix0, iy0, ix1, iy1, rq.layers, rq.stats)
+            else:
+                layers = self.map.region(ix0, iy0, ix1, iy1, rq.layers, rq.stats)
             version = self.merger.book.version
         return MapRegion(self.config.map_id, res, ix0, iy0, ix1 - ix0 + 1, iy1 - iy0 + 1, version, layers)
 

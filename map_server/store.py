@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import sqlite3
 import time
 from collections import Counter
@@ -50,6 +51,13 @@ def _signed(d: int) -> int:
 
 
 SNAPSHOT_SLICE_BYTES = 512 << 10  # tile bytes written per `snapshot_step`
+# a WAL longer than this is checkpointed in RESTART mode (the writer waits for the copy, then the next commit
+# starts the WAL over and `journal_size_limit` truncates the file to this size): the bound on the WAL. The
+# service's checkpointer runs PASSIVE every 50 ms and this RESTART only past the limit. With PASSIVE alone every
+# 0.5 s the WAL grew without bound under a sustained 2,500 deltas/s (37 GiB per shard in a 10-minute soak, until
+# the disk was full); RESTART at 16–64 MiB bounded it but stalled commits often (p99 140–350 ms); at 256 MiB with
+# the 50 ms period: WAL ≤ 256 MiB, p99 22–30 ms (benchmarks/soak.py, 500 scouts, 2 shards).
+WAL_LIMIT_BYTES = 256 << 20
 PAGE_SIZE = 16384
 DELETE_SLICE = 250  # log rows deleted per `snapshot_step` (a delta's blob spans overflow pages)
 
@@ -73,6 +81,7 @@ class MapStore:
             # the service checkpoints from its own thread (`checkpoint`): a commit of the merge worker
             # then never waits for a checkpoint's copy + fsync
             self.db.execute("PRAGMA wal_autocheckpoint=0")
+        self.db.execute(f"PRAGMA journal_size_limit={WAL_LIMIT_BYTES}")  # the file shrinks back on a restart
         self._ckpt: sqlite3.Connection | None = None
         self.db.executescript(_SCHEMA)
         want = {"map": map_id, "res": repr(float(res)), "tile": str(tile)}
@@ -102,6 +111,7 @@ class MapStore:
             None  # the original error of the last failed commit (None after a good one)
         )
         self.last_error_unix: float | None = None
+        self.checkpoints: Counter[str] = Counter()  # checkpoints run, by mode
         self._pending: list[tuple[str, int, int]] = []  # tiles of the snapshot round under way
         self._cut = 0  # the round deletes the log up to this id when its tiles are written
 
@@ -256,20 +266,52 @@ class MapStore:
             return self.snapshot_step(tiled, None)
         return False
 
-    def checkpoint(self) -> tuple[int, int]:
-        """Copy the WAL into the database without blocking the writer (PASSIVE), from any one thread.
+    def write_tiles(self, tiled: TiledMap, keys: list[tuple[str, int, int]]) -> None:
+        """Write these (layer, tx, ty) tiles now, stamped with the last committed log id, in one transaction
+        (a map bigger than memory evicts them next: map_server.paging); they leave a snapshot round under way."""
+        db = self.db
+        db.execute("BEGIN")
+        try:
+            db.executemany(
+                "INSERT OR REPLACE INTO tiles VALUES (?, ?, ?, ?, ?)",
+                ((layer, tx, ty, tiled.tile_blob(layer, tx, ty), self.last_id) for layer, tx, ty in keys),
+            )
+            db.execute("COMMIT")
+        except BaseException:
+            db.execute("ROLLBACK")
+            raise
+        gone = set(keys)
+        self._pending = [k for k in self._pending if k not in gone]
 
-        Returns (frames in the WAL, frames checkpointed). Uses its own connection, so it runs beside
-        the merge worker's commits; when a checkpoint has caught up, the next commit restarts the WAL
-        from its beginning, so the file stays bounded.
+    def checkpoint(self) -> tuple[int, int]:
+        """Copy the WAL into the database from its own connection (any one thread); returns (frames in the
+        WAL, frames checkpointed).
+
+        PASSIVE (never blocks the writer) while the WAL is short; once it is longer than WAL_LIMIT_BYTES,
+        RESTART: the merge worker's next commit waits for the copy (the busy timeout), then starts the WAL from
+        its beginning and `journal_size_limit` truncates the file — the WAL stays bounded under any load.
         """
         if self.path == ":memory:":
             return (0, 0)
         if self._ckpt is None:
-            self._ckpt = sqlite3.connect(self.path, check_same_thread=False, isolation_level=None)
+            self._ckpt = sqlite3.connect(
+                self.path, check_same_thread=False, isolation_level=None, timeout=10.0
+            )
             self._ckpt.execute("PRAGMA synchronous=NORMAL")
-        _, frames, done = self._ckpt.execute("PRAGMA wal_checkpoint(PASSIVE)").fetchone()
+        try:
+            wal = os.path.getsize(self.path + "-wal")
+        except OSError:
+            wal = 0
+        mode = "RESTART" if wal > WAL_LIMIT_BYTES else "PASSIVE"
+        _, frames, done = self._ckpt.execute(f"PRAGMA wal_checkpoint({mode})").fetchone()
+        self.checkpoints[mode] += 1
         return int(frames), int(done)
+
+    def wal_bytes(self) -> int:
+        try:
+            return os.path.getsize(self.path + "-wal")
+        except OSError:
+            return 0
 
     def log_size(self) -> int:
         return int(self.db.execute("SELECT COUNT(*) FROM deltas").fetchone()[0])
