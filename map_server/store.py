@@ -56,7 +56,8 @@ SNAPSHOT_SLICE_BYTES = 512 << 10  # tile bytes written per `snapshot_step`
 # service's checkpointer runs PASSIVE every 50 ms and this RESTART only past the limit. With PASSIVE alone every
 # 0.5 s the WAL grew without bound under a sustained 2,500 deltas/s (37 GiB per shard in a 10-minute soak, until
 # the disk was full); RESTART at 16–64 MiB bounded it but stalled commits often (p99 140–350 ms); at 256 MiB with
-# the 50 ms period: WAL ≤ 256 MiB, p99 22–30 ms (benchmarks/soak.py, 500 scouts, 2 shards).
+# the 50 ms period: WAL ≤ 256 MiB, p99 32–93 ms per minute over 10 minutes, rising as the file grows
+# (benchmarks/soak.py, 500 scouts, 2 shards, 2,500 deltas/s).
 WAL_LIMIT_BYTES = 256 << 20
 PAGE_SIZE = 16384
 DELETE_SLICE = 250  # log rows deleted per `snapshot_step` (a delta's blob spans overflow pages)
@@ -250,18 +251,7 @@ class MapStore:
                 break
             take.append(key)
             size += tiled.grids[key[0]].store[0].nbytes
-        db.execute("BEGIN")
-        try:
-            db.executemany(
-                "INSERT OR REPLACE INTO tiles VALUES (?, ?, ?, ?, ?)",
-                # a generator: one tile's blob at a time, never a second copy of the whole map
-                ((layer, tx, ty, tiled.tile_blob(layer, tx, ty), self.last_id) for layer, tx, ty in take),
-            )
-            db.execute("COMMIT")
-        except BaseException:
-            db.execute("ROLLBACK")
-            raise
-        self._pending = self._pending[len(take) :]
+        self.write_tiles(tiled, take)  # (they leave the round's pending list)
         if not self._pending and max_bytes is None:
             return self.snapshot_step(tiled, None)
         return False
@@ -274,6 +264,7 @@ class MapStore:
         try:
             db.executemany(
                 "INSERT OR REPLACE INTO tiles VALUES (?, ?, ?, ?, ?)",
+                # a generator: one tile's blob at a time, never a second copy of the whole map
                 ((layer, tx, ty, tiled.tile_blob(layer, tx, ty), self.last_id) for layer, tx, ty in keys),
             )
             db.execute("COMMIT")
