@@ -55,10 +55,10 @@ SNAPSHOT_SLICE_BYTES = 512 << 10  # tile bytes written per `snapshot_step`
 # starts the WAL over and `journal_size_limit` truncates the file to this size): the bound on the WAL. The
 # service's checkpointer runs PASSIVE every 50 ms and this RESTART only past the limit. With PASSIVE alone every
 # 0.5 s the WAL grew without bound under a sustained 2,500 deltas/s (37 GiB per shard in a 10-minute soak, until
-# the disk was full); RESTART at 16–64 MiB bounded it but stalled commits often (p99 140–350 ms); at 256 MiB with
-# the 50 ms period: WAL ≤ 256 MiB, p99 32–93 ms per minute over 10 minutes, rising as the file grows
-# (benchmarks/soak.py, 500 scouts, 2 shards, 2,500 deltas/s).
-WAL_LIMIT_BYTES = 256 << 20
+# the disk was full); RESTART at 16–64 MiB bounded it but stalled commits often (p99 140–350 ms); at 256 MiB
+# p99 was 32–93 ms per minute over 10 minutes, rising with time; at 1 GiB 22–31 ms every minute, flat
+# (benchmarks/soak.py --scouts 500 --shards 2 --minutes 10: 2,500 deltas/s; the WAL reaches the limit in ~1 minute).
+WAL_LIMIT_BYTES = 1 << 30
 PAGE_SIZE = 16384
 DELETE_SLICE = 250  # log rows deleted per `snapshot_step` (a delta's blob spans overflow pages)
 
