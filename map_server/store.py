@@ -40,9 +40,11 @@ CREATE TABLE IF NOT EXISTS seqs (scout TEXT, epoch INTEGER, hw INTEGER, above TE
                                  PRIMARY KEY (scout, epoch));
 CREATE TABLE IF NOT EXISTS tiles (layer TEXT, tx INTEGER, ty INTEGER, data BLOB NOT NULL,
                                   upto INTEGER NOT NULL DEFAULT 0, PRIMARY KEY (layer, tx, ty));
-CREATE TABLE IF NOT EXISTS digests (scout TEXT, epoch INTEGER, seq INTEGER, digest INTEGER NOT NULL,
-                                    PRIMARY KEY (scout, epoch, seq)) WITHOUT ROWID;
+CREATE TABLE IF NOT EXISTS digest_log (scout TEXT, epoch INTEGER, seq INTEGER, digest INTEGER NOT NULL);
 """
+# digest_log is append-only (rowid order; no index): a batch's digests land on the table's last page. Keyed by
+# (scout, epoch, seq) as before (`digests`, a WITHOUT ROWID B-tree) every delta of a batch from many scouts
+# rewrote its own leaf page: one 16 KiB WAL frame per delta. Loading reads it in order; a later row wins.
 
 
 def _signed(d: int) -> int:
@@ -101,6 +103,7 @@ class MapStore:
             with self.db:
                 self.db.execute("BEGIN")
                 self.db.executemany("INSERT INTO meta VALUES (?, ?)", list(want.items()))
+        self._migrate_digests()
         cols = [r[1] for r in self.db.execute("PRAGMA table_info(tiles)")]
         if "upto" not in cols:  # a database from before per-tile watermarks: its tiles predate its log
             self.db.execute("ALTER TABLE tiles ADD COLUMN upto INTEGER NOT NULL DEFAULT 0")
@@ -116,6 +119,19 @@ class MapStore:
         self._pending: list[tuple[str, int, int]] = []  # tiles of the snapshot round under way
         self._cut = 0  # the round deletes the log up to this id when its tiles are written
 
+    def _migrate_digests(self) -> None:
+        """A database from before the append-only digest log: move its keyed `digests` table over, once."""
+        if not self.db.execute(
+            "SELECT 1 FROM sqlite_master WHERE type = 'table' AND name = 'digests'"
+        ).fetchone():
+            return
+        with self.db:
+            self.db.execute("BEGIN")
+            self.db.execute(
+                "INSERT INTO digest_log SELECT scout, epoch, seq, digest FROM digests ORDER BY scout, epoch, seq"
+            )
+            self.db.execute("DROP TABLE digests")
+
     def _meta(self, key: str, default: str) -> str:
         row = self.db.execute("SELECT value FROM meta WHERE key = ?", (key,)).fetchone()
         return row[0] if row else default
@@ -130,7 +146,9 @@ class MapStore:
         tiled.clear_dirty()
         for scout, epoch, hw, above in self.db.execute("SELECT scout, epoch, hw, above FROM seqs"):
             book.seqs[(scout, epoch)] = SeqState(hw, set(json.loads(above)))
-        for scout, epoch, seq, digest in self.db.execute("SELECT scout, epoch, seq, digest FROM digests"):
+        for scout, epoch, seq, digest in self.db.execute(
+            "SELECT scout, epoch, seq, digest FROM digest_log ORDER BY rowid"
+        ):
             st = book.seqs.get((scout, epoch))
             if st is not None:
                 st.set_digest(int(seq), int(digest) % (1 << 64))
@@ -157,7 +175,7 @@ class MapStore:
                 ],
             )
             db.executemany(
-                "INSERT OR REPLACE INTO digests VALUES (?, ?, ?, ?)",
+                "INSERT INTO digest_log VALUES (?, ?, ?, ?)",
                 [(a.delta.scout, a.delta.epoch, a.delta.seq, _signed(a.digest)) for a in accepted],
             )
             db.executemany(

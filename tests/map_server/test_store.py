@@ -107,3 +107,62 @@ def test_log_ids_only_grow_across_truncation(tmp_path):
     store2, m2 = open_map(db)
     assert store2.last_id == 4 and m2.map.equals(m.map)
     store2.close()
+
+
+def test_a_file_with_the_keyed_digest_table_is_migrated_and_still_tells_conflicts(tmp_path):
+    db = tmp_path / "old.db"
+    store, m = open_map(db)
+    feed(store, m, [0, 1, 2])
+    digests = store.db.execute("SELECT scout, epoch, seq, digest FROM digest_log ORDER BY seq").fetchall()
+    # rewrite the file into the layout of the previous release: a keyed `digests` table, no digest_log
+    store.db.executescript(
+        """CREATE TABLE digests (scout TEXT, epoch INTEGER, seq INTEGER, digest INTEGER NOT NULL,
+                                 PRIMARY KEY (scout, epoch, seq)) WITHOUT ROWID;
+           INSERT INTO digests SELECT scout, epoch, seq, digest FROM digest_log;
+           DROP TABLE digest_log;"""
+    )
+    store.close()
+    store2, m2 = open_map(db)
+    tables = {r[0] for r in store2.db.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
+    assert "digests" not in tables and "digest_log" in tables
+    assert (
+        store2.db.execute("SELECT scout, epoch, seq, digest FROM digest_log ORDER BY seq").fetchall()
+        == digests
+    )
+    key = delta_key(MAP, SCOUT)
+    same = make_delta(seq=1, scout=SCOUT, cells=((1, 1), (-1, 30), (9, 9)), seed=1)
+    assert m2.ingest([(key, encode(same))]).duplicates == 1  # the digest came across: a resend
+    other = make_delta(seq=1, scout=SCOUT, cells=((1, 1), (-1, 30), (9, 9)), seed=99)
+    assert [r for r, _ in m2.ingest([(key, encode(other))]).rejected] == ["seq_conflict"]
+    store2.close()
+
+
+def test_a_batch_from_many_scouts_appends_a_few_pages_not_one_per_scout(tmp_path):
+    """Write amplification: the WAL frames one commit of 40 deltas from 40 scouts adds stay a handful,
+    whatever the number of scouts (the digest log is append-only; keyed, it rewrote a leaf per scout)."""
+    db = tmp_path / "many.db"
+    store = MapStore(db, MAP, RES, 8, auto_checkpoint=False)
+    m = Merger(TiledMap(RES, tile=8), MAP)
+    scouts = [f"scout{i:03d}" for i in range(400)]
+
+    def batch(seq: int, who: list[str]) -> int:
+        r = m.ingest(
+            [
+                (delta_key(MAP, s), encode(make_delta(seq=seq, scout=s, cells=((1, 1),), seed=seq)))
+                for s in who
+            ]
+        )
+        store.commit(r.accepted, m.book, r.touched)
+        return len(r.accepted)
+
+    for seq in range(30):  # enough rows that the digest table spans many pages
+        batch(seq, scouts)
+    store.checkpoint()
+    store.db.execute("PRAGMA wal_checkpoint(TRUNCATE)")
+    before = store.db.execute("PRAGMA wal_checkpoint(PASSIVE)").fetchone()[1]
+    assert before == 0
+    assert batch(30, scouts[::10]) == 40
+    frames = store.db.execute("PRAGMA wal_checkpoint(PASSIVE)").fetchone()[1]
+    # deltas (40 small payloads), digest_log tail, seqs rows + index, meta: about a dozen 16 KiB pages
+    assert frames <= 20, frames
+    store.close()
