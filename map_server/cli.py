@@ -120,6 +120,7 @@ def server_config(args: argparse.Namespace) -> Any:
         shards=args.shards,
         shard=args.shard,
         tile_budget_mib=args.tile_budget_mib,
+        linger_s=args.linger_ms / 1000.0,
         limits=Limits(**{f.name: getattr(args, f"limit_{f.name}") for f in dataclasses.fields(Limits)}),
     )
 
@@ -137,6 +138,8 @@ def cmd_server(args: argparse.Namespace) -> int:
         args.parser.error(f"--shards {args.shards}: give --shard I with 0 ≤ I ≤ {args.shards - 1}")
     if args.tile_budget_mib is not None and (not args.tile_budget_mib > 0 or not args.db):
         args.parser.error(f"--tile-budget-mib {args.tile_budget_mib}: need a budget > 0 MiB and --db PATH")
+    if not 0 <= args.linger_ms <= 100:
+        args.parser.error(f"--linger-ms {args.linger_ms}: need 0 (no wait) to 100 ms")
     if args.shards == 1 and args.shard not in (None, 0):
         args.parser.error(f"--shard {args.shard}: a sharded map needs --shards K > 1 as well")
     cfg = server_config(args)
@@ -310,6 +313,13 @@ def register(subparsers: Any) -> None:
         default=None,
         metavar="MIB",
         help="keep at most this many MiB of tiles in memory, the rest in the --db file (a map bigger than memory)",
+    )
+    p.add_argument(
+        "--linger-ms",
+        type=float,
+        default=2.0,
+        metavar="MS",
+        help="when few deltas are queued, wait this long once for more before merging (larger commits; default 2)",
     )
     add_security_arguments(p, listens=True)
     g = p.add_argument_group("limits (a message or query over one is rejected, naming it)")

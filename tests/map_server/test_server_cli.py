@@ -33,3 +33,22 @@ def test_bad_box_is_a_usage_error(capsys):
     with pytest.raises(SystemExit) as info:
         args.func(args)
     assert info.value.code == 2 and "x0,y0,x1,y1" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("ms", ["-1", "nan", "500"])
+def test_a_linger_outside_0_to_100_ms_is_a_usage_error_naming_the_range(capsys, ms):
+    args = parse(["server", "--map", "m1", "--connect", "tcp/127.0.0.1:1", "--linger-ms", ms])
+    with pytest.raises(SystemExit) as info:
+        args.func(args)
+    assert info.value.code == 2 and "0 (no wait) to 100 ms" in capsys.readouterr().err
+
+
+def test_the_linger_reaches_the_server_config():
+    from map_server.cli import server_config
+    from map_server.service import ServerConfig
+
+    args = parse(["server", "--map", "m1", "--connect", "tcp/127.0.0.1:1", "--linger-ms", "0"])
+    assert server_config(args).linger_s == 0.0
+    assert ServerConfig().linger_s == 0.002
+    with pytest.raises(ValueError, match="linger_s"):
+        ServerConfig(linger_s=1.0)
