@@ -8,8 +8,9 @@
   are written to the store and the map is rebuilt from the remaining ones (dirty flags carried over, so the
   next snapshot still writes them) down to `low_water` of the budget. The budget holds between batches; while
   a batch merges, its own tiles are in memory as well (at most `batch_max` deltas' tiles);
-- `region(...)`: a query box's hot cells from the map and its cold tiles' cells read from the store into a
-  scratch map (nothing is paged in for a query, so a large query cannot evict the merge's working set).
+- `region(...)`: a query box's hot cells from the map and its cold tiles' cells read from the store one tile
+  at a time (nothing is paged in for a query, so a large query cannot evict the merge's working set, and a
+  query holds its reply and one tile beyond the budget).
 Totals stay exact whatever the budget: `cells` counts the cold tiles' occupied cells too.
 Reads go through a connection of their own (WAL: they see committed data only).
 """
@@ -157,21 +158,17 @@ class TilePager:
             for tx in range(ix0 >> sh, (ix1 >> sh) + 1)
             if (tx, ty) in self.cold
         ]
-        if not cold:
-            return out
-        scratch = TiledMap(tiled.res, tiled.tile, layers=tuple(tiled.grids))
-        for key in cold:
-            for layer, blob in self._blobs(tiled, key):
-                scratch.load_tile(layer, key[0], key[1], blob)
-        extra = scratch.region(ix0, iy0, ix1, iy1, layers, stats)
-        tx = (np.arange(ix0, ix1 + 1) >> sh)[None, :]
-        ty = (np.arange(iy0, iy1 + 1) >> sh)[:, None]
-        mask = np.zeros((iy1 - iy0 + 1, ix1 - ix0 + 1), bool)
-        for kx, ky in cold:
-            mask |= (tx == kx) & (ty == ky)
-        for name, st in out.items():
-            for s, a in st.items():
-                a[mask] = extra[name][s][mask]
+        for kx, ky in cold:  # one cold tile at a time: a query holds its reply and one tile, not the cold map
+            scratch = TiledMap(tiled.res, tiled.tile, layers=tuple(tiled.grids))
+            for layer, blob in self._blobs(tiled, (kx, ky)):
+                scratch.load_tile(layer, kx, ky, blob)
+            cx0, cx1 = max(ix0, kx << sh), min(ix1, ((kx + 1) << sh) - 1)
+            cy0, cy1 = max(iy0, ky << sh), min(iy1, ((ky + 1) << sh) - 1)
+            part = scratch.region(cx0, cy0, cx1, cy1, layers, stats)
+            rows, cols = slice(cy0 - iy0, cy1 - iy0 + 1), slice(cx0 - ix0, cx1 - ix0 + 1)
+            for name, st in out.items():
+                for s, a in st.items():
+                    a[rows, cols] = part[name][s]
         return out
 
     def close(self) -> None:
