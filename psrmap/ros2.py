@@ -6,8 +6,8 @@ Publishes, on a Zenoh network a ROS 2 system using `rmw_zenoh_cpp` shares (the s
 - `<prefix>/cost`: the planner's cost grid as `nav_msgs/msg/OccupancyGrid` (0..99 by cost, 100 impassable,
   -1 unknown);
 - `<prefix>/plan`: with `--plan-from/--plan-to`, the planned path as `nav_msgs/msg/Path`;
-all transient-local (a late subscriber gets the last one), at most `--rate` times a second and only when the
-map's version changed. Wire details in `interop/rmw_zenoh.py`; messages in `interop/ros2_messages.py`.
+all transient-local (a late subscriber gets the last one), at most `--rate` times a second and only when a tile
+inside `--box` changed (the servers' tile-change notices: a change elsewhere on the map costs no query). Wire details in `interop/rmw_zenoh.py`; messages in `interop/ros2_messages.py`.
 """
 
 from __future__ import annotations
@@ -39,14 +39,19 @@ class BridgeConfig:
     once: bool = False  # publish the current map once, then exit
     max_seconds: float | None = None
     linger_s: float = 1.0  # with `once`: stay up this long so subscribers and caches get the samples
+    # the bridge re-queries only when a tile inside its box changed (the shards' TileChanges notices,
+    # consumer_planner.client.RegionWatch); every resync_s it also compares each server's version with the
+    # notices it saw, and re-queries if one changed unannounced (a lost notice, or a server with changes off)
+    resync_s: float = 10.0
 
 
 def run_bridge(cfg: BridgeConfig, stop: threading.Event | None = None, log=print) -> dict[str, Any]:
     """Run until `stop` (or SIGTERM/SIGINT via the CLI), `once`, or `max_seconds`; returns what was published."""
     import zenoh
 
+    from common.query import get_statuses
     from common.session import zenoh_config
-    from consumer_planner.client import ClientConfig, query_region
+    from consumer_planner.client import ClientConfig, RegionWatch, query_region
     from consumer_planner.compare import plan_route
     from consumer_planner.costs import build_costs
     from consumer_planner.errors import PlannerError
@@ -64,6 +69,8 @@ def run_bridge(cfg: BridgeConfig, stop: threading.Event | None = None, log=print
     conf = zenoh_config(cfg.connect, (), None if cfg.zenoh_config else "client", cfg.zenoh_config)
     conf.insert_json5("timestamping/enabled", "true")  # publication caches (transient local) need timestamps
     published = {"grid_map": 0, "cost": 0, "plan": 0}
+    # queries made, tile-change notices that touched the box, re-queries forced by a status poll (resync_s)
+    counts = {"queries": 0, "changes_in_box": 0, "resyncs": 0}
     t_end = time.monotonic() + cfg.max_seconds if cfg.max_seconds else float("inf")
     with zenoh.open(conf) as session:
         node = RosNode(session, cfg.node, domain=cfg.domain)
@@ -74,16 +81,37 @@ def run_bridge(cfg: BridgeConfig, stop: threading.Event | None = None, log=print
         log(f"[ros2] node {cfg.node} on domain {cfg.domain}: " + ", ".join(p.topic for p in pubs.values()))
         last_version = None
         client = ClientConfig(connect=cfg.connect, zenoh_config=cfg.zenoh_config)
+        watch: RegionWatch | None = None
+        seen: dict[int | None, int] = {}  # each shard's version the last published map reflects
+        requery, next_resync = True, 0.0
         try:
             while not stop.is_set() and time.monotonic() < t_end:
-                version = _map_version(session, cfg.map_id)
+                if watch is None or time.monotonic() >= next_resync:
+                    statuses = get_statuses(session, cfg.map_id, timeout_s=2.0)
+                    next_resync = time.monotonic() + cfg.resync_s
+                    if statuses and watch is None:  # the map's res is known now: watch the box from here on
+                        watch = RegionWatch(session, cfg.map_id, statuses[0].res, cfg.box)
+                    elif watch is not None and any(
+                        st.version > max(seen.get(st.shard, -1), watch.versions.get(st.shard, -1))
+                        for st in statuses
+                    ):
+                        requery = True  # a server changed without telling us (missed or disabled notices)
+                        counts["resyncs"] += 1
+                if watch is not None and (hits := watch.changed()):
+                    requery = True
+                    counts["changes_in_box"] += len(hits)
                 grid = None
-                if version is not None and version != last_version:
+                if requery and watch is not None:
+                    statuses = get_statuses(session, cfg.map_id, timeout_s=2.0)  # the query reflects these
                     try:
                         grid = query_region(session, cfg.map_id, cfg.box, client)
+                        counts["queries"] += 1
                     except PlannerError as exc:  # servers gone or refusing: say so, try again next tick
                         log(f"[ros2] map query failed: {exc}")
                 if grid is not None:
+                    version = sum(st.version for st in statuses)
+                    seen = {st.shard: st.version for st in statuses}
+                    requery = False
                     stamp = time.time_ns()
                     xa, ya, _, _ = grid.bounds_m()
                     layers = {}
@@ -111,33 +139,13 @@ def run_bridge(cfg: BridgeConfig, stop: threading.Event | None = None, log=print
                 if cfg.once and last_version is not None:
                     stop.wait(cfg.linger_s)
                     break
-                stop.wait(1.0 / cfg.rate_hz)
+                stop.wait(1.0 / cfg.rate_hz)  # at most rate_hz maps a second; changes wait in the watch
         finally:
+            if watch is not None:
+                watch.close()
             node.close()
-    return {"map": cfg.map_id, "version": last_version, "published": published,
+    return {"map": cfg.map_id, "version": last_version, "published": published, **counts,
             "topics": {k: p.key for k, p in pubs.items()}}  # fmt: skip
-
-
-def _map_version(session: Any, map_id: str) -> int | None:
-    """The sum of every answering server's map version (changes when any shard's map does); None: no answer."""
-    import zenoh
-
-    from protocol.codec import decode
-    from protocol.errors import ProtocolError
-    from protocol.keys import status_key
-    from protocol.messages import Status
-
-    total = None
-    for reply in session.get(status_key(map_id), target=zenoh.QueryTarget.ALL, timeout=2.0):
-        if reply.ok is None:
-            continue
-        try:
-            st = decode(reply.ok.payload.to_bytes(), expected_type="status")
-        except ProtocolError:
-            continue
-        assert isinstance(st, Status)
-        total = (total or 0) + st.version
-    return total
 
 
 def _pair(text: str) -> tuple[float, float]:
@@ -179,6 +187,11 @@ def register(sub: Any) -> None:
     p.add_argument("--rate", type=float, default=1.0, help="at most this many updates per second (default 1)")
     p.add_argument("--plan-from", type=_pair, metavar="X,Y", help="also plan and publish a path from here…")
     p.add_argument("--plan-to", type=_pair, metavar="X,Y", help="…to here")
+    p.add_argument(
+        "--resync-s", type=float, default=10.0, metavar="S",
+        help="every S seconds also check each server's map version, in case a tile-change notice was lost "
+        "(default 10)",
+    )  # fmt: skip
     p.add_argument("--once", action="store_true", help="publish the current map once and exit")
     p.add_argument("--max-seconds", type=float, help="stop after this long")
     p.set_defaults(func=_cmd, parser=p)
@@ -189,13 +202,16 @@ def _cmd(args: argparse.Namespace) -> int:
         args.parser.error("--plan-from and --plan-to go together")
     if args.rate <= 0:
         args.parser.error(f"--rate {args.rate}: need a positive number of updates per second")
+    if not args.resync_s > 0:
+        args.parser.error(f"--resync-s {args.resync_s}: need a period > 0 seconds")
     if not 0 <= args.domain <= 232:
         args.parser.error(f"--domain {args.domain}: ROS 2 domain ids are 0..232")
     if not args.prefix.startswith("/"):
         args.parser.error(f"--prefix {args.prefix!r}: a ROS namespace starts with '/'")
     cfg = BridgeConfig(args.map, args.box, tuple(args.connect), args.zenoh_config, args.domain,
                        args.prefix.rstrip("/"), frame=args.frame, rate_hz=args.rate, plan_from=args.plan_from,
-                       plan_to=args.plan_to, once=args.once, max_seconds=args.max_seconds)  # fmt: skip
+                       plan_to=args.plan_to, once=args.once, max_seconds=args.max_seconds,
+                       resync_s=args.resync_s)  # fmt: skip
     stop = threading.Event()
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, lambda *_: stop.set())

@@ -188,6 +188,7 @@ def test_bridge_refuses_bad_options_with_the_valid_form(capsys) -> None:
         (["--box", "0,0,1,1", "--rate", "0"], "positive"),
         (["--box", "0,0,1,1", "--plan-from", "1,1"], "go together"),
         (["--box", "0,0,1,1", "--prefix", "psrmap"], "starts with '/'"),
+        (["--box", "0,0,1,1", "--resync-s", "nan"], "period > 0"),
     ):
         with pytest.raises(SystemExit) as exc:
             main(["ros2", "--map", "m", "--connect", "tcp/127.0.0.1:1", *argv])
@@ -262,3 +263,96 @@ def test_a_late_subscriber_gets_the_last_map_from_the_cache(router, served_map, 
     assert got, "the late subscriber received nothing"
     msg = store.deserialize_cdr(got[0], "grid_map_msgs/msg/GridMap")
     assert "elevation" in msg.layers and done and done[0]["published"]["grid_map"] == 1
+
+
+def _put_cells(client: zenoh.Session, map_id: str, seq: int, ix: np.ndarray, iy: np.ndarray) -> None:
+    rng = np.random.default_rng(seq)
+    layers = {
+        "cot": layer_cells("cot", ix, iy, rng, scale=1.0)
+        | {"work": np.ones(ix.size), "dist": np.ones(ix.size)}
+    }
+    client.put(delta_key(map_id, "s2"), encode(CellDelta(map_id, "s2", 1, seq, 4.0 + seq, 0.4, layers)))
+
+
+def _merged(client: zenoh.Session, map_id: str, n: int) -> None:
+    end = time.monotonic() + 10
+    while time.monotonic() < end:
+        for r in client.get(status_key(map_id), timeout=2.0):
+            if r.ok is not None and decode(r.ok.payload.to_bytes(), expected_type="status").merged >= n:
+                return
+        time.sleep(0.05)
+    raise AssertionError(f"{n} deltas were not merged")
+
+
+def _start_bridge(cfg: BridgeConfig, stop: threading.Event) -> tuple[threading.Thread, list[dict]]:
+    """The bridge in a thread; its summary lands in the returned list when `stop` is set."""
+    done: list[dict] = []
+    t = threading.Thread(target=lambda: done.append(run_bridge(cfg, stop, log=lambda *a: None)), daemon=True)
+    t.start()
+    return t, done
+
+
+def test_the_bridge_requeries_only_when_a_tile_in_its_box_changed(router, served_map) -> None:
+    """Issue 16: the bridge follows the servers' tile-change notices. A change 100 m away (another tile)
+    costs no query and publishes nothing; a change inside the box is published within a tick."""
+    map_id = "watchmap"
+    with served_map(map_id, 0.4) as (_, client):
+        _fill(client, map_id)  # cells 2..8 x -1..4: tile (0, 0) and (0, -1)
+        stop = threading.Event()
+        cfg = BridgeConfig(map_id, (0.0, -1.0, 4.0, 2.4), (router,), rate_hz=10.0, resync_s=60.0)
+        t, done = _start_bridge(cfg, stop)
+        try:
+            time.sleep(2.0)  # first map published
+            far = np.arange(250, 260)  # 100 m east: tile (3, 0), outside the box
+            for seq in range(1, 6):
+                _put_cells(client, map_id, seq, far, np.zeros(10, int))
+            _merged(client, map_id, 6)
+            time.sleep(1.5)  # 15 ticks of the bridge
+            stop.set()
+            t.join(timeout=20)
+            outside = done[0]
+            stop.clear()
+            t, done = _start_bridge(cfg, stop)
+            time.sleep(2.0)
+            _put_cells(client, map_id, 6, np.array([3, 4]), np.array([1, 1]))  # inside the box
+            _merged(client, map_id, 7)
+            time.sleep(1.5)
+        finally:
+            stop.set()
+            t.join(timeout=20)
+    assert outside["published"]["grid_map"] == 1 and outside["queries"] == 1, outside
+    assert outside["changes_in_box"] == 0 and outside["resyncs"] == 0
+    inside = done[0]
+    assert inside["published"]["grid_map"] == 2 and inside["queries"] == 2, inside
+    assert inside["changes_in_box"] >= 1
+
+
+def test_a_lost_notice_is_caught_by_the_resync(router, tmp_path) -> None:
+    """A server that announces no tile changes (changes off: as if every notice were lost): the bridge's
+    periodic status check sees its version move and re-queries."""
+    from dataclasses import replace
+
+    from map_server.service import MapService, ServerConfig
+
+    map_id = "quietmap"
+    cfg_server = replace(ServerConfig(), map_id=map_id, res=0.4, connect=(router,), changes=False)
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"client"')
+    conf.insert_json5("connect/endpoints", f'["{router}"]')
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    with MapService(cfg_server).start(), zenoh.open(conf) as client:
+        time.sleep(0.5)
+        _fill(client, map_id)
+        stop = threading.Event()
+        cfg = BridgeConfig(map_id, (0.0, -1.0, 4.0, 2.4), (router,), rate_hz=10.0, resync_s=0.5)
+        t, done = _start_bridge(cfg, stop)
+        try:
+            time.sleep(2.0)
+            _put_cells(client, map_id, 1, np.array([3]), np.array([1]))
+            _merged(client, map_id, 2)
+            time.sleep(2.0)
+        finally:
+            stop.set()
+            t.join(timeout=20)
+    res = done[0]
+    assert res["changes_in_box"] == 0 and res["resyncs"] >= 1 and res["published"]["grid_map"] == 2, res
