@@ -31,6 +31,12 @@ def register(sub: Any) -> None:
     p.add_argument("--run-dir", help="exact run folder (default <out>/<timestamp>)")
     p.add_argument("--no-rrd", action="store_true", help="do not write Rerun recordings")
     p.add_argument(
+        "--shards",
+        type=int,
+        metavar="K",
+        help="split the map over K map-server shards (default: the config's, 1)",
+    )
+    p.add_argument(
         "--zenoh-config",
         metavar="ROUTER.json5",
         help="use an existing `psrmap secure init` folder: its router.json5 (the agents' files beside "
@@ -67,6 +73,8 @@ def _cmd_mission(args: argparse.Namespace) -> int:
             changes["sim_seconds"] = args.sim_seconds
         if args.out is not None:
             changes["out"] = args.out
+        if args.shards is not None:
+            changes["shards"] = args.shards
         if args.no_rrd:
             changes["rrd"] = False
         if args.no_secure:

@@ -78,6 +78,7 @@ class MissionConfig:
     secure: bool = True  # per-run credentials + router ACL (psrmap secure init) for every component
     zenoh_config: str | None = None  # an existing secure folder's router.json5 (agents' files beside it)
     timeout_s: float = 900.0  # the whole mission gives up after this long [s wall clock]
+    shards: int = 1  # map-server shards (protocol.partition; 1: one server, contract v1 keys)
     # where the map frame's origin is on the Moon: latitude, longitude [deg], heading of the map's +x axis from
     # the south polar stereographic easting [deg]; exports are then in IAU_2015:30135 (`psrmap export`)
     origin: tuple[float, float, float] | None = None
@@ -109,7 +110,7 @@ def _scout(d: dict[str, Any], i: int) -> ScoutPlan:
     return ScoutPlan(sid, (start[0], start[1], start[2]), goal, via)
 
 
-_MISSION_KEYS = ("map", "res", "sim_seconds", "speed", "rate_hz", "out", "secure", "origin")
+_MISSION_KEYS = ("map", "res", "sim_seconds", "speed", "rate_hz", "out", "secure", "origin", "shards")
 
 
 _TERRAIN_KEYS = ("scene", "seed", "slope", "slippery_patches")
@@ -138,6 +139,20 @@ def _origin(v: Any, where: str) -> tuple[float, float, float] | None:
             f"{where}: [mission] origin latitude {lat}: the south polar projection needs -90 <= lat < -60"
         )
     return (lat, lon, heading)
+
+
+MAX_SHARDS = 16
+
+
+def _shards(v: Any, where: str) -> int:
+    if isinstance(v, bool) or not isinstance(v, int):
+        raise MissionError(f"{where}: [mission] shards = {v!r}: need an integer 1..{MAX_SHARDS}")
+    return v
+
+
+def server_names(cfg: MissionConfig) -> list[str]:
+    """The mission's map servers: `server`, or `server0`..`server<K-1>` for a sharded map."""
+    return ["server"] if cfg.shards == 1 else [f"server{i}" for i in range(cfg.shards)]
 
 
 def load_config(path: str | Path | None = None) -> MissionConfig:
@@ -183,6 +198,7 @@ def load_config(path: str | Path | None = None) -> MissionConfig:
         rate_hz=float(m.get("rate_hz", base.rate_hz)),
         out=str(m.get("out", base.out)),
         secure=bool(m.get("secure", base.secure)),
+        shards=_shards(m.get("shards", base.shards), where),
         scene=str(t.get("scene", base.scene)),
         seed=int(t.get("seed", base.seed)),
         slope=float(t.get("slope", base.slope)),
@@ -217,6 +233,8 @@ def validate(cfg: MissionConfig) -> None:
     ):
         if not v > 0:
             raise MissionError(f"{name} = {v}: must be > 0")
+    if not 1 <= cfg.shards <= MAX_SHARDS:
+        raise MissionError(f"shards = {cfg.shards}: need 1 (one server) to {MAX_SHARDS} map-server shards")
     if cfg.zenoh_config:
         _credential_files(cfg)
 
@@ -224,12 +242,14 @@ def validate(cfg: MissionConfig) -> None:
 def _credential_files(cfg: MissionConfig) -> dict[str, Path]:
     """The secure folder's file of every component, beside `cfg.zenoh_config` (the router's)."""
     router = Path(cfg.zenoh_config or "")
-    needed = {n: router.with_name(f"{n}.json5") for n in ["server", "planner", *(s.id for s in cfg.scouts)]}
+    names = [*server_names(cfg), "planner", *(s.id for s in cfg.scouts)]
+    needed = {n: router.with_name(f"{n}.json5") for n in names}
     missing = [str(p) for p in [router, *needed.values()] if not p.is_file()]
     if missing:
         raise MissionError(
             f"--zenoh-config {router}: need the router's file and, beside it, one per component "
-            f"(psrmap secure init --scouts <the mission's scout ids> --planners planner); missing: "
+            f"(psrmap secure init --scouts <the mission's scout ids> --planners planner, and --servers "
+            f"{','.join(server_names(cfg))} for {cfg.shards} shards); missing: "
             f"{', '.join(missing)}"
         )
     return needed

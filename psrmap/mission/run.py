@@ -22,7 +22,7 @@ import numpy as np
 
 from psrmap.agreement import elevation_agreement
 from psrmap.mission.components import plan_and_compare, scout_config
-from psrmap.mission.config import DRIFT_KEYS, MissionConfig, _credential_files, validate
+from psrmap.mission.config import DRIFT_KEYS, MissionConfig, _credential_files, server_names, validate
 from psrmap.mission.processes import Proc, free_port, spawn
 from psrmap.mission.recording import merge_recordings
 from psrmap.mission.report import config_json, deltas_sent, json_default, print_report
@@ -37,17 +37,21 @@ def _status(session: Any, map_id: str, timeout: float = 2.0) -> Any | None:
     return get_status(session, map_id, timeout)
 
 
-def _wait_for_server(session: Any, map_id: str, procs: Sequence[Proc], deadline: float) -> Any:
+def _wait_for_server(
+    session: Any, map_id: str, procs: Sequence[Proc], deadline: float, shards: int = 1
+) -> Any:
+    from common.query import aggregate_status, get_statuses
+
     while time.monotonic() < deadline:
-        st = _status(session, map_id, timeout=1.0)
-        if st is not None:
-            return st
+        parts = get_statuses(session, map_id, timeout_s=1.0)
+        if len({p.shard for p in parts}) >= shards:  # every shard answers
+            return aggregate_status(parts)
         for p in procs:
             if not p.proc.is_alive():
                 raise RuntimeError(f"{p.name} exited early with code {p.proc.exitcode}; see {p.log}")
         time.sleep(0.2)
     raise RuntimeError(
-        f"the map server did not answer within the mission's start-up time; see {procs[0].log}"
+        f"the map server(s) did not all answer within the mission's start-up time; see {procs[0].log}"
     )
 
 
@@ -81,7 +85,7 @@ def run_mission(cfg: MissionConfig, run_dir: Path | None = None, progress: bool 
     (run_dir / "mission.json").write_text(json.dumps(summary["config"], indent=2))
     say = print if progress else (lambda *a, **k: None)
     procs: list[Proc] = []
-    server: Proc | None = None
+    servers: list[Proc] = []
     creds: dict[str, str] = {}  # component -> its Zenoh config file (credentials)
     router_file = None
     if cfg.zenoh_config:
@@ -91,7 +95,7 @@ def run_mission(cfg: MissionConfig, run_dir: Path | None = None, progress: bool 
         from psrmap.secure import secure_init
 
         lay = secure_init(
-            run_dir / "secure", cfg.map, [s.id for s in cfg.scouts], ["planner"], ["server"], endpoint
+            run_dir / "secure", cfg.map, [s.id for s in cfg.scouts], ["planner"], server_names(cfg), endpoint
         )
         creds = {name: str(path) for name, path in lay.agents.items()}
         router_file = lay.router
@@ -102,17 +106,24 @@ def run_mission(cfg: MissionConfig, run_dir: Path | None = None, progress: bool 
             + f"; run folder {run_dir}"
         )
         try:
-            server_cfg = ServerConfig(
-                map_id=cfg.map,
-                res=cfg.res,
-                db=str(run_dir / "map.db"),
-                connect=(endpoint,),
-                rrd=str(run_dir / "recordings" / "server.rrd") if cfg.rrd else None,
-                zenoh_config=creds.get("server"),
+            for i, name in enumerate(server_names(cfg)):
+                sharded = cfg.shards > 1
+                server_cfg = ServerConfig(
+                    map_id=cfg.map,
+                    res=cfg.res,
+                    db=str(run_dir / (f"map.shard{i}.db" if sharded else "map.db")),
+                    connect=(endpoint,),
+                    rrd=str(run_dir / "recordings" / f"{name}.rrd") if cfg.rrd else None,
+                    zenoh_config=creds.get(name),
+                    shards=cfg.shards,
+                    shard=i if sharded else None,
+                )
+                servers.append(spawn(ctx, name, run_server, server_cfg, run_dir, env))
+            _wait_for_server(session, cfg.map, servers, min(deadline, time.monotonic() + 60), cfg.shards)
+            where = (
+                f"{cfg.shards} shards, db map.shard<i>.db" if cfg.shards > 1 else f"db {run_dir / 'map.db'}"
             )
-            server = spawn(ctx, "server", run_server, server_cfg, run_dir, env)
-            _wait_for_server(session, cfg.map, [server], min(deadline, time.monotonic() + 60))
-            say(f"[mission] map server up (map {cfg.map!r}, res {cfg.res} m, db {run_dir / 'map.db'})")
+            say(f"[mission] map server up (map {cfg.map!r}, res {cfg.res} m, {where})")
             _log_context(cfg, run_dir, recording_id)
             for s in cfg.scouts:
                 sc = scout_config(cfg, s, endpoint, run_dir, creds.get(s.id))
@@ -136,8 +147,11 @@ def run_mission(cfg: MissionConfig, run_dir: Path | None = None, progress: bool 
                         deltas=st.merged, cells=st.cells, alive=sum(v.alive for v in st.scouts.values())
                     )
                     bar.refresh()
-                if server is not None and not server.proc.is_alive():
-                    raise RuntimeError(f"the map server died (code {server.proc.exitcode}); see {server.log}")
+                for server in servers:
+                    if not server.proc.is_alive():
+                        raise RuntimeError(
+                            f"map server {server.name} died (code {server.proc.exitcode}); see {server.log}"
+                        )
                 time.sleep(0.5)
             bar.n = bar.total
             bar.close()
@@ -167,10 +181,16 @@ def run_mission(cfg: MissionConfig, run_dir: Path | None = None, progress: bool 
                 if p.proc.is_alive():
                     p.proc.terminate()
                 p.proc.join(timeout=10)
-            if server is not None:
+            for server in servers:
                 server.proc.terminate()  # SIGTERM: the server flushes, closes its session, reports
+            for server in servers:
                 kind, res = server.result(timeout=20)
-                summary["server"] = dataclasses.asdict(res) if kind == "ok" else {"error": res}
+                # one server: "server" as before; a sharded map: "servers", one summary per shard
+                out = dataclasses.asdict(res) if kind == "ok" else {"error": res}
+                if cfg.shards == 1:
+                    summary["server"] = out
+                else:
+                    summary.setdefault("servers", {})[server.name] = out
                 server.proc.join(timeout=5)
                 if server.proc.is_alive():
                     server.proc.kill()

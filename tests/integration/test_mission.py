@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from psrmap.mission import (
+    MissionConfig,
     MissionError,
     deltas_sent,
     load_config,
@@ -153,17 +154,18 @@ def test_the_mission_runs_secured_by_default(mission: tuple[dict, Path]) -> None
     assert (run_dir / "secure" / "scout1.json5").is_file() and (run_dir / "secure" / "server.json5").is_file()
 
 
+def _short_mission(scouts: int, sim_seconds: float, **changes) -> MissionConfig:
+    """The default mission cut short: `scouts` scouts, no recordings, a plan over their first metres."""
+    base = {"rrd": False, "timeout_s": 400.0, "plan_from": (1.6, 1.6), "plan_to": (2.8, 2.8)}
+    return dataclasses.replace(
+        with_scouts(load_config(), scouts), sim_seconds=sim_seconds, **(base | changes)
+    )
+
+
 def test_a_mission_on_an_existing_secure_folder(tmp_path: Path) -> None:
     from psrmap.secure import secure_init
 
-    cfg = dataclasses.replace(
-        with_scouts(load_config(), 1),
-        sim_seconds=6.0,
-        rrd=False,
-        timeout_s=300.0,
-        plan_from=(1.6, 1.6),
-        plan_to=(2.0, 2.0),
-    )
+    cfg = _short_mission(1, 6.0, plan_to=(2.0, 2.0))
     lay = secure_init(tmp_path / "sec", cfg.map, [s.id for s in cfg.scouts], ["planner"])
     bad = dataclasses.replace(cfg, zenoh_config=str(tmp_path / "nowhere" / "router.json5"))
     with pytest.raises(MissionError, match="missing"):
@@ -313,3 +315,49 @@ def test_mission_output_off_a_terminal_is_a_few_plain_lines(tmp_path: Path) -> N
     assert 5 <= len(lines) < 100, res.stdout
     assert any(line.startswith("[scouts] ") and "sim-s" in line for line in lines), res.stdout
     assert any(line.startswith("Mission finished") for line in lines)
+
+
+def test_a_mission_on_a_sharded_map(tmp_path: Path) -> None:
+    """`psrmap mission --shards 2`: two map-server shards (secured, each its own credentials and file); every
+    scout delta lands exactly once over the shards, the plan queries both, and the shards' files together
+    hold exactly the scouts' own maps."""
+    from map_server.merge import Merger
+    from map_server.store import MapStore
+    from mapcore import TiledMap
+    from protocol.partition import Partition
+
+    cfg = _short_mission(2, 10.0, shards=2)
+    with pytest.raises(MissionError, match="1 .one server. to 16"):
+        run_mission(dataclasses.replace(cfg, shards=0), tmp_path / "bad", progress=False)
+    run_dir = tmp_path / "run"
+    summary = run_mission(cfg, run_dir, progress=False)
+    sent = sum(
+        deltas_sent(s) for s in summary["scouts"].values()
+    )  # parts: a delta split over shards counts per part
+    st = summary["status"]
+    assert st["merged"] == sent > 0 and not st["rejected"]
+    assert set(summary["servers"]) == {"server0", "server1"}
+    assert "error" not in summary["plan"], summary["plan"]
+    assert (run_dir / "secure" / "server1.json5").exists()
+    part = Partition(2, 64)
+    got: dict[str, dict[str, float]] = {}
+    for i in range(2):
+        tiled = TiledMap(cfg.res, 64)
+        store = MapStore(str(run_dir / f"map.shard{i}.db"), cfg.map, cfg.res, 64)
+        store.load(Merger(tiled, cfg.map))
+        store.close()
+        for name, g in tiled.grids.items():  # each shard holds only the tiles it owns
+            tiles = np.array(list(g.slots), np.int64).reshape(-1, 2)
+            assert (part.shard_of_tiles(tiles[:, 0], tiles[:, 1]) == i).all(), (i, name)
+        for layer, stats in tiled.totals().items():
+            for s, v in stats.items():
+                got.setdefault(layer, {}).setdefault(s, 0.0)
+                got[layer][s] += v
+    expected: dict[str, float] = {}
+    for npz in sorted(run_dir.glob("scout*_local.npz")):
+        for k, v in _local_totals(npz).items():
+            expected[k] = expected.get(k, 0.0) + v
+    assert expected
+    for key, total in expected.items():
+        layer, stat = key.split("/", 1)
+        assert got[layer][stat] == pytest.approx(total, rel=1e-9, abs=1e-9), key
