@@ -37,6 +37,12 @@ def register(sub: Any) -> None:
         help="split the map over K map-server shards (default: the config's, 1)",
     )
     p.add_argument(
+        "--tile",
+        type=int,
+        metavar="CELLS",
+        help="the servers' storage tile, cells per side, a power of two (default 64); a shard owns whole tiles",
+    )
+    p.add_argument(
         "--zenoh-config",
         metavar="ROUTER.json5",
         help="use an existing `psrmap secure init` folder: its router.json5 (the agents' files beside "
@@ -75,6 +81,8 @@ def _cmd_mission(args: argparse.Namespace) -> int:
             changes["out"] = args.out
         if args.shards is not None:
             changes["shards"] = args.shards
+        if args.tile is not None:
+            changes["tile"] = args.tile
         if args.no_rrd:
             changes["rrd"] = False
         if args.no_secure:

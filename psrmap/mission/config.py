@@ -79,6 +79,7 @@ class MissionConfig:
     zenoh_config: str | None = None  # an existing secure folder's router.json5 (agents' files beside it)
     timeout_s: float = 900.0  # the whole mission gives up after this long [s wall clock]
     shards: int = 1  # map-server shards (protocol.partition; 1: one server, contract v1 keys)
+    tile: int = 64  # the servers' storage tile [cells per side, a power of two]: also the unit a shard owns
     # where the map frame's origin is on the Moon: latitude, longitude [deg], heading of the map's +x axis from
     # the south polar stereographic easting [deg]; exports are then in IAU_2015:30135 (`psrmap export`)
     origin: tuple[float, float, float] | None = None
@@ -110,7 +111,7 @@ def _scout(d: dict[str, Any], i: int) -> ScoutPlan:
     return ScoutPlan(sid, (start[0], start[1], start[2]), goal, via)
 
 
-_MISSION_KEYS = ("map", "res", "sim_seconds", "speed", "rate_hz", "out", "secure", "origin", "shards")
+_MISSION_KEYS = ("map", "res", "sim_seconds", "speed", "rate_hz", "out", "secure", "origin", "shards", "tile")
 
 
 _TERRAIN_KEYS = ("scene", "seed", "slope", "slippery_patches")
@@ -144,9 +145,10 @@ def _origin(v: Any, where: str) -> tuple[float, float, float] | None:
 MAX_SHARDS = 16
 
 
-def _shards(v: Any, where: str) -> int:
+def _shards(v: Any, where: str, key: str = "shards") -> int:
     if isinstance(v, bool) or not isinstance(v, int):
-        raise MissionError(f"{where}: [mission] shards = {v!r}: need an integer 1..{MAX_SHARDS}")
+        valid = f"1..{MAX_SHARDS}" if key == "shards" else "a power of two (cells per tile side)"
+        raise MissionError(f"{where}: [mission] {key} = {v!r}: need an integer, {valid}")
     return v
 
 
@@ -199,6 +201,7 @@ def load_config(path: str | Path | None = None) -> MissionConfig:
         out=str(m.get("out", base.out)),
         secure=bool(m.get("secure", base.secure)),
         shards=_shards(m.get("shards", base.shards), where),
+        tile=_shards(m.get("tile", base.tile), where, "tile"),
         scene=str(t.get("scene", base.scene)),
         seed=int(t.get("seed", base.seed)),
         slope=float(t.get("slope", base.slope)),
@@ -235,6 +238,9 @@ def validate(cfg: MissionConfig) -> None:
             raise MissionError(f"{name} = {v}: must be > 0")
     if not 1 <= cfg.shards <= MAX_SHARDS:
         raise MissionError(f"shards = {cfg.shards}: need 1 (one server) to {MAX_SHARDS} map-server shards")
+    t = cfg.tile
+    if t < 1 or t & (t - 1):
+        raise MissionError(f"tile = {t}: need a power of two ≥ 1 (cells per tile side; default 64)")
     if cfg.zenoh_config:
         _credential_files(cfg)
 

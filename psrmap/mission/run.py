@@ -111,6 +111,7 @@ def run_mission(cfg: MissionConfig, run_dir: Path | None = None, progress: bool 
                 server_cfg = ServerConfig(
                     map_id=cfg.map,
                     res=cfg.res,
+                    tile=cfg.tile,
                     db=str(run_dir / (f"map.shard{i}.db" if sharded else "map.db")),
                     connect=(endpoint,),
                     rrd=str(run_dir / "recordings" / f"{name}.rrd") if cfg.rrd else None,

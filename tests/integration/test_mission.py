@@ -326,9 +326,13 @@ def test_a_mission_on_a_sharded_map(tmp_path: Path) -> None:
     from mapcore import TiledMap
     from protocol.partition import Partition
 
-    cfg = _short_mission(2, 10.0, shards=2)
+    # 4-cell (1.6 m) tiles: the scouts' first metres cross several, so both shards get cells (at the default
+    # 64 cells, 25.6 m, the whole 20 m field is one tile and one shard would hold everything)
+    cfg = _short_mission(2, 10.0, shards=2, tile=4)
     with pytest.raises(MissionError, match="1 .one server. to 16"):
         run_mission(dataclasses.replace(cfg, shards=0), tmp_path / "bad", progress=False)
+    with pytest.raises(MissionError, match="power of two"):
+        run_mission(dataclasses.replace(cfg, tile=48), tmp_path / "bad", progress=False)
     run_dir = tmp_path / "run"
     summary = run_mission(cfg, run_dir, progress=False)
     sent = sum(
@@ -339,16 +343,17 @@ def test_a_mission_on_a_sharded_map(tmp_path: Path) -> None:
     assert set(summary["servers"]) == {"server0", "server1"}
     assert "error" not in summary["plan"], summary["plan"]
     assert (run_dir / "secure" / "server1.json5").exists()
-    part = Partition(2, 64)
+    part = Partition(2, 4)
     got: dict[str, dict[str, float]] = {}
     for i in range(2):
-        tiled = TiledMap(cfg.res, 64)
-        store = MapStore(str(run_dir / f"map.shard{i}.db"), cfg.map, cfg.res, 64)
+        tiled = TiledMap(cfg.res, 4)
+        store = MapStore(str(run_dir / f"map.shard{i}.db"), cfg.map, cfg.res, 4)
         store.load(Merger(tiled, cfg.map))
         store.close()
         for name, g in tiled.grids.items():  # each shard holds only the tiles it owns
             tiles = np.array(list(g.slots), np.int64).reshape(-1, 2)
             assert (part.shard_of_tiles(tiles[:, 0], tiles[:, 1]) == i).all(), (i, name)
+        assert tiled.cells > 0, f"shard {i} holds no cells"
         for layer, stats in tiled.totals().items():
             for s, v in stats.items():
                 got.setdefault(layer, {}).setdefault(s, 0.0)
