@@ -9,7 +9,7 @@ dispatched by key. A router and K `psrmap server --shards K --shard i` processes
 
 Every `--report-s` (default 60 s) one JSON line: parts/s merged, p50/p99 publish→ack latency of the parts
 acknowledged in that period (an ack follows the commit that makes a delta visible to queries), each shard's
-RSS and the size of its SQLite file and WAL. At the end: parts sent, merged (aggregated status), duplicates, per-scout gaps — 0 lost
+RSS and the size of its SQLite file and WAL, and the CPU cores each process used (router, shards, scout hosts). At the end: parts sent, merged (aggregated status), duplicates, per-scout gaps — 0 lost
 and 0 doubled means merged == parts sent and every (scout, shard) stream merged without a gap.
 
     python benchmarks/soak.py [--scouts 500] [--shards 2] [--minutes 10] [--procs 4]
@@ -36,6 +36,18 @@ from ingest import shutdown, spawn  # noqa: E402
 
 MAP, RES, TILE = "soak", 0.4, 64
 SPACING_CELLS = 100  # virtual scouts' patches are this many cells (40 m) apart
+
+
+def _cpu_seconds(pids: dict[str, int | None]) -> dict[str, float]:
+    """User + system CPU seconds so far of each named process (0 once it is gone)."""
+    out = {}
+    for name, pid in pids.items():
+        try:
+            t = psutil.Process(pid).cpu_times()
+            out[name] = t.user + t.system
+        except (psutil.Error, ValueError, TypeError):
+            out[name] = 0.0
+    return out
 
 
 def cache_file(seconds: float) -> Path:
@@ -260,6 +272,9 @@ def main() -> None:
             end = t0 + 60 * args.minutes
             lat: list[float] = []
             last, merged0 = t0, 0
+            watched = {"router": router.pid, **{f"shard{i}": sv.pid for i, sv in enumerate(servers)},
+                       **{f"scouts{j}": pr.pid for j, pr in enumerate(procs)}}  # fmt: skip
+            cpu0 = _cpu_seconds(watched)
             while (now := time.perf_counter()) < end:
                 try:
                     kind, _, chunk = q.get(timeout=0.5)[:3]
@@ -271,6 +286,7 @@ def main() -> None:
                     parts = get_statuses(s, MAP, 10.0)
                     st = aggregate_status(parts)
                     ms = np.array(lat) * 1e3 if lat else np.array([np.nan])
+                    cpu1 = _cpu_seconds(watched)
                     line = {
                         "t_min": round((now - t0) / 60, 2),
                         "merged_parts_per_s": round((st.merged - merged0) / (now - last), 1),
@@ -285,7 +301,12 @@ def main() -> None:
                             for i in range(args.shards)
                         ],
                         "cells": st.cells,
+                        # CPU seconds per second of the period, per process: how the machine's cores were shared
+                        "cpu_cores": {
+                            k: round((v - cpu0.get(k, 0.0)) / (now - last), 2) for k, v in cpu1.items()
+                        },
                     }
+                    cpu0 = cpu1
                     print(json.dumps(line), flush=True)
                     lines.append(line)
                     lat, last, merged0 = [], now, st.merged
