@@ -140,6 +140,20 @@ def register(subparsers) -> None:
         help="a goal on an impassable cell moves to the nearest passable cell within M metres "
         "(default 1; 0: fail instead)",
     )
+    w = p.add_argument_group("following the map (with --connect)")
+    w.add_argument(
+        "--watch",
+        action="store_true",
+        help="keep planning: replan each time a tile of the corridor changes (the servers' tile-change "
+        "notices; changes elsewhere on the map cost nothing); one line or JSON object per plan",
+    )
+    w.add_argument(
+        "--resync-s", type=float, default=10.0, metavar="S",
+        help="with --watch: also check the servers' versions every S seconds, in case a notice was lost (default 10)",
+    )  # fmt: skip
+    w.add_argument(
+        "--max-seconds", type=float, default=None, metavar="S", help="with --watch: stop after S s"
+    )
     p.set_defaults(func=_run_plan, _parser=p)
     c = subparsers.add_parser(
         "compare",
@@ -206,10 +220,49 @@ def _run_plan(args: argparse.Namespace) -> int:
         args._parser.error(f"--goal-tolerance {args.goal_tolerance}: need >= 0 metres")
     cfg = PlanConfig(_source(args), args.start, args.goal, _config(args), args.goal_tolerance, args.rrd,
                      args.sim_time)  # fmt: skip
+    if args.watch:
+        return _watch(args, cfg)
     try:
         return _print(args, component.plan(cfg))
     except PlannerError as exc:
         raise SystemExit(f"psrmap plan: {exc}") from None
+
+
+def _watch(args: argparse.Namespace, cfg: PlanConfig) -> int:
+    import signal
+    import threading
+
+    if args.npz is not None:
+        args._parser.error("--watch follows map servers: give --connect and --map, not --npz")
+    if not args.resync_s > 0:
+        args._parser.error(f"--resync-s {args.resync_s}: need a period > 0 seconds")
+    if args.max_seconds is not None and not args.max_seconds > 0:
+        args._parser.error(f"--max-seconds {args.max_seconds}: need a duration > 0 seconds")
+    stop = threading.Event()
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(sig, lambda *_: stop.set())
+
+    def on_plan(summary: PlanSummary | None, error: str | None, changes: list) -> None:
+        tiles = sorted({(int(x), int(y)) for c in changes for x, y in c.tiles.tolist()})
+        why = {"changed_tiles": tiles, "versions": {str(c.shard): c.version for c in changes}}
+        if args.json:
+            out = summary.to_json() if summary is not None else {"error": error}
+            print(json.dumps({**out, **why}), flush=True)
+        elif summary is None:
+            print(f"no plan: {error}", flush=True)
+        else:
+            r = summary.routes[0]
+            cause = f"{len(tiles)} tile(s) of the corridor changed" if tiles else "first plan / resync"
+            print(f"map {summary.map} v{summary.version}: {r.breakdown.length_m:.1f} m, cost {r.breakdown.cost:.2f} "
+                  f"({cause})", flush=True)  # fmt: skip
+
+    try:
+        res = component.watch_plan(cfg, on_plan, stop, args.resync_s, max_seconds=args.max_seconds)
+    except PlannerError as exc:
+        raise SystemExit(f"psrmap plan --watch: {exc}") from None
+    print(json.dumps({"watch": {"plans": res.plans, "failed": res.failed, "changes_in_box": res.changes_in_box,
+                                "resyncs": res.resyncs}}))  # fmt: skip
+    return 0
 
 
 def _run_compare(args: argparse.Namespace) -> int:

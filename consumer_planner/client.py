@@ -1,5 +1,5 @@
 """The planner's only Zenoh module: region queries of the `map` queryable, fanned out to every shard, and
-region change notifications (`RegionWatch`).
+region change notifications (`RegionWatch`) and when to re-query a box because of them (`RegionFollower`).
 
 `get(psr/<map>/map?x0=..;y0=..;x1=..;y1=..;stats=all)` goes out through `common.query` with
 `fan_out=True` (target ALL, no consolidation), so every map-server shard that owns part of the box
@@ -12,8 +12,10 @@ from __future__ import annotations
 
 import logging
 import threading
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import zenoh
@@ -28,7 +30,15 @@ from protocol.keys import changes_pattern, map_key
 from protocol.layers import cell_index
 from protocol.messages import MapRegion, RegionQuery, TileChanges
 
-__all__ = ["ClientConfig", "MapClient", "RegionChange", "RegionWatch", "query_region", "trusted_servers"]
+__all__ = [
+    "ClientConfig",
+    "MapClient",
+    "RegionChange",
+    "RegionFollower",
+    "RegionWatch",
+    "query_region",
+    "trusted_servers",
+]
 
 log = logging.getLogger(__name__)
 
@@ -125,6 +135,11 @@ class MapClient:
             self._session.close()
             self._session = None
 
+    @property
+    def session(self) -> zenoh.Session | None:
+        """The open session (inside the `with` block), e.g. for a `RegionFollower` on the same connection."""
+        return self._session
+
     def region(self, map_id: str, box: tuple[float, float, float, float]) -> LayerGrid:
         if self._session is None:
             raise RuntimeError("MapClient used outside its `with` block")
@@ -200,6 +215,82 @@ class RegionWatch:
         self._sub.undeclare()
 
     def __enter__(self) -> RegionWatch:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+class RegionFollower:
+    """When a box must be queried again: once at the start (as soon as a server answers), on every tile-change
+    notice inside it (`RegionWatch`, every shard), and when a status poll every `resync_s` shows a server's
+    version beyond what its notices told (a lost notice, or a server that publishes none).
+
+        follow = RegionFollower(session, map_id, box)
+        while ...:
+            if follow.due():
+                statuses = follow.statuses()   # before the query: the query then reflects at least these
+                grid = query_region(...)
+                follow.done(statuses)
+            wait(period)
+    """
+
+    def __init__(
+        self,
+        session: zenoh.Session,
+        map_id: str,
+        box: tuple[float, float, float, float],
+        resync_s: float = 10.0,
+        timeout_s: float = 2.0,
+        trusted: Sequence[str] = (),
+    ) -> None:
+        if not resync_s > 0:
+            raise ValueError(f"resync_s={resync_s}: need a period > 0 seconds")
+        self._session, self.map_id, self.box = session, map_id, box
+        self.resync_s, self.timeout_s, self.trusted = resync_s, timeout_s, tuple(trusted)
+        self.watch: RegionWatch | None = None
+        self.seen: dict[int | None, int] = {}  # each shard's version the last query reflects
+        self.last_changes: list[RegionChange] = []  # the notices behind the current `due`
+        self.changes_in_box = 0
+        self.resyncs = 0
+        self._due = True
+        self._next_resync = 0.0
+
+    def statuses(self) -> list[Any]:
+        return get_statuses(self._session, self.map_id, self.timeout_s, self.trusted)
+
+    def due(self) -> bool:
+        """True when the box should be queried (again); never blocks longer than one status poll."""
+        now = time.monotonic()
+        if self.watch is None or now >= self._next_resync:
+            statuses = self.statuses()
+            self._next_resync = now + self.resync_s
+            if statuses and self.watch is None:  # the map's res is known now: watch the box from here on
+                self.watch = RegionWatch(self._session, self.map_id, statuses[0].res, self.box)
+            elif self.watch is not None and any(
+                st.version > max(self.seen.get(st.shard, -1), self.watch.versions.get(st.shard, -1))
+                for st in statuses
+            ):
+                self._due = True
+                self.resyncs += 1
+        if self.watch is not None and (hits := self.watch.changed()):
+            self._due = True
+            self.changes_in_box += len(hits)
+            self.last_changes.extend(hits)
+        return self._due and self.watch is not None
+
+    def done(self, statuses: list[Any]) -> None:
+        """The box was queried after `statuses` were read: it reflects at least their versions."""
+        self.seen = {st.shard: st.version for st in statuses}
+        self._due = False
+        self.last_changes = []
+
+    def close(self) -> None:
+        if self.watch is not None:
+            self.watch.close()
+            self.watch = None
+
+    def __enter__(self) -> RegionFollower:
         return self
 
     def __exit__(self, *exc: object) -> None:

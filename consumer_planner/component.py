@@ -9,6 +9,8 @@ Rerun when asked, and return a typed summary whose `to_json()` is what `--json` 
 from __future__ import annotations
 
 import math
+import threading
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -20,7 +22,18 @@ from consumer_planner.costs import CostConfig, CostMap, build_costs
 from consumer_planner.errors import PlannerError
 from mapcore import LayerGrid, MapFileError, read_npz
 
-__all__ = ["CompareConfig", "MapSource", "PlanConfig", "PlanSummary", "compare", "load_map", "plan"]
+__all__ = [
+    "CompareConfig",
+    "MapSource",
+    "PlanConfig",
+    "PlanSummary",
+    "WatchSummary",
+    "compare",
+    "load_map",
+    "plan",
+    "plan_on",
+    "watch_plan",
+]
 
 Point = tuple[float, float]
 
@@ -102,11 +115,24 @@ def load_map(
             raise PlannerError(str(exc)) from None
     if not source.map_id:
         raise PlannerError("a map server query needs the map id")
-    from consumer_planner.client import ClientConfig, MapClient, trusted_servers  # zenoh only when asked
+    from consumer_planner.client import MapClient  # zenoh only when asked
 
+    with MapClient(_client_config(source)) as client:
+        grid = client.region(source.map_id, _box(source, points))
+        t = client.newest_sample_t(source.map_id) if want_time else None
+    return grid, t
+
+
+def _box(source: MapSource, points: list[Point]) -> tuple[float, float, float, float]:
+    """The map area a query fetches: the points' bounding box and `margin_m` around it."""
     xs, ys = [p[0] for p in points], [p[1] for p in points]
     m = source.margin_m
-    box = (min(xs) - m, min(ys) - m, max(xs) + m, max(ys) + m)
+    return (min(xs) - m, min(ys) - m, max(xs) + m, max(ys) + m)
+
+
+def _client_config(source: MapSource) -> Any:
+    from consumer_planner.client import ClientConfig, trusted_servers
+
     trust = source.trust_servers or (
         str(Path(source.zenoh_config).with_name("servers.json")) if source.zenoh_config else None
     )
@@ -114,12 +140,8 @@ def load_map(
         ids = trusted_servers(trust, required=bool(source.trust_servers))
     except ValueError as exc:
         raise PlannerError(str(exc)) from None
-    cfg = ClientConfig(connect=source.connect, timeout_s=source.timeout_s, zenoh_config=source.zenoh_config,
-                       trusted_servers=ids)  # fmt: skip
-    with MapClient(cfg) as client:
-        grid = client.region(source.map_id, box)
-        t = client.newest_sample_t(source.map_id) if want_time else None
-    return grid, t
+    return ClientConfig(connect=source.connect, timeout_s=source.timeout_s, zenoh_config=source.zenoh_config,
+                        trusted_servers=ids)  # fmt: skip
 
 
 def _log(
@@ -139,6 +161,11 @@ def plan(config: PlanConfig) -> PlanSummary:
         raise PlannerError(f"goal tolerance {config.goal_tolerance_m}: need >= 0 metres")
     want_time = bool(config.rrd) and config.sim_time is None
     grid, t = load_map(config.source, [config.start, config.goal], want_time)
+    return plan_on(grid, config, t)
+
+
+def plan_on(grid: LayerGrid, config: PlanConfig, t: float | None = None) -> PlanSummary:
+    """`plan` on a map already fetched (`t`: its newest sample time, where the recording logs the plan)."""
     costs = build_costs(grid, config.cost)
     route = plan_route(grid, costs, config.start, config.goal, goal_tolerance_m=config.goal_tolerance_m)
     if route is None:
@@ -152,6 +179,66 @@ def plan(config: PlanConfig) -> PlanSummary:
     gx, gy = grid.centers(np.array([goal_cell]))[0] if goal_cell is not None else config.goal
     moved = round(math.hypot(end[0] - gx, end[1] - gy), 3)  # cell centre to cell centre
     return PlanSummary(grid.map, grid.version, costs.config, (route,), moved, grid.shape, grid.res)
+
+
+@dataclass(frozen=True)
+class WatchSummary:
+    plans: int  # plans made (the first, then one per change of the corridor)
+    failed: int  # replans that found no route (reported, the watch goes on)
+    changes_in_box: int  # tile-change notices that touched the corridor
+    resyncs: int  # replans forced by a status poll (a lost notice, or a server without notices)
+    last: PlanSummary | None
+
+
+def watch_plan(
+    config: PlanConfig,
+    on_plan: Callable[[PlanSummary | None, str | None, list[Any]], None],
+    stop: threading.Event,
+    resync_s: float = 10.0,
+    period_s: float = 0.2,
+    max_seconds: float | None = None,
+) -> WatchSummary:
+    """Plan, then replan each time the corridor (the map area `plan` fetches) changes: the shards' tile-change
+    notices (`client.RegionFollower`), never on changes elsewhere on the map. `on_plan(summary, error, changes)`
+    after every plan (error: why no route this time). Runs until `stop` is set or `max_seconds` passed."""
+    import time
+
+    from consumer_planner.client import MapClient, RegionFollower
+
+    source = config.source
+    if source.npz is not None or not source.connect or not source.map_id:
+        raise PlannerError("a watch follows map servers: give a map id and an endpoint, not a saved map")
+    if config.goal_tolerance_m < 0:
+        raise PlannerError(f"goal tolerance {config.goal_tolerance_m}: need >= 0 metres")
+    box = _box(source, [config.start, config.goal])
+    end = time.monotonic() + max_seconds if max_seconds else float("inf")
+    plans = failed = 0
+    last: PlanSummary | None = None
+    with MapClient(_client_config(source)) as client:
+        assert client.session is not None
+        with RegionFollower(client.session, source.map_id, box, resync_s, source.timeout_s,
+                            client.config.trusted_servers) as follow:  # fmt: skip
+            while not stop.is_set() and time.monotonic() < end:
+                if follow.due():
+                    changes = list(follow.last_changes)
+                    statuses = follow.statuses()  # the plan reflects at least these versions
+                    try:
+                        grid = client.region(source.map_id, box)
+                    except PlannerError as exc:  # servers gone: say so, try again next period
+                        on_plan(None, str(exc), changes)
+                        stop.wait(period_s)
+                        continue
+                    follow.done(statuses)
+                    plans += 1
+                    t = max((st.t for st in statuses), default=None) if config.rrd else None
+                    try:
+                        last = plan_on(grid, config, t)
+                        on_plan(last, None, changes)
+                    except PlannerError as exc:  # no route on this map: report, keep watching
+                        failed += 1
+                        on_plan(None, str(exc), changes)
+                stop.wait(period_s)
+            return WatchSummary(plans, failed, follow.changes_in_box, follow.resyncs, last)
 
 
 def compare(config: CompareConfig) -> PlanSummary:

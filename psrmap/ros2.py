@@ -49,9 +49,8 @@ def run_bridge(cfg: BridgeConfig, stop: threading.Event | None = None, log=print
     """Run until `stop` (or SIGTERM/SIGINT via the CLI), `once`, or `max_seconds`; returns what was published."""
     import zenoh
 
-    from common.query import get_statuses
     from common.session import zenoh_config
-    from consumer_planner.client import ClientConfig, RegionWatch, query_region
+    from consumer_planner.client import ClientConfig, RegionFollower, query_region
     from consumer_planner.compare import plan_route
     from consumer_planner.costs import build_costs
     from consumer_planner.errors import PlannerError
@@ -69,8 +68,8 @@ def run_bridge(cfg: BridgeConfig, stop: threading.Event | None = None, log=print
     conf = zenoh_config(cfg.connect, (), None if cfg.zenoh_config else "client", cfg.zenoh_config)
     conf.insert_json5("timestamping/enabled", "true")  # publication caches (transient local) need timestamps
     published = {"grid_map": 0, "cost": 0, "plan": 0}
-    # queries made, tile-change notices that touched the box, re-queries forced by a status poll (resync_s)
-    counts = {"queries": 0, "changes_in_box": 0, "resyncs": 0}
+    queries = 0
+    counts: dict[str, int] = {}  # queries made, notices that touched the box, resyncs (status polls)
     t_end = time.monotonic() + cfg.max_seconds if cfg.max_seconds else float("inf")
     with zenoh.open(conf) as session:
         node = RosNode(session, cfg.node, domain=cfg.domain)
@@ -81,37 +80,20 @@ def run_bridge(cfg: BridgeConfig, stop: threading.Event | None = None, log=print
         log(f"[ros2] node {cfg.node} on domain {cfg.domain}: " + ", ".join(p.topic for p in pubs.values()))
         last_version = None
         client = ClientConfig(connect=cfg.connect, zenoh_config=cfg.zenoh_config)
-        watch: RegionWatch | None = None
-        seen: dict[int | None, int] = {}  # each shard's version the last published map reflects
-        requery, next_resync = True, 0.0
+        follow = RegionFollower(session, cfg.map_id, cfg.box, cfg.resync_s)
         try:
             while not stop.is_set() and time.monotonic() < t_end:
-                if watch is None or time.monotonic() >= next_resync:
-                    statuses = get_statuses(session, cfg.map_id, timeout_s=2.0)
-                    next_resync = time.monotonic() + cfg.resync_s
-                    if statuses and watch is None:  # the map's res is known now: watch the box from here on
-                        watch = RegionWatch(session, cfg.map_id, statuses[0].res, cfg.box)
-                    elif watch is not None and any(
-                        st.version > max(seen.get(st.shard, -1), watch.versions.get(st.shard, -1))
-                        for st in statuses
-                    ):
-                        requery = True  # a server changed without telling us (missed or disabled notices)
-                        counts["resyncs"] += 1
-                if watch is not None and (hits := watch.changed()):
-                    requery = True
-                    counts["changes_in_box"] += len(hits)
                 grid = None
-                if requery and watch is not None:
-                    statuses = get_statuses(session, cfg.map_id, timeout_s=2.0)  # the query reflects these
+                if follow.due():
+                    statuses = follow.statuses()  # the query reflects at least these versions
                     try:
                         grid = query_region(session, cfg.map_id, cfg.box, client)
-                        counts["queries"] += 1
+                        queries += 1
                     except PlannerError as exc:  # servers gone or refusing: say so, try again next tick
                         log(f"[ros2] map query failed: {exc}")
                 if grid is not None:
                     version = sum(st.version for st in statuses)
-                    seen = {st.shard: st.version for st in statuses}
-                    requery = False
+                    follow.done(statuses)
                     stamp = time.time_ns()
                     xa, ya, _, _ = grid.bounds_m()
                     layers = {}
@@ -141,8 +123,8 @@ def run_bridge(cfg: BridgeConfig, stop: threading.Event | None = None, log=print
                     break
                 stop.wait(1.0 / cfg.rate_hz)  # at most rate_hz maps a second; changes wait in the watch
         finally:
-            if watch is not None:
-                watch.close()
+            counts = {"queries": queries, "changes_in_box": follow.changes_in_box, "resyncs": follow.resyncs}
+            follow.close()
             node.close()
     return {"map": cfg.map_id, "version": last_version, "published": published, **counts,
             "topics": {k: p.key for k, p in pubs.items()}}  # fmt: skip

@@ -57,6 +57,7 @@ def test_compare_table_and_json(npz, capsys):
         (["--weights", "cots=1"], "distance, cot, slip, giim, giam, slope, confidence"),
         (["--slip-spread=-0.4"], "0 <= M < inf (0 = the raw slip layer)"),
         (["--slip-spread", "wide"], "0 <= M < inf (0 = the raw slip layer)"),
+        (["--watch"], "--watch follows map servers: give --connect and --map, not --npz"),
     ],
 )
 def test_bad_options_name_valid_values(npz, capsys, extra, message):
@@ -190,3 +191,27 @@ def test_cost_image_marks_impassable_cells_red_and_spans_the_cost_range():
         231,
         37,
     )  # min, max of viridis
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [(["--resync-s", "0"], "need a period > 0"), (["--max-seconds", "nan"], "need a duration > 0")],
+)
+def test_watch_options_name_valid_values(capsys, extra, message):
+    with pytest.raises(SystemExit) as exc:
+        main(
+            [
+                "plan",
+                "--map",
+                "m",
+                "--connect",
+                "tcp/127.0.0.1:1",
+                "--from",
+                "0,0",
+                "--to",
+                "1,1",
+                "--watch",
+                *extra,
+            ]
+        )
+    assert exc.value.code == 2 and message in capsys.readouterr().err

@@ -22,8 +22,9 @@ from map_server.service import MapService, ServerConfig, free_endpoint, wait_for
 from mapcore import TiledMap
 from protocol import encode
 from protocol.keys import delta_key
+from protocol.messages import CellDelta
 from protocol.partition import Partition
-from protocol.testing import MAP, RES, make_delta
+from protocol.testing import MAP, RES, layer_cells, make_delta
 from scout_agent.publisher import ScoutPublisher
 
 TILE = 8  # small tiles: a few metres of walk cross many, so both shards get cells
@@ -195,3 +196,67 @@ def test_a_shard_killed_with_sigkill_recovers_and_nothing_is_lost_or_doubled(tmp
                 np.testing.assert_allclose(
                     grid.layers[layer][stat], want, equal_nan=True, err_msg=f"{layer}.{stat}"
                 )
+
+
+def test_a_watching_planner_replans_only_when_its_corridor_changes_on_any_shard(router, tmp_path):
+    """`psrmap plan --watch` (component.watch_plan) on a 2-shard map: one plan at the start; deltas far from
+    the corridor (other tiles, either shard) cost no replan; a delta inside it — on whichever shard owns
+    that tile — triggers exactly the replan that sees it."""
+    import threading
+
+    from consumer_planner.component import MapSource, PlanConfig, watch_plan
+
+    def delta(seq: int, cells: list[tuple[int, int]]) -> CellDelta:  # plausible values: costs >= 0
+        ix, iy = np.array([c[0] for c in cells]), np.array([c[1] for c in cells])
+        one, rng = np.ones(ix.size), np.random.default_rng(seq)
+        layers = {
+            "slip": {"ix": ix, "iy": iy, "n": 10 * one, "events": np.zeros(ix.size)},
+            "cot": layer_cells("cot", ix, iy, rng, scale=1.0)
+            | {"work": rng.uniform(1, 3, ix.size), "dist": one},
+        }
+        return CellDelta(MAP, "s1", 7, seq, 1.0 + seq, RES, layers)
+
+    part = Partition(2, TILE)
+    # corridor (0, 0)-(3, 0.8) with 0.4 m margin: cells -1..8 x -1..3, tiles (-1..1, -1..0)
+    cfg = PlanConfig(MapSource(map_id=MAP, connect=(router,), margin_m=0.4), (0.0, 0.0), (3.0, 0.8))
+    plans: list[tuple[object, object, list]] = []
+    stop = threading.Event()
+    with shards(router, tmp_path) as (_, client):
+        with ScoutPublisher(MAP, "s1", RES, [router], outbox=None) as pub:
+            first = delta(0, [(2, 1), (3, 1)])
+            assert pub.send(first.layers, first.t) and pub.wait_acked(10)
+            out: list = []
+            t = threading.Thread(
+                target=lambda: out.append(watch_plan(cfg, lambda *a: plans.append(a), stop, resync_s=60.0,
+                                                     period_s=0.05)),
+                daemon=True,
+            )  # fmt: skip
+            t.start()
+            try:
+                deadline = time.monotonic() + 10
+                while not plans and time.monotonic() < deadline:
+                    time.sleep(0.05)
+                # far away: 40 tiles east and north, on both shards
+                far = [(400 + 8 * k, 400 + 8 * (k % 3)) for k in range(6)]
+                assert {int(part.shard_of(np.array(x), np.array(y))) for x, y in far} == {0, 1}
+                for k, cell in enumerate(far, start=1):
+                    d = delta(k, [cell])
+                    assert pub.send(d.layers, d.t)
+                assert pub.wait_acked(10)
+                time.sleep(1.0)  # 20 periods of the watch
+                n_after_far = len(plans)
+                near = delta(7, [(5, 2)])
+                assert pub.send(near.layers, near.t) and pub.wait_acked(10)
+                deadline = time.monotonic() + 5
+                while len(plans) < 2 and time.monotonic() < deadline:
+                    time.sleep(0.05)
+            finally:
+                stop.set()
+                t.join(timeout=20)
+    assert n_after_far == 1, [p[2] for p in plans]  # the first plan only: far changes were ignored
+    assert len(plans) == 2 and plans[1][1] is None and plans[1][0] is not None
+    owner = int(part.shard_of(np.array(5), np.array(2)))
+    changed = {(c.shard, tuple(x)) for c in plans[1][2] for x in c.tiles.tolist()}
+    assert (owner, (0, 0)) in changed  # the notice came from the shard owning cell (5, 2)'s tile
+    res = out[0]
+    assert (res.plans, res.failed, res.resyncs) == (2, 0, 0) and res.changes_in_box >= 1
