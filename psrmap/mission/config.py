@@ -145,7 +145,7 @@ def _origin(v: Any, where: str) -> tuple[float, float, float] | None:
 MAX_SHARDS = 16
 
 
-def _shards(v: Any, where: str, key: str = "shards") -> int:
+def _int_key(v: Any, where: str, key: str) -> int:
     if isinstance(v, bool) or not isinstance(v, int):
         valid = f"1..{MAX_SHARDS}" if key == "shards" else "a power of two (cells per tile side)"
         raise MissionError(f"{where}: [mission] {key} = {v!r}: need an integer, {valid}")
@@ -200,8 +200,8 @@ def load_config(path: str | Path | None = None) -> MissionConfig:
         rate_hz=float(m.get("rate_hz", base.rate_hz)),
         out=str(m.get("out", base.out)),
         secure=bool(m.get("secure", base.secure)),
-        shards=_shards(m.get("shards", base.shards), where),
-        tile=_shards(m.get("tile", base.tile), where, "tile"),
+        shards=_int_key(m.get("shards", base.shards), where, "shards"),
+        tile=_int_key(m.get("tile", base.tile), where, "tile"),
         scene=str(t.get("scene", base.scene)),
         seed=int(t.get("seed", base.seed)),
         slope=float(t.get("slope", base.slope)),
