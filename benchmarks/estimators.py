@@ -63,7 +63,7 @@ def best_per_tick(fn, n: int, repeats: int) -> float:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(allow_abbrev=False, description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=6.0, help="simulated trot to record [s]")
     ap.add_argument("--slope", type=float, default=10.0, help="ramp slope [deg]")
     ap.add_argument("--repeats", type=int, default=5)

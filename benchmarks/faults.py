@@ -65,7 +65,7 @@ def _ready(proc: subprocess.Popen, word: str, timeout_s: float = 60.0) -> None:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(allow_abbrev=False, description=__doc__.splitlines()[0])
     ap.add_argument("--kills", type=int, default=100)
     ap.add_argument("--deltas", type=int, default=3000)
     ap.add_argument("--seed", type=int, default=0)

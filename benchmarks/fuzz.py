@@ -114,7 +114,7 @@ def _mutate(rng: np.random.Generator, payload: bytes, how: str) -> bytes:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(allow_abbrev=False, description=__doc__.splitlines()[0])
     ap.add_argument("--messages", type=int, default=1_000_000)
     ap.add_argument("--batch", type=int, default=128)
     ap.add_argument("--live", type=int, default=0, help="also send the first N over Zenoh to a live server")

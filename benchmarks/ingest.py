@@ -150,7 +150,7 @@ def main() -> None:
     from protocol.messages import CellDelta, RegionQuery
     from protocol.testing import layer_cells
 
-    ap = argparse.ArgumentParser()
+    ap = argparse.ArgumentParser(allow_abbrev=False)
     ap.add_argument("--publishers", type=int, default=4)
     ap.add_argument("--seconds", type=float, default=5.0)
     ap.add_argument(

@@ -76,7 +76,7 @@ def _run(limits_on: bool, deltas: int, cells: int, max_tiles: int, q: mp.Queue) 
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(allow_abbrev=False, description=__doc__.splitlines()[0])
     ap.add_argument("--deltas", type=int, default=200)
     ap.add_argument("--cells", type=int, default=12, help="cells per delta, each in its own new tile")
     ap.add_argument("--max-tiles", type=int, default=512, help="the limited server's tile budget")

@@ -156,7 +156,7 @@ def ingest(deltas: list[CellDelta], batch: int) -> tuple[float, float, int]:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser()
+    ap = argparse.ArgumentParser(allow_abbrev=False)
     ap.add_argument("--deltas", type=int, default=4000, help="small deltas (20 cells x 5 layers)")
     ap.add_argument("--bulk", type=int, default=200, help="bulk deltas (1000 cells x 5 layers)")
     ap.add_argument("--batch", type=int, default=512, help="deltas per ingest batch (the server's batch_max)")

@@ -40,7 +40,7 @@ def main() -> None:
     from scout_agent.delivery import DeltaPublisher
     from scout_agent.publisher import ScoutLink, ZenohTransport
 
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(allow_abbrev=False, description=__doc__.splitlines()[0])
     ap.add_argument("--budget-mib", type=float, default=32.0)
     ap.add_argument("--factor", type=float, default=4.0, help="map size as a multiple of the budget")
     args = ap.parse_args()

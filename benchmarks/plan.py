@@ -99,7 +99,7 @@ def c_kernel_plan(lib, cost: np.ndarray, start: tuple[int, int], goal: tuple[int
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(allow_abbrev=False, description=__doc__.splitlines()[0])
     ap.add_argument("--sizes", default="1000,2000")
     ap.add_argument("--repeat", type=int, default=3)
     args = ap.parse_args()

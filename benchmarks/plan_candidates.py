@@ -41,7 +41,7 @@ def path_cost(cost: np.ndarray, cells) -> float:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(allow_abbrev=False, description=__doc__.splitlines()[0])
     ap.add_argument("--sizes", default="1000,2000")
     ap.add_argument("--repeat", type=int, default=3)
     args = ap.parse_args()

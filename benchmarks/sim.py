@@ -38,7 +38,7 @@ def raw_step_rate(world, steps: int) -> float:
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(allow_abbrev=False, description=__doc__.splitlines()[0])
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--sim-seconds", type=float, default=30.0)
     args = ap.parse_args()

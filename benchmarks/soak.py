@@ -215,7 +215,7 @@ def host(
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(allow_abbrev=False, description=__doc__.splitlines()[0])
     ap.add_argument("--scouts", type=int, default=500)
     ap.add_argument("--shards", type=int, default=2)
     ap.add_argument("--minutes", type=float, default=10.0)

@@ -3,17 +3,65 @@ a Zenoh config file (credentials, TLS, access control: `psrmap secure init`)."""
 
 from __future__ import annotations
 
+import argparse
 import ipaddress
 import json
+import re
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 from common.errors import InsecureListen, SessionError
 
-__all__ = ["MODES", "InsecureListen", "SessionError", "open_session", "zenoh_config"]
+__all__ = [
+    "MODES",
+    "InsecureListen",
+    "SessionError",
+    "check_endpoint",
+    "endpoint_arg",
+    "open_session",
+    "zenoh_config",
+]
 
 MODES = ("peer", "client", "router")
+
+# Zenoh locators: <protocol>/<address>[?metadata][#config]; the IP ones need HOST:PORT
+_IP_PROTOCOLS = ("tcp", "udp", "tls", "quic", "ws")
+_OTHER_PROTOCOLS = ("unixsock-stream", "unixpipe", "serial", "vsock")
+_HOST_PORT = re.compile(r"^(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):(\d{1,5})$")
+
+
+def check_endpoint(endpoint: str) -> str:
+    """`endpoint` if it is a Zenoh locator psrmap can use (`tcp/HOST:PORT`, `tls/HOST:PORT`, ...), else a
+    ValueError naming the form, so a typo never reaches Zenoh's config parser."""
+    example = "e.g. tcp/127.0.0.1:7447"
+    proto, sep, rest = endpoint.partition("/")
+    addr = rest.split("?", 1)[0].split("#", 1)[0]
+    if not sep:
+        hint = f": did you mean tcp/{endpoint}?" if _HOST_PORT.match(endpoint) else f" ({example})"
+        raise ValueError(f"endpoint {endpoint!r} has no protocol; write PROTOCOL/HOST:PORT{hint}")
+    if proto in _OTHER_PROTOCOLS and addr:
+        return endpoint
+    if proto not in _IP_PROTOCOLS:
+        raise ValueError(
+            f"endpoint {endpoint!r}: unknown protocol {proto!r}; protocols: "
+            f"{', '.join(_IP_PROTOCOLS + _OTHER_PROTOCOLS)} ({example})"
+        )
+    m = _HOST_PORT.match(addr)
+    if not m or not 0 < int(m.group(2)) < 65536:
+        raise ValueError(f"endpoint {endpoint!r}: need {proto}/HOST:PORT with a port 1-65535 ({example})")
+    return endpoint
+
+
+def endpoint_arg(text: str) -> str:
+    """argparse type of `--connect`/`--listen`: one endpoint or several separated by commas, each checked."""
+    try:
+        for e in text.split(","):
+            if e:
+                check_endpoint(e)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return text
 
 
 def _loopback(endpoint: str) -> bool:
@@ -43,6 +91,8 @@ def zenoh_config(
 
     if mode is not None and mode not in MODES:
         raise ValueError(f"mode {mode!r}; modes: {', '.join(MODES)}")
+    for e in (*connect, *listen):
+        check_endpoint(e)
     if config_file is not None:
         try:
             conf = zenoh.Config.from_file(str(config_file))

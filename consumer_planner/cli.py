@@ -17,6 +17,7 @@ import json
 import math
 from dataclasses import asdict, replace
 
+from common.session import endpoint_arg
 from consumer_planner import component
 from consumer_planner.compare import Route
 from consumer_planner.component import CompareConfig, MapSource, PlanConfig, PlanSummary
@@ -64,6 +65,7 @@ def _common(p: argparse.ArgumentParser) -> None:
     src.add_argument("--map", metavar="ID", type=id_arg("map"), help="map id (with --connect)")
     src.add_argument(
         "--connect",
+        type=endpoint_arg,
         metavar="ENDPOINT",
         action="append",
         default=[],

@@ -36,7 +36,7 @@ KEEP = (
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(allow_abbrev=False, description=__doc__.splitlines()[0])
     ap.add_argument("--sets", default="ramps,lunar")
     ap.add_argument("--speed", type=float, default=0.2)
     ap.add_argument("--runs", type=int, default=4)

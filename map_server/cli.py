@@ -12,6 +12,8 @@ from collections.abc import Sequence
 from dataclasses import replace
 from typing import Any
 
+from common.cli_parser import Parser
+from common.session import endpoint_arg
 from map_server.limits import Limits
 from protocol.keys import id_arg
 
@@ -285,8 +287,12 @@ def cmd_query(args: argparse.Namespace) -> int:
 def register(subparsers: Any) -> None:
     """Add `router`, `server`, `status`, `query` to the `psrmap` CLI."""
     p = subparsers.add_parser("router", help="run an embedded Zenoh router")
-    p.add_argument("--listen", action="append", default=None, help="endpoint, e.g. tcp/127.0.0.1:7447")
-    p.add_argument("--connect", action="append", default=None, help="other routers to mesh with")
+    p.add_argument(
+        "--listen", type=endpoint_arg, action="append", default=None, help="endpoint, e.g. tcp/127.0.0.1:7447"
+    )
+    p.add_argument(
+        "--connect", type=endpoint_arg, action="append", default=None, help="other routers to mesh with"
+    )
     add_security_arguments(p, listens=True)
     p.set_defaults(func=cmd_router, parser=p)
 
@@ -296,9 +302,19 @@ def register(subparsers: Any) -> None:
     p.add_argument("--db", default=None, help="SQLite file (default: memory only, nothing persisted)")
     p.add_argument("--tile", type=int, default=64, help="tile side [cells], a power of two")
     p.add_argument(
-        "--connect", action="append", default=None, help="router endpoint, e.g. tcp/127.0.0.1:7447"
+        "--connect",
+        type=endpoint_arg,
+        action="append",
+        default=None,
+        help="router endpoint, e.g. tcp/127.0.0.1:7447",
     )
-    p.add_argument("--listen", action="append", default=None, help="also run as a router listening here")
+    p.add_argument(
+        "--listen",
+        type=endpoint_arg,
+        action="append",
+        default=None,
+        help="also run as a router listening here",
+    )
     p.add_argument("--rrd", default=None, help="log merged layers to this Rerun .rrd file")
     p.add_argument(
         "--shards", type=_positive_int, default=1, metavar="K",
@@ -341,7 +357,7 @@ def register(subparsers: Any) -> None:
     ):
         p = subparsers.add_parser(name, help=helptext)
         p.add_argument("--map", required=True, type=id_arg("map"), help="map id ([A-Za-z0-9_-]+)")
-        p.add_argument("--connect", action="append", required=True, help="router endpoint")
+        p.add_argument("--connect", type=endpoint_arg, action="append", required=True, help="router endpoint")
         p.add_argument("--timeout", type=float, default=5.0, help="reply timeout [s]")
         add_security_arguments(p)
         if name == "query":
@@ -368,7 +384,7 @@ def register(subparsers: Any) -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m map_server")
+    parser = Parser(prog="python -m map_server")
     register(parser.add_subparsers(dest="command", metavar="COMMAND", required=True))
     args = parser.parse_args(argv)
     return int(args.func(args) or 0)

@@ -18,6 +18,8 @@ import os
 import sys
 from collections.abc import Sequence
 
+from common.cli_parser import Parser
+
 # command -> (module whose `register` adds it, its one-line help), in `psrmap --help` order
 COMMANDS: dict[str, tuple[str, str]] = {
     "router": ("map_server.cli", "run an embedded Zenoh router"),
@@ -50,7 +52,7 @@ def _wanted(argv: Sequence[str]) -> str | None:
 def build_parser(argv: Sequence[str] | None = None, full: bool = False) -> argparse.ArgumentParser:
     """The parser for `argv`: the named command's module registers its real parsers; every other command
     is a placeholder with its help line (`full`: import and register every module)."""
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="psrmap",
         description="Proprioceptive terrain mapping for legged lunar scouts, shared over Zenoh.",
     )

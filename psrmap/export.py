@@ -82,6 +82,7 @@ def _box(text: str) -> tuple[float, float, float, float]:
 
 
 def register(sub: Any) -> None:
+    from common.session import endpoint_arg
     from protocol.keys import id_arg
 
     p = sub.add_parser("export", help="write a map region as GeoTIFF (GIS) or rosbag2/MCAP (ROS tools)",
@@ -93,7 +94,12 @@ def register(sub: Any) -> None:
     src = p.add_argument_group("map source (one of --connect, --npz)")
     src.add_argument("--map", type=id_arg("map"), help="map id (with --connect)")
     src.add_argument(
-        "--connect", action="append", default=[], metavar="ENDPOINT", help="Zenoh router endpoint"
+        "--connect",
+        type=endpoint_arg,
+        action="append",
+        default=[],
+        metavar="ENDPOINT",
+        help="Zenoh router endpoint",
     )
     src.add_argument("--box", type=_box, metavar="X0,Y0,X1,Y1", help="map area [m] (with --connect)")
     src.add_argument(

@@ -149,6 +149,7 @@ def _box(text: str) -> tuple[float, float, float, float]:
 
 
 def register(sub: Any) -> None:
+    from common.session import endpoint_arg
     from protocol.keys import id_arg
 
     p = sub.add_parser("ros2", help="publish the shared map, cost grid and plan to ROS 2 (rmw_zenoh)",
@@ -156,6 +157,7 @@ def register(sub: Any) -> None:
     p.add_argument("--map", required=True, type=id_arg("map"), help="map id")
     p.add_argument(
         "--connect",
+        type=endpoint_arg,
         action="append",
         required=True,
         metavar="ENDPOINT",

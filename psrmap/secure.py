@@ -28,6 +28,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from common.session import endpoint_arg
 from protocol.keys import validate_id
 
 __all__ = ["SecureLayout", "acl", "register", "secure_init"]
@@ -333,7 +334,10 @@ def register(sub: Any) -> None:
         "--servers", type=_ids, default=["server"], metavar="ID,...", help="server ids (default server)"
     )
     i.add_argument(
-        "--endpoint", default="tcp/127.0.0.1:7447", help="the router's endpoint (agents connect to it)"
+        "--endpoint",
+        type=endpoint_arg,
+        default="tcp/127.0.0.1:7447",
+        help="the router's endpoint (agents connect to it)",
     )
     i.add_argument(
         "--tls", action="store_true", help="also require mutual TLS (writes a CA and certificates)"

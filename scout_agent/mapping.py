@@ -18,6 +18,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
+from common.session import endpoint_arg
 from protocol.keys import id_arg
 from scout_agent.cells import CellAccumulator, LocalMap
 from scout_agent.errors import ScoutConfigError
@@ -135,6 +136,7 @@ def add_mapping_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--map", metavar="ID", type=id_arg("map"), help="map id to publish to (with --connect)")
     g.add_argument(
         "--connect",
+        type=endpoint_arg,
         action="append",
         default=[],
         metavar="ENDPOINT",

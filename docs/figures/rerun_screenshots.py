@@ -27,7 +27,7 @@ def _end_of_sim_time(rrd: Path) -> float:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(allow_abbrev=False, description=__doc__.split("\n\n")[0])
     ap.add_argument("rrd", type=Path)
     ap.add_argument("--out", type=Path, default=Path(__file__).parent)
     ap.add_argument("--settle", type=float, default=6.0, help="seconds the viewer gets to load and draw")

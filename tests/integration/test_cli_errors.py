@@ -29,7 +29,15 @@ def _closed_port() -> int:
         (["scout", "--slope", "40"], "valid range is 0–25 degrees"),
         (["query", "--map", "m", "--connect", "tcp/127.0.0.1:1", "--box", "1,2"], "give x0,y0,x1,y1"),
         (["mission", "--scouts", "0"], "need at least 1"),
-        (["router", "--listen", "tcp/127.0.0.1:notaport"], "endpoints look like tcp/127.0.0.1:7447"),
+        (["router", "--listen", "tcp/127.0.0.1:notaport"], "need tcp/HOST:PORT with a port 1-65535"),
+        (["router", "--listen", "127.0.0.1:7452"], "did you mean tcp/127.0.0.1:7452?"),
+        (["status", "--map", "m", "--connect", "127.0.0.1:7447"], "did you mean tcp/127.0.0.1:7447?"),
+        (["plan", "--map", "m", "--connect", "tpc/h:1", "--from", "1,1", "--to", "2,2"], "protocols: tcp"),
+        (["secure", "init", "d", "--map", "m", "--scouts", "a", "--endpoint", "h:7447"], "did you mean tcp/"),
+        # no abbreviations: `--scout` is not `--scouts`; an unknown flag is named by its own subcommand
+        (["mission", "--scout", "2"], "psrmap mission: error: unrecognized arguments: --scout 2"),
+        (["mission", "--scots", "2"], "unrecognized arguments: --scots 2 (did you mean --scouts?)"),
+        (["secure", "init", "d", "--map", "m", "--scout", "a"], "psrmap secure init: error:"),
     ],
 )
 def test_bad_arguments_name_what_is_valid(argv, message, capsys):

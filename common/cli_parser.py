@@ -1,0 +1,42 @@
+"""The one argparse parser class every psrmap command line uses: no abbreviations, errors from the subcommand.
+
+Plain argparse takes `--scout 2` as `--scouts 2` (prefix abbreviations) and reports an unknown flag of a
+subcommand with the top-level usage (`psrmap [-h] COMMAND ...`). `Parser` turns abbreviations off
+(`allow_abbrev=False`) and makes the parser that was handed the unknown arguments report them, with its own
+usage and the closest flag it does know. Subparsers made by `add_subparsers` are `Parser`s too (argparse uses
+the parent's class), so every command and nested action gets the same rules.
+"""
+
+from __future__ import annotations
+
+import argparse
+import difflib
+from collections.abc import Sequence
+from typing import Any
+
+__all__ = ["Parser"]
+
+
+class Parser(argparse.ArgumentParser):
+    """`argparse.ArgumentParser` with `allow_abbrev=False` and unknown arguments reported where they were given."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        kwargs["allow_abbrev"] = False
+        super().__init__(*args, **kwargs)
+
+    def parse_known_args(  # type: ignore[override]
+        self, args: Sequence[str] | None = None, namespace: argparse.Namespace | None = None
+    ) -> tuple[argparse.Namespace, list[str]]:
+        ns, extras = super().parse_known_args(args, namespace)
+        if extras:
+            self.error(f"unrecognized arguments: {' '.join(extras)}{self._suggestion(extras)}")
+        return ns, extras
+
+    def _suggestion(self, extras: list[str]) -> str:
+        flags = [s for s in self._option_string_actions if s.startswith("--")]
+        for word in extras:
+            if word.startswith("--"):
+                close = difflib.get_close_matches(word.split("=", 1)[0], flags, n=1, cutoff=0.6)
+                if close:
+                    return f" (did you mean {close[0]}?)"
+        return ""
