@@ -90,9 +90,23 @@ def add_scout_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--speed", type=float, default=0.2, help="commanded speed [m/s] (default 0.2)")
     p.add_argument("--sim-seconds", type=float, help="simulated time limit [s]")
     p.add_argument("--friction", type=float, default=0.7, help="regolith friction (default 0.7)")
-    p.add_argument("--slippery", type=float, metavar="MU", help="ramps: slippery patch over the down-ramp")
     p.add_argument(
-        "--slippery-patches", type=int, default=0, metavar="N", help="lunar: N seeded slippery patches"
+        "--slippery",
+        type=float,
+        metavar="MU",
+        help="ramps: friction patch over the down-ramp, any 0 < MU ≤ 2 (below tan α: ground no robot holds)",
+    )
+    p.add_argument(
+        "--slippery-patches",
+        type=int,
+        default=0,
+        metavar="N",
+        help="lunar: N seeded patches, μ from a loose-regolith distribution (may be unholdable)",
+    )
+    p.add_argument(
+        "--holdable-patches",
+        action="store_true",
+        help="lunar: keep every patch holdable (μ ≥ tan(steepest slope) + 0.02, the paper experiments' world)",
     )
     p.add_argument(
         "--patch",
@@ -143,6 +157,8 @@ def config_from_args(args: argparse.Namespace, parser: argparse.ArgumentParser) 
         parser.error(f"--slippery {args.slippery}: valid range is 0 < MU ≤ 2")
     if args.slippery_patches and args.scene != "lunar":
         parser.error("--slippery-patches applies to --scene lunar; on ramps use --slippery MU or --patch")
+    if args.holdable_patches and not args.slippery_patches:
+        parser.error("--holdable-patches applies to --slippery-patches N (lunar)")
     if args.slippery_patches < 0:
         parser.error("--slippery-patches must be ≥ 0")
     if args.route and args.scene != "lunar":
@@ -169,6 +185,7 @@ def config_from_args(args: argparse.Namespace, parser: argparse.ArgumentParser) 
         friction_default=args.friction,
         slippery_mu=args.slippery,
         slippery_patches=args.slippery_patches,
+        holdable_patches=args.holdable_patches,
         patches=tuple(args.patch),
         scout_id=args.scout_id,
         sim=_sim_config(args.state, args.contact, args.imu),

@@ -27,6 +27,9 @@ Ground truth and scoring:
   default friction; the slip layer's rate (events / stances) inside vs outside patch cells.
 - non-foot contacts: ticks with calf/thigh/trunk on the ground in truth vs ticks the proprioceptive
   detector flagged.
+- unholdable ground (`sim.friction.unholdable`: μ < tan slope, the cell's plane-fit slope): `unholdable_cells`
+  in the whole world (cell centres), `unholdable_cells_crossed` the cells a stance foot touched down in
+  where the μ under the foot was below the tangent of the cell's slope.
 """
 
 from __future__ import annotations
@@ -45,6 +48,7 @@ from scout_agent.estimators import EstimatorPipeline, TickEstimates
 from scout_agent.estimators.elevation import plane_from_moments, slope_deg
 from scout_agent.mapping import Mapper, MapperConfig, default_pipeline_config
 from scout_agent.signals import GroundTruth, ProprioSample
+from scout_agent.sim.friction import unholdable
 
 __all__ = ["Evaluator", "cmd_evaluate", "register_evaluate"]
 
@@ -175,6 +179,29 @@ class Evaluator:
         self.paper_means["giim_stance"].add(x, y, est.giim_stance)
         self.paper_means["giam_stance"].add(x, y, est.giam_stance)
 
+    def _unholdable(self, world: Any) -> dict[str, int]:
+        """Ground truth of ground no robot holds (μ < tan of the cell's slope): in the world, and crossed."""
+        res, terrain = self.res, world.terrain
+        xa, ya, xb, yb = terrain.extent
+        ix, iy = np.meshgrid(np.arange(math.floor(xa / res), math.ceil(xb / res)),
+                             np.arange(math.floor(ya / res), math.ceil(yb / res)))  # fmt: skip
+        cx, cy = cell_center(ix.ravel(), iy.ravel(), res)
+        inside = (cx > xa) & (cx < xb) & (cy > ya) & (cy < yb)
+        cx, cy = cx[inside], cy[inside]
+        world_cells = int(unholdable(world.friction.at(cx, cy), _cell_slope_deg(terrain, cx, cy, res)).sum())
+        mu_min: dict[tuple[int, int], float] = {}
+        for x, y, mu, _ in self.stances.values():
+            if x == x:
+                key = (math.floor(x / res), math.floor(y / res))
+                mu_min[key] = min(mu, mu_min.get(key, math.inf))
+        crossed = 0
+        if mu_min:
+            keys = np.array(list(mu_min), dtype=float)
+            kx, ky = cell_center(keys[:, 0], keys[:, 1], res)
+            slope = _cell_slope_deg(terrain, kx, ky, res)
+            crossed = int(unholdable(np.array(list(mu_min.values())), slope).sum())
+        return {"unholdable_cells": world_cells, "unholdable_cells_crossed": crossed}
+
     # ------------------------------------------------------------------ scoring
     def result(self, world: Any, friction_default: float) -> dict:
         for i in range(4):  # stances still open at the end
@@ -205,6 +232,7 @@ class Evaluator:
         det = self.detected["honest"] & known
         out["slip_events_in_patch_share"] = _r(len(det & in_patch) / len(det)) if det else None
         out["stances_in_patch"] = len(in_patch)
+        out.update(self._unholdable(world))
 
         # ---- layers from the local map
         def cells(layer: str) -> dict[str, np.ndarray]:
@@ -329,6 +357,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         "seed": cfg.seed,
         "slippery_mu": cfg.slippery_mu,
         "slippery_patches": cfg.slippery_patches,
+        "holdable_patches": cfg.holdable_patches,
         "state_source": summary["state_source"],
         "contact_source": cfg.sim.sensors.contact.source,
         "fell": summary["fell"],

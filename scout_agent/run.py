@@ -56,7 +56,9 @@ class ScoutRunConfig:
     sim_seconds: float | None = None  # time limit [s]; default: 2 × path length / speed + 10
     friction_default: float = DEFAULT_MU
     slippery_mu: float | None = None  # ramps: patch over the middle of the down-ramp
-    slippery_patches: int = 0  # lunar: seeded patches, μ 0.2–0.35, preferably on 10–20° descents
+    slippery_patches: int = 0  # lunar: seeded patches, preferably on 10–20° descents
+    holdable_patches: bool = False  # lunar: the old floor μ ≥ tan(slope) + 0.02 (paper experiments);
+    # default: μ from the regolith distribution (`friction.RegolithFriction`), holdable or not
     patches: tuple[Patch, ...] = ()  # any scene: explicit rectangles
     sim: SimConfig = field(default_factory=SimConfig)
     scout_id: str = "scout1"
@@ -96,7 +98,11 @@ def build_world(cfg: ScoutRunConfig) -> World:
     if cfg.slippery_patches:
         if cfg.scene != "lunar":
             raise ScoutConfigError("slippery_patches applies to the lunar scene; use slippery_mu on ramps")
-        patches.extend(lunar_slippery_patches(terrain, cfg.slippery_patches, seed=cfg.seed))
+        patches.extend(
+            lunar_slippery_patches(
+                terrain, cfg.slippery_patches, seed=cfg.seed, holdable=cfg.holdable_patches
+            )
+        )
     patches.extend(cfg.patches)
     friction = FrictionMap(cfg.friction_default, tuple(patches))
     start_xy: tuple[float, ...]

@@ -101,6 +101,7 @@ def _run_config(spec: RunSpec):
         route=spec.route,
         slippery_mu=spec.slippery_mu,
         slippery_patches=spec.slippery_patches,
+        holdable_patches=True,  # the paper's experiments: every patch walkable
         sim_seconds=spec.sim_seconds,
         scout_id=spec.label or "scout",
         **kw,

@@ -18,6 +18,35 @@ DEFAULT_MU = 0.7  # regolith (internal friction angle 35–39°, Apollo 12)
 
 
 @dataclass(frozen=True)
+class RegolithFriction:
+    """The friction of a loose-regolith patch, as a distribution of its friction angle φ [deg]; μ = tan φ.
+
+    Source of the scale: the Lunar Sourcebook (Carrier, Olhoeft & Mendell 1991, ch. 9.1.6, Table 9.11)
+    gives bulk regolith friction angles of ≈ 30–50° (best estimate 42° for the top 15 cm) and notes that
+    the loose, low-density surface layer and the regolith on steep crater walls near its angle of repose
+    shear at much lower stresses. A foot on such a layer (or on dust over rock) grips far less than the
+    bulk angle: the patches model that, with a truncated normal φ ~ N(`mean_deg`, `std_deg`) cut to
+    [`min_deg`, `max_deg`]. The numbers below are a modelling assumption chosen to span ground a quadruped
+    holds and ground it does not on 10–25° slopes (μ 0.14–0.47, median 0.29), not a measurement.
+    """
+
+    mean_deg: float = 16.0
+    std_deg: float = 4.0
+    min_deg: float = 8.0
+    max_deg: float = 25.0
+
+    def draw(self, rng: np.random.Generator) -> float:
+        """One patch μ = tan φ, φ from the truncated normal (by rejection)."""
+        while True:
+            phi = float(rng.normal(self.mean_deg, self.std_deg))
+            if self.min_deg <= phi <= self.max_deg:
+                return float(np.tan(np.radians(phi)))
+
+
+PATCH_REGOLITH = RegolithFriction()
+
+
+@dataclass(frozen=True)
 class Patch:
     """Axis-aligned rectangle [x0, x1] × [y0, y1] (map frame, m) of friction `mu`."""
 
@@ -85,11 +114,17 @@ def lunar_slippery_patches(
     size_m: float = 1.6,
     mu_range: tuple[float, float] = (0.2, 0.35),
     margin: float = 0.02,
+    holdable: bool = False,
+    regolith: RegolithFriction = PATCH_REGOLITH,
 ) -> tuple[Patch, ...]:
     """`n` seeded patches spread over the lunar routes in turn, preferably where the route descends 10–20°
-    (else anywhere on it). Each patch stays walkable: its μ is drawn from `mu_range` but at least
-    tan(steepest slope inside the patch) + `margin` (below that the robot slides away); places where
-    that exceeds the range's top are skipped."""
+    (else anywhere on it).
+
+    Default (honest worlds): each patch's μ is drawn from `regolith` (`RegolithFriction`), with no regard
+    for the slope under it, so a patch may be ground no robot can stand on (μ < tan slope).
+    `holdable=True` keeps the paper experiments' old world: μ drawn uniformly from `mu_range` but at least
+    tan(steepest slope inside the patch) + `margin`; places where that exceeds the range's top are
+    skipped."""
     rng = np.random.default_rng(seed + 1000)
     h = size_m / 2
     grid = np.linspace(-h, h, 17)
@@ -128,11 +163,21 @@ def lunar_slippery_patches(
                     for p in patches
                 ):
                     continue
-                steep = float(np.max(terrain.slope_deg(x + gx_, y + gy_)))
-                mu_min = max(mu_range[0], np.tan(np.radians(steep)) + margin)
-                if mu_min > mu_range[1]:
-                    continue
-                patches.append(Patch(x - h, y - h, x + h, y + h, float(rng.uniform(mu_min, mu_range[1]))))
+                if holdable:
+                    steep = float(np.max(terrain.slope_deg(x + gx_, y + gy_)))
+                    mu_min = max(mu_range[0], np.tan(np.radians(steep)) + margin)
+                    if mu_min > mu_range[1]:
+                        continue
+                    mu = float(rng.uniform(mu_min, mu_range[1]))
+                else:
+                    mu = regolith.draw(rng)
+                patches.append(Patch(x - h, y - h, x + h, y + h, mu))
                 placed = True
             stuck += not placed
     return tuple(patches)
+
+
+def unholdable(mu, slope_deg) -> np.ndarray:
+    """Ground truth: True where a robot cannot stand still, μ < tan(slope) (ground inclined by α holds a
+    static load only while its friction coefficient exceeds tan α)."""
+    return np.asarray(mu, float) < np.tan(np.radians(np.asarray(slope_deg, float)))

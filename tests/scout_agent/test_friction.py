@@ -6,7 +6,14 @@ import numpy as np
 import pytest
 
 from scout_agent.robot.constants import FOOT_GEOMS
-from scout_agent.sim.friction import FrictionMap, Patch, lunar_slippery_patches, ramp_slippery_patch
+from scout_agent.sim.friction import (
+    FrictionMap,
+    Patch,
+    RegolithFriction,
+    lunar_slippery_patches,
+    ramp_slippery_patch,
+    unholdable,
+)
 from scout_agent.sim.simulator import ScoutSim
 from scout_agent.sim.terrain import (
     LUNAR_ROUTES,
@@ -40,10 +47,10 @@ def test_ramp_patch_covers_the_middle_of_the_down_ramp():
     assert (p.x0 + p.x1) / 2 == pytest.approx((a + b) / 2)
 
 
-def test_lunar_patches_are_seeded_slippery_walkable_and_on_routes():
+def test_lunar_patches_with_the_old_floor_are_seeded_slippery_walkable_and_on_routes():
     t = make_lunar(LunarConfig(seed=1))
-    ps = lunar_slippery_patches(t, 6, seed=1)
-    assert len(ps) == 6 and ps == lunar_slippery_patches(t, 6, seed=1)
+    ps = lunar_slippery_patches(t, 6, seed=1, holdable=True)
+    assert len(ps) == 6 and ps == lunar_slippery_patches(t, 6, seed=1, holdable=True)
     assert all(0.2 <= p.mu <= 0.35 for p in ps)
     for p in ps:  # never below what the steepest ground inside needs
         xs, ys = np.meshgrid(np.linspace(p.x0, p.x1, 17), np.linspace(p.y0, p.y1, 17))
@@ -52,6 +59,29 @@ def test_lunar_patches_are_seeded_slippery_walkable_and_on_routes():
         centres = np.array([((p.x0 + p.x1) / 2, (p.y0 + p.y1) / 2) for p in ps])
         d = min(_polyline_distance(centres[:, 0], centres[:, 1], route))
         assert d < 0.01
+
+
+def test_lunar_patches_by_default_follow_the_regolith_distribution_holdable_or_not():
+    reg = RegolithFriction()
+    lo, hi = np.tan(np.radians([reg.min_deg, reg.max_deg]))
+    mus, unholdable_patches = [], 0
+    for seed in range(4):
+        t = make_lunar(LunarConfig(seed=seed))
+        ps = lunar_slippery_patches(t, 6, seed=seed)
+        assert ps == lunar_slippery_patches(t, 6, seed=seed)
+        for p in ps:
+            xs, ys = np.meshgrid(np.linspace(p.x0, p.x1, 17), np.linspace(p.y0, p.y1, 17))
+            unholdable_patches += bool(unholdable(p.mu, t.slope_deg(xs, ys)).any())
+            mus.append(p.mu)
+    assert all(lo <= m <= hi for m in mus)
+    # the draw ignores the slope: some patches hold nowhere a robot would need, some fail somewhere
+    assert unholdable_patches > 0 and np.median(mus) == pytest.approx(
+        np.tan(np.radians(reg.mean_deg)), abs=0.06
+    )
+
+
+def test_unholdable_is_friction_below_the_slope_tangent():
+    np.testing.assert_array_equal(unholdable([0.3, 0.3, 0.08], [15.0, 17.0, 5.0]), [False, True, True])
 
 
 def test_feet_take_friction_from_the_map():

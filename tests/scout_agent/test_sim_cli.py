@@ -26,6 +26,7 @@ def _parser():
         (["--scene", "lunar", "--goal", "30,1"], "outside the terrain"),
         (["--patch", "1,2,3"], "x0,y0,x1,y1,MU"),
         (["--route", "west"], "--scene lunar"),
+        (["--scene", "lunar", "--holdable-patches"], "--slippery-patches N"),
     ],
 )
 def test_errors_name_valid_values(argv, message, capsys):
