@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-__all__ = ["CommonError", "InsecureListen", "QueryError", "SessionError"]
+__all__ = ["CommonError", "InsecureListen", "QueryError", "SessionError", "ViewerUnavailable"]
 
 
 class CommonError(Exception):
@@ -19,3 +19,8 @@ class SessionError(CommonError, ConnectionError):
 
 class QueryError(CommonError):
     """No server answered a query in time, or every answer was an error; the message says which."""
+
+
+class ViewerUnavailable(CommonError, ValueError):
+    """`--viewer` where no viewer can open (no display, no `rerun` binary) or `--connect-viewer` to a URL where
+    nothing listens: found before any work starts, one line saying what to do instead."""

@@ -16,9 +16,15 @@ module only names the convention (numpy only); it does not import rerun (only th
 from __future__ import annotations
 
 import os
+import shutil
+import socket
+import sys
 from dataclasses import dataclass
+from urllib.parse import urlsplit
 
 import numpy as np
+
+from common.errors import ViewerUnavailable
 
 __all__ = [
     "APP_ID",
@@ -28,6 +34,8 @@ __all__ = [
     "TIMELINE",
     "VIEWER_URL_ENV",
     "Scale",
+    "ViewerUnavailable",
+    "check_viewer_reachable",
     "check_viewer_url",
     "colorize",
     "legend_markdown",
@@ -80,27 +88,67 @@ def open_stream(path: str | None, default_id: str | None = None, explicit_id: st
     return rec
 
 
+def _no_display() -> str | None:
+    """Why a viewer window cannot open here, or None (Linux needs an X11 or Wayland display)."""
+    if sys.platform.startswith("linux") and not (
+        os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")
+    ):
+        return "no display here (neither DISPLAY nor WAYLAND_DISPLAY is set)"
+    return None
+
+
+def _listening(host: str, port: int, timeout_s: float = 3.0) -> str | None:
+    """None if something accepts TCP connections on host:port within `timeout_s`, else why not."""
+    try:
+        with socket.create_connection((host, port), timeout=timeout_s):
+            return None
+    except OSError as exc:
+        return exc.strerror or type(exc).__name__
+
+
 def spawn_viewer() -> str:
     """Start a local Rerun viewer on a free port, set `PSRMAP_VIEWER_URL` to it (children inherit it) and
-    return its URL."""
-    import socket
-
+    return its URL; `ViewerUnavailable` before anything starts when no window can open (no display, no
+    `rerun` binary) or the viewer does not come up."""
+    why = _no_display() or (None if shutil.which("rerun") else "the Rerun viewer `rerun` is not on PATH")
+    if why:
+        raise ViewerUnavailable(
+            f"--viewer: {why}; the .rrd files are written anyway (open them where there is a display: "
+            "rerun runs/<ts>/mission.rrd), or stream to a viewer elsewhere with --connect-viewer "
+            "rerun+http://HOST:9876/proxy"
+        )
     import rerun as rr
 
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
-    rr.spawn(port=port, connect=False)
+    # rr.spawn needs an enabled recording to act on (without one it only warns); it waits for the viewer
+    rr.spawn(port=port, connect=False, recording=rr.RecordingStream(APP_ID, recording_id=recording_id()))
+    if (why := _listening("127.0.0.1", port)) is not None:
+        raise ViewerUnavailable(f"--viewer: the Rerun viewer did not start on port {port} ({why})")
     url = f"rerun+http://127.0.0.1:{port}/proxy"
     os.environ[VIEWER_URL_ENV] = url
     return url
 
 
+def check_viewer_reachable(url: str) -> str:
+    """`url` (a valid viewer URL) if a viewer listens there, else `ViewerUnavailable` within a few seconds."""
+    parts = urlsplit(check_viewer_url(url).replace("rerun://", "rerun+http://", 1))
+    host, port = parts.hostname or "127.0.0.1", parts.port or 9876
+    if (why := _listening(host, port)) is not None:
+        raise ViewerUnavailable(
+            f"--connect-viewer {url}: no Rerun viewer answers at {host}:{port} ({why}); start one there "
+            "(`rerun`, it listens on 9876) or use --viewer for a local one"
+        )
+    return url
+
+
 def use_viewer(spawn: bool, url: str | None) -> str | None:
     """The CLI's `--viewer` / `--connect-viewer URL`: make every stream this process (and its children)
-    opens go live to that viewer too. Returns the URL in use."""
+    opens go live to that viewer too. Returns the URL in use; `ViewerUnavailable` (one line saying what to do
+    instead) when there is no display to spawn one on or nothing listens at `url`."""
     if url:
-        os.environ[VIEWER_URL_ENV] = check_viewer_url(url)
+        os.environ[VIEWER_URL_ENV] = check_viewer_reachable(url)
         return url
     return spawn_viewer() if spawn else None
 

@@ -79,6 +79,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     except BrokenPipeError:  # output piped into `head` and the reader left: not an error of ours
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
+    except (
+        RuntimeError
+    ) as exc:  # Rerun's live stream: what answers at --connect-viewer is not (or no longer) a viewer
+        if "gRPC" not in str(exc):
+            raise
+        print(f"psrmap {args.command}: error: the live Rerun viewer stream failed ({exc})", file=sys.stderr)
+        return 1
     return int(result or 0)
 
 

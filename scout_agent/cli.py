@@ -14,6 +14,7 @@ import argparse
 import json
 from dataclasses import replace
 
+from common.errors import ViewerUnavailable
 from protocol.keys import id_arg
 from scout_agent import component
 from scout_agent.component import ScoutConfig
@@ -242,6 +243,8 @@ def scout_config(args: argparse.Namespace, parser: argparse.ArgumentParser) -> S
 def cmd_scout(args: argparse.Namespace) -> int:
     try:
         result = component.run(scout_config(args, args._parser))
+    except ViewerUnavailable as exc:  # one line: nothing is wrong with the command, only the place
+        args._parser.exit(2, f"psrmap scout: error: {exc}\n")
     except ScoutConfigError as exc:
         args._parser.error(str(exc))
     except ScoutLinkError as exc:

@@ -60,12 +60,13 @@ class ScoutSummary:
 
 
 def run(config: ScoutConfig) -> ScoutSummary:
-    """Walk and map as configured. Raises ScoutConfigError (bad config or input file) or ScoutLinkError
-    (no router answers) before the walk starts."""
+    """Walk and map as configured. Raises ScoutConfigError (bad config or input file), ScoutLinkError
+    (no router answers) or common's ViewerUnavailable (no display / no viewer at the URL) before the walk
+    starts."""
     cfg = config.run
+    use_viewer(config.viewer, config.connect_viewer)  # ViewerUnavailable before any work
     try:
         world = build_world(cfg)
-        use_viewer(config.viewer, config.connect_viewer)
     except ValueError as exc:
         raise ScoutConfigError(str(exc)) from None
     on_tick = logger = None

@@ -8,7 +8,7 @@ import dataclasses
 from pathlib import Path
 from typing import Any
 
-from common.recording import use_viewer
+from common.recording import ViewerUnavailable, use_viewer
 from psrmap.mission.config import MissionError, load_config, validate, with_scouts
 from psrmap.mission.run import run_mission
 
@@ -94,6 +94,8 @@ def _cmd_mission(args: argparse.Namespace) -> int:
         if (args.viewer or args.connect_viewer) and not cfg.rrd:
             raise MissionError("--viewer/--connect-viewer stream the recordings: drop --no-rrd")
         use_viewer(args.viewer, args.connect_viewer)  # the components inherit PSRMAP_VIEWER_URL
+    except ViewerUnavailable as exc:  # one line: nothing is wrong with the command, only the place
+        args.parser.exit(2, f"psrmap mission: error: {exc}\n")
     except (MissionError, ValueError) as exc:
         args.parser.error(str(exc))
     summary = run_mission(cfg, Path(args.run_dir) if args.run_dir else None, progress=not args.quiet)

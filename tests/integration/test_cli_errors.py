@@ -57,3 +57,34 @@ def test_unreachable_router_is_a_clear_error(capsys):
             main(argv)
         assert exc.value.code == 2
         assert message in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("command", ["mission", "scout"])
+def test_viewer_without_a_display_is_one_line_before_any_work(command, monkeypatch, capsys, tmp_path):
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as exc:
+        main([command, "--viewer"])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1, err
+    assert f"psrmap {command}: error: --viewer: no display here" in err
+    assert not (tmp_path / "runs").exists()  # nothing started
+
+
+@pytest.mark.parametrize("command", ["mission", "scout"])
+def test_connect_viewer_to_nothing_fails_fast_with_a_message(command, capsys, tmp_path, monkeypatch):
+    import time
+
+    monkeypatch.chdir(tmp_path)
+    url = f"rerun+http://127.0.0.1:{_closed_port()}/proxy"
+    t0 = time.monotonic()
+    with pytest.raises(SystemExit) as exc:
+        main([command, "--connect-viewer", url])
+    assert time.monotonic() - t0 < 5.0
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1, err
+    assert f"--connect-viewer {url}: no Rerun viewer answers at 127.0.0.1:" in err
+    assert not (tmp_path / "runs").exists()
