@@ -33,9 +33,9 @@ class Weights:
 
     distance: float = 1.0
     cot: float = 1.0
-    slip: float = 1.0
+    slip: float = 2.0  # slips are the hazard the paper maps first; every entry point plans with these
     giim: float = 1.0
-    giam: float = 1.0
+    giam: float = 0.5
     slope: float = 1.0
     confidence: float = 0.5
 
@@ -47,7 +47,9 @@ TERMS = tuple(f.name for f in fields(Weights))
 class Limits:
     """Hard limits: a cell beyond any of them is impassable (NaN metrics never trip a limit)."""
 
-    max_slope_deg: float = 30.0  # what a trot crosses (REFERENCE: 33 deg craters barely, 39 deg fall)
+    max_slope_deg: float = (
+        30.0  # what a trot crosses (measured: 33 deg craters barely, 39 deg fall; docs/physics.md)
+    )
     min_giim_rad: float = 0.087  # 5 deg: four-foothold GIIM fell below this 0.5-1 s before falls
     min_giam: float = -math.inf  # [m/s^2]
     max_slip_rate: float = math.inf  # slip events per stance

@@ -13,6 +13,7 @@ from dataclasses import replace
 from typing import Any
 
 from common.cli_parser import Parser
+from common.defaults import DEFAULT_RES_M
 from common.session import endpoint_arg
 from map_server.limits import Limits
 from protocol.keys import id_arg
@@ -298,7 +299,9 @@ def register(subparsers: Any) -> None:
 
     p = subparsers.add_parser("server", help="run the map server of one map")
     p.add_argument("--map", required=True, type=id_arg("map"), help="map id ([A-Za-z0-9_-]+)")
-    p.add_argument("--res", type=float, default=0.4, help="cell size [m] (default 0.4)")
+    p.add_argument(
+        "--res", type=float, default=DEFAULT_RES_M, help=f"cell size [m] (default {DEFAULT_RES_M})"
+    )
     p.add_argument("--db", default=None, help="SQLite file (default: memory only, nothing persisted)")
     p.add_argument("--tile", type=int, default=64, help="tile side [cells], a power of two")
     p.add_argument(

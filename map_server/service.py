@@ -19,6 +19,7 @@ import msgpack
 import numpy as np
 import zenoh
 
+from common.defaults import DEFAULT_MAP_ID, DEFAULT_RES_M, DEFAULT_TILE
 from common.session import open_session, zenoh_config
 from map_server.errors import MapServerConfigError
 from map_server.limits import Limits
@@ -63,10 +64,10 @@ FORCED_STEP_S = 0.1  # a snapshot round writes a slice at least this often, even
 class ServerConfig:
     """map_id, res [m], db: SQLite path (None: memory only), tile [cells], Zenoh endpoints and mode."""
 
-    map_id: str = "moon"
-    res: float = 0.4
+    map_id: str = DEFAULT_MAP_ID
+    res: float = DEFAULT_RES_M
     db: str | None = None
-    tile: int = 64
+    tile: int = DEFAULT_TILE
     connect: tuple[str, ...] = ()
     listen: tuple[str, ...] = ()
     mode: str = "peer"

@@ -1,7 +1,7 @@
 """Per-cell sufficient statistics on the scout: what accumulates between deltas, and the scout's own map.
 
 `CellAccumulator` buffers per-sample statistics cheaply (one tuple append per `add`) and reduces them per
-cell at `flush()` into the `layers` dict of a `CellDelta` (DESIGN.md wire contract: `ix`, `iy` int32 and
+cell at `flush()` into the `layers` dict of a `CellDelta` (docs/design.md, wire contract: `ix`, `iy` int32 and
 float64 stats, a cell at most once per layer). `LocalMap` merges such dicts into the map core's `TiledMap`,
 the server's own storage and merge, so a scout with no server holds, cell for cell, what a server would
 merge from the same deltas; `save_npz` writes it with `mapcore.npz` in the `map_region` layout.

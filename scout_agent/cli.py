@@ -14,6 +14,7 @@ import argparse
 import json
 from dataclasses import replace
 
+from common.defaults import DEFAULT_SEED
 from common.errors import ViewerUnavailable
 from protocol.keys import id_arg
 from scout_agent import component
@@ -64,7 +65,12 @@ def add_scout_arguments(p: argparse.ArgumentParser) -> None:
         metavar="A,U,P,D,E",
         help="ramps: horizontal segment lengths [m] (default 1.5,3,2,3,2)",
     )
-    p.add_argument("--seed", type=int, default=0, help="lunar terrain and sensor-noise seed")
+    p.add_argument(
+        "--seed",
+        type=int,
+        default=DEFAULT_SEED,
+        help=f"lunar terrain and sensor-noise seed (default {DEFAULT_SEED})",
+    )
     p.add_argument("--route", choices=tuple(LUNAR_ROUTES), help="lunar: a named corner-to-corner route")
     p.add_argument(
         "--dem",

@@ -11,6 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
+from common.defaults import DEFAULT_DELTA_HZ, DEFAULT_RES_M
 from common.recording import use_viewer, viewer_url
 from scout_agent.errors import ScoutConfigError
 from scout_agent.mapping import LinkConfig, open_mapping
@@ -28,8 +29,8 @@ class ScoutConfig:
     live to a spawned or running Rerun viewer; progress: progress bar or status lines."""
 
     run: ScoutRunConfig
-    res: float = 0.4
-    delta_hz: float = 5.0
+    res: float = DEFAULT_RES_M
+    delta_hz: float = DEFAULT_DELTA_HZ
     link: LinkConfig | None = None
     save_map: str | None = None
     mapping: bool = True

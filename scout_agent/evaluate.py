@@ -43,6 +43,7 @@ from typing import Any
 
 import numpy as np
 
+from common.defaults import DEFAULT_DELTA_HZ, DEFAULT_RES_M
 from protocol.layers import cell_center, elevation_slope_deg, layer_value
 from scout_agent.estimators import EstimatorPipeline, TickEstimates
 from scout_agent.estimators.elevation import plane_from_moments, slope_deg
@@ -101,7 +102,7 @@ class _CellMeans:
 class Evaluator:
     """Runs alongside `run_scout` (`on_tick`), then `result(world)` scores the run."""
 
-    def __init__(self, res: float = 0.4, delta_hz: float = 5.0) -> None:
+    def __init__(self, res: float = DEFAULT_RES_M, delta_hz: float = DEFAULT_DELTA_HZ) -> None:
         self.mapper = Mapper(MapperConfig(res=res, delta_hz=delta_hz))
         feet = self.mapper.feet
         # the scout's own pipeline, plus the diagnostics that do not change what it maps
@@ -393,7 +394,9 @@ def register_evaluate(subparsers: Any) -> argparse.ArgumentParser:
         description=__doc__.split("\n\n")[0],
     )
     add_scout_arguments(p)
-    p.add_argument("--res", type=float, default=0.4, help="map cell size [m] (default 0.4)")
+    p.add_argument(
+        "--res", type=float, default=DEFAULT_RES_M, help=f"map cell size [m] (default {DEFAULT_RES_M})"
+    )
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_evaluate, _parser=p)

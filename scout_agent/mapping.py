@@ -18,6 +18,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
+from common.defaults import DEFAULT_DELTA_HZ, DEFAULT_RES_M
 from common.session import endpoint_arg
 from protocol.keys import id_arg
 from scout_agent.cells import CellAccumulator, LocalMap
@@ -42,8 +43,8 @@ log = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
 class MapperConfig:
-    res: float = 0.4  # cell size [m]
-    delta_hz: float = 5.0  # deltas per second of scout time
+    res: float = DEFAULT_RES_M  # cell size [m]
+    delta_hz: float = DEFAULT_DELTA_HZ  # deltas per second of scout time
     pipeline: PipelineConfig | None = None  # None: `default_pipeline_config()`
 
 
@@ -143,7 +144,10 @@ def add_mapping_arguments(p: argparse.ArgumentParser) -> None:
         help="Zenoh endpoint of the map service's router, e.g. tcp/127.0.0.1:7447 (repeatable)",
     )
     g.add_argument(
-        "--res", type=float, default=0.4, help="map cell size [m] (default 0.4; must match the server)"
+        "--res",
+        type=float,
+        default=DEFAULT_RES_M,
+        help=f"map cell size [m] (default {DEFAULT_RES_M}; must match the server)",
     )
     g.add_argument("--delta-hz", type=float, default=5.0, help="cell deltas per second (default 5)")
     g.add_argument("--save-map", metavar="PATH.npz", help="save the scout's local map (map_region layout)")

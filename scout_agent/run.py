@@ -14,6 +14,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from common.defaults import DEFAULT_SEED
 from scout_agent.control.follower import FollowerConfig, PathFollower
 from scout_agent.errors import ScoutConfigError
 from scout_agent.robot import constants as C
@@ -46,7 +47,7 @@ class ScoutRunConfig:
     scene: str = "ramps"  # one of SCENES
     slope_deg: float = 15.0  # ramps: α [deg]
     ramp: RampConfig = field(default_factory=RampConfig)  # ramps: lengths (slope_deg overrides its α)
-    seed: int = 0  # lunar terrain (and noise) seed
+    seed: int = DEFAULT_SEED  # lunar terrain (and noise) seed
     route: str | None = None  # lunar: a named route of LUNAR_ROUTES (start, via, goal)
     start: tuple[float, ...] | None = None  # x, y [m][, yaw [rad]]; default: the scene's spawn; yaw
     # defaults to the heading of the first path segment

@@ -7,7 +7,7 @@ at a point is the mean over that segment's map cells (the paper averages its gri
 
 Fits: 4th-degree polynomials (`numpy.polyfit`) over every run's points. GIIM and GIAM are shown under both
 conventions: the default margins over the four most recent footholds, and the paper-compatible variant
-(`giim_paper`, `giam_paper`). The paper's trends (REFERENCE.md) are checked on the fits and on the
+(`giim_paper`, `giam_paper`). The paper's trends (docs/results.md, slope sweep) are checked on the fits and on the
 per-angle means.
 """
 

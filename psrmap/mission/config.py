@@ -15,6 +15,8 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
+from common.defaults import DEFAULT_DELTA_HZ, DEFAULT_MAP_ID, DEFAULT_RES_M, DEFAULT_SEED, DEFAULT_TILE
+
 __all__ = [
     "DRIFT_KEYS",
     "MissionConfig",
@@ -59,14 +61,14 @@ class ScoutPlan:
 class MissionConfig:
     """Everything a mission needs; `load_config` reads it from TOML, flags replace fields once."""
 
-    map: str = "moon"
-    res: float = 0.4  # cell size [m]
+    map: str = DEFAULT_MAP_ID
+    res: float = DEFAULT_RES_M  # cell size [m]
     sim_seconds: float = 150.0  # cap on each scout's walk [s]
     speed: float = 0.2  # [m/s]
-    rate_hz: float = 5.0  # deltas per second per scout
+    rate_hz: float = DEFAULT_DELTA_HZ  # deltas per second per scout
     out: str = "runs"
     scene: str = "lunar"
-    seed: int = 7
+    seed: int = DEFAULT_SEED
     slope: float = 15.0  # ramps scene only [deg]
     slippery_patches: int = 4
     scouts: tuple[ScoutPlan, ...] = ()
@@ -79,7 +81,9 @@ class MissionConfig:
     zenoh_config: str | None = None  # an existing secure folder's router.json5 (agents' files beside it)
     timeout_s: float = 900.0  # the whole mission gives up after this long [s wall clock]
     shards: int = 1  # map-server shards (protocol.partition; 1: one server, contract v1 keys)
-    tile: int = 64  # the servers' storage tile [cells per side, a power of two]: also the unit a shard owns
+    tile: int = (
+        DEFAULT_TILE  # the servers' storage tile [cells per side, a power of two]: also the unit a shard owns
+    )
     # where the map frame's origin is on the Moon: latitude, longitude [deg], heading of the map's +x axis from
     # the south polar stereographic easting [deg]; exports are then in IAU_2015:30135 (`psrmap export`)
     origin: tuple[float, float, float] | None = None

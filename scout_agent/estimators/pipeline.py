@@ -15,7 +15,7 @@ the paper variant and the two-stance-feet diagnostic are computed beside it on r
 
 Assignment to cells (paper §III-B): contact-based metrics (elevation, slip) at the foothold, body-centred
 ones (CoT, GIIM, GIAM, non-foot contacts) at the CoM projection. `record(est, acc)` writes one tick into a
-`CellAccumulator` with the layer statistics of DESIGN.md.
+`CellAccumulator` with the layer statistics of docs/design.md.
 
 Non-foot contacts (calf, thigh or body on the ground) are detected proprioceptively as the force the feet do
 not explain: f_ext = m·(a_GIA,feet − a_GIA,imu) (torque-estimated foot forces vs accelerometer), low-pass
@@ -309,7 +309,7 @@ class EstimatorPipeline:
 
 
 def record(est: TickEstimates, acc: Any) -> None:
-    """Add one tick's estimates to a `CellAccumulator` (layer stats per DESIGN.md / protocol.layers)."""
+    """Add one tick's estimates to a `CellAccumulator` (layer stats per docs/design.md / protocol.layers)."""
     x, y = est.com_xy
     acc.append("cot", (x, y, est.work_m, est.dist_m, 1.0))  # work, dist, n
     g = est.giim

@@ -12,7 +12,7 @@ Two detector forms share this module (`SlipConfig.form`):
 
 - ``"paper"``: the paper taken literally. Stance = contact flag; the touchdown reference is re-taken at every
   rising edge of the contact flag; a slip is flagged at a tick where ΔV > ε_v and ΔP_paper > ε_p together.
-- ``"default"`` (what worked on this machine, see REFERENCE "Estimators"), each a departure from the paper:
+- ``"default"`` (what worked on this machine; docs/physics.md, "Slip"), each a departure from the paper:
   1. ΔP is the vector distance ‖x_des − x‖: the norm difference of eq. 2 is blind to a slip perpendicular to x
      and halves one along it.
   2. The ΔV flag is sticky within a stance and confirmed by ΔP: ΔV peaks at slip onset, ΔP builds up later, so
@@ -43,7 +43,7 @@ Two detector forms share this module (`SlipConfig.form`):
      noise divided by h = 0.05 m/s on the axes where ẋ_des ≈ 0 otherwise puts ΔV ≈ 1 on every tick.
   7. ε_v history: the ΔV values of stances that ended without a slip (the paper: "recent ΔV"). Where slips
      are dense (25–75 % of stances on a slippery patch) the plain percentile rises into the slips themselves.
-     Floor `eps_v_floor` = 1.0 (REFERENCE suggests 1.5 for a 500 Hz loop without input noise; here slow
+     Floor `eps_v_floor` = 1.0 (an earlier trial suggested 1.5 for a 500 Hz loop without input noise; here slow
      downhill slips peak at ΔV ≈ 1–2, because eq. 1 divides the along-track error by |ẋ_des| + h ≈ 0.25).
   8. A ΔP above `eps_p_alone_m` (0.024 m = 1.2 ε_p) is a slip without any ΔV flag. Slow creeping slips
      (0.1 m/s or less, common on lunar slippery patches) never raise the noise-filtered ΔV above ε_v: on the

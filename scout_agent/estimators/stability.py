@@ -15,7 +15,7 @@ GIIM_ab = acos(n̂·â) − π/2 [rad], GIAM_ab = −n̂·a [m/s²]; margins = m
 GIAM_ab = ‖a‖·sin(GIIM_ab). Faces with ‖n‖ ≈ 0 are skipped; fewer than 2 points → NaN; 2 points → the two
 opposite faces, so the margin is ≤ 0.
 
-`variant="paper"`: the reading that reproduces the paper's averages (REFERENCE: they match the front/rear
+`variant="paper"`: the reading that reproduces the paper's averages (docs/physics.md: they match the front/rear
 faces of a static stance): the points in leg order FL, FR, RL, RR (cyclic faces, which cross the polygon's
 diagonals) and the absolute value of the minimum. It is not a stability margin (it is ≥ 0 even when the GIA
 leaves the support); kept only to compare with the paper's numbers.

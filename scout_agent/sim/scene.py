@@ -1,6 +1,6 @@
 """The MuJoCo scene: a terrain heightfield, the Aliengo, lunar gravity and the contact settings that matter.
 
-Settings (REFERENCE): dt 0.002 s, elliptic friction cone, impratio 10, implicitfast integrator (the joint
+Settings (docs/physics.md, "The world"): dt 0.002 s, elliptic friction cone, impratio 10, implicitfast integrator (the joint
 PD servos' damping is then integrated implicitly), ground friction 0.7 (feet have priority; their friction
 comes from the friction map).
 """

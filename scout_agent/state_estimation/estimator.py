@@ -6,7 +6,7 @@ Inputs, and where each comes from on a real Aliengo:
   (Pinocchio, the same model the simulator runs),
 - the foot contact flags (`scout_agent.sensors.foot_pressure`),
 - the launch pose the mission gives each scout in the shared map frame (x, y, heading, and the surveyed ground
-  height under it; DESIGN.md "Frames and grid"): the height is anchored once, when two feet first stand
+  height under it; docs/design.md, "Frames and grid"): the height is anchored once, when two feet first stand
   settled on that ground (the robot is dropped from a few mm and its feet sink in, so anchoring at power-on left
   a 1 cm offset in every elevation it mapped).
 Nothing here reads the simulator.

@@ -7,6 +7,7 @@ import json
 import numpy as np
 import pytest
 
+from consumer_planner.cost_config import Weights
 from psrmap.cli import main
 
 
@@ -110,7 +111,9 @@ def test_slip_spread_option_reaches_the_cost(npz, capsys):
         costs[spread] = out["routes"][0]["breakdown"]
     assert costs["0.8"]["unknown_fraction"] == costs["0"]["unknown_fraction"] > 0
     assert costs["0.8"]["expected_slip_events"] > costs["0"]["expected_slip_events"]
-    assert costs["0.8"]["terms"]["slip"] == pytest.approx(costs["0.8"]["expected_slip_events"])
+    assert costs["0.8"]["terms"]["slip"] == pytest.approx(
+        Weights().slip * costs["0.8"]["expected_slip_events"]
+    )
     assert main(["compare", "--npz", str(npz), *route]) == 0
     assert "slip spread 0.8 m" in capsys.readouterr().out
 

@@ -107,9 +107,11 @@ def test_spread_only_cells_keep_the_unknown_policy_for_everything_but_slip() -> 
     assert only_spread[:, 5:7].all() and not only_spread[:, 7:].any()
     # unknown for every other purpose: penalty kept, no other term, not inferred
     assert not cm.known[only_spread].any() and not cm.inferred.any()
-    expect = 1.0 + 2.5 + cfg.stances_per_m * np.nan_to_num(reach)
+    expect = 1.0 + 2.5 + cfg.weights.slip * cfg.stances_per_m * np.nan_to_num(reach)
     np.testing.assert_allclose(cm.cost[:, 5:], expect[:, 5:])
-    assert cm.cost[2, 5] == pytest.approx(1 + 2.5 + cfg.stances_per_m * RATE)  # dearer than unknown
+    assert cm.cost[2, 5] == pytest.approx(
+        1 + 2.5 + cfg.weights.slip * cfg.stances_per_m * RATE
+    )  # dearer than unknown
     for name in ("cot", "giim", "giam", "slope", "confidence"):
         assert not cm.terms[name][~known].any(), name
     np.testing.assert_allclose(sum(cm.terms.values()), cm.cost)

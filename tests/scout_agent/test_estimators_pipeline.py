@@ -139,7 +139,7 @@ def test_a_slipping_stance_gives_a_slip_event_no_foothold_and_no_stability_sampl
     layers = acc.flush()
     assert layers["slip"]["events"].sum() == 1
     assert layers["slip"]["n"].sum() == sum(len(e.stance_xy) for e in ticks)
-    # every unguarded tick maps a margin; at the start two footholds are known: a line, margin ≤ 0 (REFERENCE)
+    # every unguarded tick maps a margin; at the start two footholds are known: a line, margin ≤ 0 (docs/physics.md)
     assert layers["giim"]["n"].sum() == len(ticks) - len(guarded)
     assert ticks[0].giim == pytest.approx(0.0, abs=1e-12)
     assert layers["elevation"]["n"].sum() == sum(len(e.footholds) for e in ticks)

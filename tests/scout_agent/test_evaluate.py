@@ -38,7 +38,10 @@ REQUIRED = (
 def test_precision_recall_over_stances():
     assert _pr({(0, 1), (1, 2)}, {(0, 1), (2, 3)}) == (0.5, 0.5)
     assert _pr(set(), set()) == (1.0, 1.0)  # nothing to find, nothing claimed
-    assert _pr(set(), {(0, 1)}) == (0.0, 0.0)  # found nothing that was there (as REFERENCE reports it)
+    assert _pr(set(), {(0, 1)}) == (
+        0.0,
+        0.0,
+    )  # found nothing that was there (as the paper-form detector once scored)
     p, r = _pr({(0, 1)}, set())
     assert p == 0.0 and math.isnan(r)
 
