@@ -204,12 +204,6 @@ def _flag_index(ix: np.ndarray, iy: np.ndarray, seg: np.ndarray) -> set[int]:
     return flagged
 
 
-def _empty_columns(layer: Layer) -> LayerColumns:
-    return LayerColumns(
-        layer, np.empty(0, np.int64), np.empty(0, _I32), np.empty(0, _I32), np.empty((len(layer.stats), 0))
-    )
-
-
 def _concat(parts: list[LayerColumns]) -> LayerColumns:
     if len(parts) == 1:
         return parts[0]

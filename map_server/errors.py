@@ -7,7 +7,7 @@ requests the map cannot answer are `mapcore.MapRequestError`s. What is wrong wit
 
 from __future__ import annotations
 
-__all__ = ["MapServerConfigError", "MapServerError", "NoReplyError"]
+__all__ = ["MapServerConfigError", "MapServerError"]
 
 
 class MapServerError(Exception):
@@ -16,7 +16,3 @@ class MapServerError(Exception):
 
 class MapServerConfigError(MapServerError, ValueError):
     """A configuration, limit or store that does not fit (e.g. a store file of another map)."""
-
-
-class NoReplyError(MapServerError):
-    """A status or region query that no server answered, or that every server refused."""

@@ -316,12 +316,6 @@ class MapStore:
         self.checkpoints[mode] += 1
         return int(frames), int(done)
 
-    def wal_bytes(self) -> int:
-        try:
-            return os.path.getsize(self.path + "-wal")
-        except OSError:
-            return 0
-
     def log_size(self) -> int:
         return int(self.db.execute("SELECT COUNT(*) FROM deltas").fetchone()[0])
 
