@@ -12,7 +12,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from common.defaults import DEFAULT_DELTA_HZ, DEFAULT_RES_M
-from common.recording import use_viewer, viewer_url
+from common.recording import ViewerUnavailable, use_viewer, viewer_url
 from scout_agent.errors import ScoutConfigError
 from scout_agent.mapping import LinkConfig, open_mapping
 from scout_agent.run import ScoutRunConfig, build_world, run_scout
@@ -65,9 +65,11 @@ def run(config: ScoutConfig) -> ScoutSummary:
     (no router answers) or common's ViewerUnavailable (no display / no viewer at the URL) before the walk
     starts."""
     cfg = config.run
-    use_viewer(config.viewer, config.connect_viewer)  # ViewerUnavailable before any work
     try:
+        use_viewer(config.viewer, config.connect_viewer)  # ViewerUnavailable before any work
         world = build_world(cfg)
+    except ViewerUnavailable:
+        raise
     except ValueError as exc:
         raise ScoutConfigError(str(exc)) from None
     on_tick = logger = None

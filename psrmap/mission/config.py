@@ -91,6 +91,8 @@ class MissionConfig:
 
 def _pair(v: Any, what: str) -> tuple[float, float]:
     try:
+        if isinstance(v, str) or any(isinstance(c, bool | str) for c in v):
+            raise TypeError
         x, y = (float(c) for c in v)
     except (TypeError, ValueError):
         raise MissionError(f"{what} = {v!r}: need [x, y] in metres") from None
@@ -149,11 +151,57 @@ def _origin(v: Any, where: str) -> tuple[float, float, float] | None:
 MAX_SHARDS = 16
 
 
-def _int_key(v: Any, where: str, key: str) -> int:
-    if isinstance(v, bool) or not isinstance(v, int):
-        valid = f"1..{MAX_SHARDS}" if key == "shards" else "a power of two (cells per tile side)"
-        raise MissionError(f"{where}: [mission] {key} = {v!r}: need an integer, {valid}")
-    return v
+class _Table:
+    """One TOML table of the mission file: typed reads that name the key, the section and the file."""
+
+    def __init__(self, table: dict[str, Any], section: str, where: str) -> None:
+        self.table, self.section, self.where = table, section, where
+
+    def bad(self, key: str, need: str) -> MissionError:
+        return MissionError(f"{self.where}: [{self.section}] {key} = {self.table[key]!r}: need {need}")
+
+    def number(self, key: str, default: float) -> float:
+        v = self.table.get(key, default)
+        if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+            raise self.bad(key, "a finite number")
+        return float(v)
+
+    def integer(self, key: str, default: int, need: str = "an integer") -> int:
+        v = self.table.get(key, default)
+        if isinstance(v, bool) or not isinstance(v, int):
+            raise self.bad(key, need)
+        return v
+
+    def text(self, key: str, default: str) -> str:
+        v = self.table.get(key, default)
+        if not isinstance(v, str):
+            raise self.bad(key, "a string")
+        return v
+
+    def flag(self, key: str, default: bool) -> bool:
+        v = self.table.get(key, default)
+        if not isinstance(v, bool):
+            raise self.bad(key, "true or false")
+        return v
+
+    def weights(self) -> dict[str, float]:
+        from consumer_planner.cost_config import TERMS
+
+        v = self.table.get("weights", {})
+        if not isinstance(v, dict):
+            raise self.bad("weights", f"a table {{ name = weight, ... }} with names in: {', '.join(TERMS)}")
+        out: dict[str, float] = {}
+        for name, w in v.items():
+            if name not in TERMS:
+                raise MissionError(
+                    f"{self.where}: [{self.section}] weights: unknown term {name!r}; terms: {', '.join(TERMS)}"
+                )
+            if isinstance(w, bool) or not isinstance(w, int | float) or not (math.isfinite(w) and w >= 0):
+                raise MissionError(
+                    f"{self.where}: [{self.section}] weights.{name} = {w!r}: need a finite number >= 0"
+                )
+            out[name] = float(w)
+        return out
 
 
 def server_names(cfg: MissionConfig) -> list[str]:
@@ -195,34 +243,53 @@ def load_config(path: str | Path | None = None) -> MissionConfig:
                 f"{where}: unknown key(s) {sorted(extra)} in [{section}]; keys: {', '.join(keys)}"
             )
     base = MissionConfig()
+    mt, tt, pt = _Table(m, "mission", where), _Table(t, "terrain", where), _Table(p, "planner", where)
+    scouts = doc.get("scouts", [])
+    if not isinstance(scouts, list):
+        raise MissionError(f"{where}: scouts must be an array of tables ([[scouts]] id, start, goal, via)")
     cfg = dataclasses.replace(
         base,
-        map=str(m.get("map", base.map)),
-        res=float(m.get("res", base.res)),
-        sim_seconds=float(m.get("sim_seconds", base.sim_seconds)),
-        speed=float(m.get("speed", base.speed)),
-        rate_hz=float(m.get("rate_hz", base.rate_hz)),
-        out=str(m.get("out", base.out)),
-        secure=bool(m.get("secure", base.secure)),
-        shards=_int_key(m.get("shards", base.shards), where, "shards"),
-        tile=_int_key(m.get("tile", base.tile), where, "tile"),
-        scene=str(t.get("scene", base.scene)),
-        seed=int(t.get("seed", base.seed)),
-        slope=float(t.get("slope", base.slope)),
-        slippery_patches=int(t.get("slippery_patches", base.slippery_patches)),
-        scouts=tuple(_scout(s, i) for i, s in enumerate(doc.get("scouts", []))),
-        plan_from=_pair(p.get("from", base.plan_from), "[planner] from"),
-        plan_to=_pair(p.get("to", base.plan_to), "[planner] to"),
-        unknown=str(p.get("unknown", base.unknown)),
-        weights={str(k): float(v) for k, v in p.get("weights", {}).items()},
+        map=mt.text("map", base.map),
+        res=mt.number("res", base.res),
+        sim_seconds=mt.number("sim_seconds", base.sim_seconds),
+        speed=mt.number("speed", base.speed),
+        rate_hz=mt.number("rate_hz", base.rate_hz),
+        out=mt.text("out", base.out),
+        secure=mt.flag("secure", base.secure),
+        shards=mt.integer("shards", base.shards, f"an integer, 1..{MAX_SHARDS}"),
+        tile=mt.integer("tile", base.tile, "an integer, a power of two (cells per tile side)"),
+        scene=tt.text("scene", base.scene),
+        seed=tt.integer("seed", base.seed),
+        slope=tt.number("slope", base.slope),
+        slippery_patches=tt.integer("slippery_patches", base.slippery_patches),
+        scouts=tuple(_scout(s, i) for i, s in enumerate(scouts)),
+        plan_from=_pair(p.get("from", base.plan_from), f"{where}: [planner] from"),
+        plan_to=_pair(p.get("to", base.plan_to), f"{where}: [planner] to"),
+        unknown=pt.text("unknown", base.unknown),
+        weights=pt.weights(),
         origin=_origin(m.get("origin"), where),
     )
-    validate(cfg)
+    try:
+        validate(cfg)
+    except MissionError as exc:
+        raise MissionError(f"{where}: {exc}") from None
     return cfg
 
 
 def validate(cfg: MissionConfig) -> None:
     """Raise `MissionError` naming the valid choices when the config cannot run."""
+    from consumer_planner.cost_config import TERMS
+    from protocol.keys import validate_id
+
+    try:
+        validate_id(cfg.map, "map")
+    except ValueError as exc:
+        raise MissionError(str(exc)) from None
+    bad = {k: v for k, v in cfg.weights.items() if k not in TERMS or not (math.isfinite(v) and v >= 0)}
+    if bad:
+        raise MissionError(f"[planner] weights {bad}: names in {', '.join(TERMS)}, each a finite number >= 0")
+    if cfg.slippery_patches < 0:
+        raise MissionError(f"slippery_patches = {cfg.slippery_patches}: need >= 0")
     if cfg.scene not in SCENES:
         raise MissionError(f"scene {cfg.scene!r}; scenes: {', '.join(SCENES)}")
     if cfg.unknown not in UNKNOWN_POLICIES:
@@ -230,6 +297,11 @@ def validate(cfg: MissionConfig) -> None:
     if not cfg.scouts:
         raise MissionError("no scouts: give at least one [[scouts]] entry (id, start, goal)")
     ids = [s.id for s in cfg.scouts]
+    for sid in ids:
+        try:
+            validate_id(sid, "scout id")
+        except ValueError as exc:
+            raise MissionError(str(exc)) from None
     if len(set(ids)) != len(ids):
         raise MissionError(f"scout ids must be unique, got {ids}")
     for name, v in (
