@@ -27,6 +27,7 @@ from scout_agent.robot import kinematics as K
 from scout_agent.sensors import SensorConfig, SensorSuite
 from scout_agent.sensors.suite import TrueBlock
 from scout_agent.signals import BaseState, GroundTruth, ProprioSample
+from scout_agent.sim.contacts import foot_contacts
 from scout_agent.sim.friction import FrictionMap
 from scout_agent.sim.scene import TERRAIN_GEOM, PhysicsConfig, build_scene
 from scout_agent.sim.terrain import Terrain
@@ -53,6 +54,14 @@ class SimConfig:
             raise ScoutConfigError(
                 f"state source {self.state_source!r} unknown; sources: {', '.join(STATE_SOURCES)}"
             )
+
+
+def _ids_slice(ids: np.ndarray) -> slice:
+    """The slice of consecutive ids (the model's actuators are declared in blocks of 12)."""
+    lo = int(ids[0])
+    if not np.array_equal(ids, np.arange(lo, lo + len(ids))):
+        raise ValueError(f"actuator ids {ids.tolist()} are not consecutive")
+    return slice(lo, lo + len(ids))
 
 
 def _quat_to_mat(q: np.ndarray) -> np.ndarray:
@@ -91,13 +100,35 @@ class ScoutSim:
         self._trunk_geom = m.geom("trunk").id
         self._leg_of_geom = np.full(m.ngeom, -1)
         self._leg_of_geom[self._foot_geoms] = np.arange(4)
-        self._acc_adr = m.sensor_adr[m.sensor("imu_acc").id]
-        self._gyro_adr = m.sensor_adr[m.sensor("imu_gyro").id]
+        acc_adr = m.sensor_adr[m.sensor("imu_acc").id]
+        gyro_adr = m.sensor_adr[m.sensor("imu_gyro").id]
+        self._touching = np.zeros(m.ngeom, bool)  # non-foot geoms on the ground (contacts.foot_contacts)
+        # per control tick: the physics steps' readings land in these blocks (one row per step), copied from
+        # views of MjData/MjModel taken once (MuJoCo keeps their memory for the model's/data's lifetime)
         k = config.decimation
-        self._blk_acc = np.zeros((k, 3))
-        self._blk_gyro = np.zeros((k, 3))
+        self._blk_sensors = np.zeros((k, m.nsensordata))
+        self._blk_acc = self._blk_sensors[:, acc_adr : acc_adr + 3]
+        self._blk_gyro = self._blk_sensors[:, gyro_adr : gyro_adr + 3]
         self._blk_q = np.zeros((k, 12))
         self._blk_tau = np.zeros((k, 12))
+        self._blk_dq = np.zeros((k, 12))
+        d = self.data
+        self._v_sensors, self._v_q, self._v_dq, self._v_tau = (
+            d.sensordata,
+            d.qpos[7:],
+            d.qvel[6:],
+            d.qfrc_actuator[6:],
+        )
+        self._v_ctrl_tau, self._v_ctrl_pd = (
+            d.ctrl[_ids_slice(self._tau_ids)],
+            d.ctrl[_ids_slice(self._pd_ids)],
+        )
+        pd = _ids_slice(self._pd_ids)
+        self._v_kp, self._v_bias_p, self._v_bias_d = (
+            m.actuator_gainprm[pd, 0],
+            m.actuator_biasprm[pd, 1],
+            m.actuator_biasprm[pd, 2],
+        )
         self.controller = TrotController(config.controller)
         self.reset(start if start is not None else terrain.spawn)
 
@@ -167,46 +198,27 @@ class ScoutSim:
         """The state the robot's software runs on: the estimate (sensor readings), or exact on request."""
         return self._state
 
-    def _contacts(self):
+    def _contacts(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, bool]:
         """Per-foot summed ground force (4, 3) world, force-weighted contact point (4, 3), normal force (4,),
-        and the number of non-foot robot geoms touching the terrain."""
+        and the number of non-foot robot geoms touching the terrain, and whether the trunk is one of them."""
         d = self.data
-        forces = np.zeros((4, 3))
-        points = np.zeros((4, 3))
-        fn = np.zeros(4)
-        ncon = d.ncon
-        if ncon == 0:
-            return forces, np.full((4, 3), np.nan), fn, 0, False
+        forces, points, fn = np.empty((4, 3)), np.empty((4, 3)), np.empty(4)
+        n = d.ncon
         con = d.contact
-        geom = con.geom[:ncon]
-        g1, g2 = geom[:, 0], geom[:, 1]
-        adr = con.efc_address[:ncon]
-        valid = adr >= 0
-        efc = d.efc_force
-        local = np.zeros((ncon, 3))
-        local[valid] = np.stack([efc[adr[valid]], efc[adr[valid] + 1], efc[adr[valid] + 2]], axis=1)
-        frame = con.frame[:ncon].reshape(ncon, 3, 3)
-        world = np.einsum("ck,ckj->cj", local, frame)  # force of geom1 on geom2
-        leg1, leg2 = self._leg_of_geom[g1], self._leg_of_geom[g2]
-        nonfoot = set()
-        for c in range(ncon):
-            a, b = g1[c], g2[c]
-            if a == self._terrain_geom or b == self._terrain_geom:
-                other = b if a == self._terrain_geom else a
-                leg = leg2[c] if a == self._terrain_geom else leg1[c]
-                if leg >= 0:
-                    sign = 1.0 if a == self._terrain_geom else -1.0
-                    f = sign * world[c]
-                    forces[leg] += f
-                    w = max(local[c, 0], 0.0)
-                    points[leg] += w * con.pos[c]
-                    fn[leg] += local[c, 0]
-                else:
-                    nonfoot.add(int(other))
-        with np.errstate(invalid="ignore", divide="ignore"):
-            points = points / fn[:, None]
-        points[fn <= 0] = np.nan
-        return forces, points, fn, len(nonfoot), self._trunk_geom in nonfoot
+        n_nonfoot = foot_contacts(
+            con.geom[:n],
+            con.efc_address[:n],
+            con.frame[:n],
+            con.pos[:n],
+            d.efc_force,
+            self._leg_of_geom,
+            self._terrain_geom,
+            forces,
+            points,
+            fn,
+            self._touching,
+        )
+        return forces, points, fn, n_nonfoot, bool(self._touching[self._trunk_geom])
 
     # ------------------------------------------------------------------------------------------ step
     def step(
@@ -218,22 +230,23 @@ class ScoutSim:
             walk = self.t >= cfg.settle_s
             self.controller.set_command(forward_speed if walk else 0.0, yaw_rate if walk else 0.0)
         out = self.controller.step(self._state, self.control_dt)
-        d.ctrl[self._tau_ids] = out.tau_ff
-        d.ctrl[self._pd_ids] = out.q_des
-        m.actuator_gainprm[self._pd_ids, 0] = out.kp
-        m.actuator_biasprm[self._pd_ids, 1] = -out.kp
-        m.actuator_biasprm[self._pd_ids, 2] = -out.kd
-        acc, gyro, q, tau = self._blk_acc, self._blk_gyro, self._blk_q, self._blk_tau
-        ia, ig = self._acc_adr, self._gyro_adr
-        energy = 0.0
+        self._v_ctrl_tau[:] = out.tau_ff
+        self._v_ctrl_pd[:] = out.q_des
+        self._v_kp[:] = out.kp
+        np.negative(out.kp, out=self._v_bias_p)
+        np.negative(out.kd, out=self._v_bias_d)
+        sens, q, tau, dq = self._blk_sensors, self._blk_q, self._blk_tau, self._blk_dq
+        v_sens, v_q, v_tau, v_dq = self._v_sensors, self._v_q, self._v_tau, self._v_dq
+        step = mujoco.mj_step
         for k in range(cfg.decimation):
-            mujoco.mj_step(m, d)
-            sd = d.sensordata
-            acc[k] = sd[ia : ia + 3]
-            gyro[k] = sd[ig : ig + 3]
-            q[k] = d.qpos[7:]
-            tau[k] = d.qfrc_actuator[6:]
-            energy += float(np.abs(tau[k] * d.qvel[6:]).sum())
+            step(m, d)
+            sens[k] = v_sens
+            q[k] = v_q
+            tau[k] = v_tau
+            dq[k] = v_dq
+        energy = 0.0
+        for e in np.abs(tau * dq).sum(axis=1).tolist():  # step by step, as the drivers integrate it
+            energy += e
         self.energy_true_j += energy * self.dt
         self.t += self.control_dt
         self._apply_friction()
