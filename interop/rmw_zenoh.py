@@ -3,12 +3,16 @@
 What a ROS 2 node on rmw_zenoh (RViz, `ros2 topic echo`) needs to see a topic:
 - samples on `<domain>/<topic without leading slash>/<DDS type name>/<RIHS01 type hash>`
   (`topic_key`), payload CDR little endian with its encapsulation header (`interop.ros2_messages.serialize`);
-- an attachment on every sample: sequence number (int64), source timestamp [ns] (int64), the publisher's
-  16-byte GID, in zenoh-ext serialisation (`attachment`);
+- an attachment on every sample, in zenoh-ext serialisation (`attachment`): sequence number (int64), source
+  timestamp [ns] (int64), the publisher's 16-byte GID as a *sequence* (rmw_zenoh serialises a
+  `std::array<uint8_t, 16>`, which zenoh-cpp writes as a LEB128 length, 0x10, then the bytes, and reads back
+  refusing any other length): 33 bytes;
 - graph discovery: liveliness tokens `@ros2_lv/<domain>/<zid>/<node id>/<entity id>/<NN|MP>/<enclave>/<namespace>/
   <node>[/<topic>/<type>/<hash>/<qos>]`, names with '/' mangled to '%' (`node_token`, `publisher_token`);
 - transient-local topics (a late RViz gets the last map) are served from a publication cache: a zenoh-ext
-  advanced publisher with a cache of `depth` samples and publisher detection, as rmw_zenoh declares them.
+  advanced publisher with a cache of `depth` samples and publisher detection, and, when also reliable, sample
+  miss detection with a sporadic heartbeat every 500 ms (subscribers notice a lost sample and fetch it from the
+  cache), as rmw_zenoh declares them (`rmw_publisher_data.cpp`).
 The GID is the XXH3-128 of the publisher's liveliness key expression (low 64 bits first), as rmw_zenoh's.
 """
 
@@ -37,12 +41,16 @@ __all__ = [
 
 ADMIN_SPACE = "@ros2_lv"
 
-# rmw's enum values and its default profile (RELIABLE, VOLATILE, KEEP_LAST 10): rmw_zenoh writes a QoS
-# field in a liveliness token only where it differs from the default
+# rmw's enum values and rmw_zenoh's default profile (`qos.cpp`: RELIABLE, VOLATILE, KEEP_LAST with depth 42):
+# rmw_zenoh writes a QoS field in a liveliness token only where it differs from that default
 RELIABLE, BEST_EFFORT = 1, 2
 TRANSIENT_LOCAL, VOLATILE = 1, 2
 KEEP_LAST = 1
-_DEFAULT = {"reliability": RELIABLE, "durability": VOLATILE, "history": KEEP_LAST, "depth": 10}
+DEFAULT_DEPTH = 42
+_DEFAULT = {"reliability": RELIABLE, "durability": VOLATILE, "history": KEEP_LAST, "depth": DEFAULT_DEPTH}
+# rmw_zenoh's heartbeat period for sample miss detection on RELIABLE + TRANSIENT_LOCAL publishers
+MISS_DETECTION_HEARTBEAT_MS = 500
+GID_BYTES = 16
 
 
 @dataclass(frozen=True)
@@ -89,11 +97,12 @@ def gid(token: str) -> bytes:
 
 
 def attachment(seq: int, stamp_ns: int, source_gid: bytes) -> bytes:
-    """The per-sample attachment rmw_zenoh subscribers read: int64 seq, int64 timestamp [ns], 16-byte GID."""
-    if len(source_gid) != 16:
-        raise ValueError("a GID is 16 bytes")
+    """The per-sample attachment rmw_zenoh subscribers read: int64 seq, int64 timestamp [ns], then the GID as a
+    sequence of 16 uint8 (a list serialises with its length first, as zenoh-cpp's std::array does)."""
+    if len(source_gid) != GID_BYTES:
+        raise ValueError(f"a GID is {GID_BYTES} bytes, got {len(source_gid)}")
     return zext.z_serialize(
-        (zext.Int64(seq), zext.Int64(stamp_ns), tuple(zext.UInt8(b) for b in source_gid))
+        (zext.Int64(seq), zext.Int64(stamp_ns), [zext.UInt8(b) for b in source_gid])
     ).to_bytes()
 
 
@@ -124,6 +133,10 @@ class RosNode:
         self._tokens.clear()
 
 
+def _reliability(q: Qos) -> zenoh.Reliability:
+    return zenoh.Reliability.RELIABLE if q.reliability == RELIABLE else zenoh.Reliability.BEST_EFFORT
+
+
 class RosPublisher:
     """One topic: samples on its rmw_zenoh key with the attachment; a liveliness token; for transient-local
     QoS an advanced publisher whose cache serves late joiners."""
@@ -140,10 +153,13 @@ class RosPublisher:
         s = node.session
         self._pub: Any
         if qos.durability == TRANSIENT_LOCAL:
+            miss = (zext.MissDetectionConfig(heartbeat=None, sporadic_heartbeat=MISS_DETECTION_HEARTBEAT_MS / 1000)
+                    if qos.reliability == RELIABLE else None)  # fmt: skip
             self._pub = zext.declare_advanced_publisher(s, self.key, cache=zext.CacheConfig(max_samples=qos.depth),
-                                                        publisher_detection=True)  # fmt: skip
+                                                        publisher_detection=True, sample_miss_detection=miss,
+                                                        reliability=_reliability(qos))  # fmt: skip
         else:
-            self._pub = s.declare_publisher(self.key)
+            self._pub = s.declare_publisher(self.key, reliability=_reliability(qos))
         self._token = s.liveliness().declare_token(self.token_key)
 
     def publish(self, msg, stamp_ns: int | None = None) -> int:

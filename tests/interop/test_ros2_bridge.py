@@ -5,7 +5,6 @@ tokens are checked against rmw_zenoh's layout."""
 
 from __future__ import annotations
 
-import struct
 import threading
 import time
 
@@ -13,6 +12,7 @@ import numpy as np
 import pytest
 import xxhash
 import zenoh
+from test_rmw_zenoh_wire import read_rmw_zenoh_attachment
 
 from consumer_planner.client import ClientConfig, query_region
 from consumer_planner.costs import build_costs
@@ -130,8 +130,8 @@ def test_bridge_publishes_grid_map_cost_and_path_as_rmw_zenoh_does(router, serve
         keys[topic] = key
         payload, att = got[key][0]
         assert payload[:4] == b"\x00\x01\x00\x00"  # CDR little endian encapsulation
-        assert att is not None and len(att) == 32
-        seq, stamp, gid = struct.unpack("<qq16s", att)
+        assert att is not None and len(att) == 33  # int64, int64, LEB128 length 16, 16-byte GID
+        seq, stamp, gid = read_rmw_zenoh_attachment(att)
         assert seq == 1 and abs(stamp - time.time_ns()) < 60e9
         # the publisher's liveliness token: MP entity, mangled names, same type and hash; its GID hashes it
         token = next(tok for tok in tokens if f"/MP/%/%/psrmap_bridge/%{topic.replace('/', '%')}/" in tok)
