@@ -145,3 +145,76 @@ def test_mcap_export_reads_back_with_rosbags(npz: Path, tmp_path: Path, capsys) 
                 paths.append([(p.pose.position.x, p.pose.position.y) for p in msg.poses])
         assert [len(p) for p in paths] == [1, 2, 3] and paths[-1][-1] == pytest.approx((1.4, 0.2))
     assert any(bag.glob("*.mcap"))
+
+
+def test_mcap_read_by_foxglove_mcap_ros2_support(npz: Path, tmp_path: Path, capsys) -> None:
+    """The MCAP read with Foxglove's `mcap` + `mcap-ros2-support` (their reader, their CDR decoder built from the
+    schema text the file carries): every channel's metadata holds what rosbag2_storage_mcap records (the offered
+    QoS profile in rosbag2's YAML: transient local, reliable, keep last 1; the RIHS01 type hash), and the decoded
+    GridMap and OccupancyGrid hold the map cell for cell."""
+    import yaml
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+    from mapcore import read_npz
+
+    bag = tmp_path / "bag"
+    _run(["export", "--format", "mcap", "--npz", str(npz), "--out", str(bag)], capsys)
+    (mcap_file,) = bag.glob("*.mcap")
+    # type hashes from the upstream definitions (grid_map_msgs' ROS 2 branch, ROS 2 Jazzy's nav_msgs)
+    ts = get_typestore(Stores.ROS2_JAZZY)
+    ts.register(get_types_from_msg("float64 resolution\nfloat64 length_x\nfloat64 length_y\ngeometry_msgs/Pose pose\n",
+                                   "grid_map_msgs/msg/GridMapInfo"))  # fmt: skip
+    ts.register(get_types_from_msg("std_msgs/Header header\nGridMapInfo info\nstring[] layers\nstring[] basic_layers\n"
+                                   "std_msgs/Float32MultiArray[] data\nuint16 outer_start_index\n"
+                                   "uint16 inner_start_index\n", "grid_map_msgs/msg/GridMap"))  # fmt: skip
+    with mcap_file.open("rb") as f:
+        reader = make_reader(f)
+        assert reader.get_header().profile == "ros2"
+        summary = reader.get_summary()
+        assert summary is not None
+        channels = {c.topic: c for c in summary.channels.values()}
+        schemas = summary.schemas
+    assert set(channels) == {"/psrmap/grid_map", "/psrmap/cost"}
+    for topic, typename in (("/psrmap/grid_map", "grid_map_msgs/msg/GridMap"),
+                            ("/psrmap/cost", "nav_msgs/msg/OccupancyGrid")):  # fmt: skip
+        ch = channels[topic]
+        assert ch.message_encoding == "cdr" and schemas[ch.schema_id].encoding == "ros2msg"
+        assert schemas[ch.schema_id].name == typename
+        assert ch.metadata["topic_type_hash"] == ts.hash_rihs01(typename)
+        (profile,) = yaml.safe_load(ch.metadata["offered_qos_profiles"])
+        assert (profile["durability"], profile["reliability"], profile["history"], profile["depth"]) == (
+            "transient_local", "reliable", "keep_last", 1)  # fmt: skip
+        assert profile["liveliness"] == "automatic" and profile["deadline"] == {
+            "sec": 9223372036,
+            "nsec": 854775807,
+        }
+    meta = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    for t in meta["topics_with_message_count"]:
+        tm = t["topic_metadata"]
+        assert tm["offered_qos_profiles"][0]["durability"] == "transient_local"
+        assert tm["type_description_hash"] == channels[tm["name"]].metadata["topic_type_hash"]
+
+    grid = read_npz(npz)
+    with mcap_file.open("rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        decoded = {ch.topic: msg for _, ch, _, msg in reader.iter_decoded_messages()}
+    gm = decoded["/psrmap/grid_map"]
+    h, w = grid.h, grid.w
+    assert gm.info.resolution == pytest.approx(RES) and gm.info.length_x == pytest.approx(w * RES)
+    for name, arr in zip(gm.layers, gm.data, strict=True):
+        assert [d.label for d in arr.layout.dim] == ["column_index", "row_index"]
+        assert (arr.layout.dim[0].size, arr.layout.dim[1].size) == (h, w)
+        m = np.asarray(arr.data, dtype=np.float32).reshape(h, w)  # column-major over (i along x, j along y)
+        base = name.removesuffix("_count")
+        want = grid.count(base) if name.endswith("_count") else grid.value(base)
+        # grid_map cell (i, j) is map cell (ix, iy) = (w-1-i, h-1-j)
+        np.testing.assert_allclose(m[::-1, ::-1], want, equal_nan=True, rtol=1e-6)
+    assert {"elevation", "elevation_count", "slip", "slip_count"} == set(gm.layers)
+    occ = decoded["/psrmap/cost"]
+    assert (occ.info.width, occ.info.height) == (w, h)
+    xa, ya, _, _ = grid.bounds_m()
+    assert (occ.info.origin.position.x, occ.info.origin.position.y) == pytest.approx((xa, ya))
+    cells = np.asarray(occ.data, dtype=np.int8).reshape(h, w)
+    assert (cells[0, :3] == -1).all() and ((cells[1:] >= 0) & (cells[1:] <= 100)).all()
