@@ -28,8 +28,8 @@ from _c_search_kernel import load as load_c_kernel
 from scipy import ndimage
 from skimage.graph import route_through_array
 
+from common.pathsearch.search import plan_path
 from consumer_planner.costs import CostConfig, build_costs
-from consumer_planner.search import plan_path
 from mapcore import LayerGrid
 
 

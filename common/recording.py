@@ -182,6 +182,7 @@ LAYER_SCALES: dict[str, Scale] = {
     "giim": Scale(-0.3, 0.6, "rad", "viridis", "mean GIIM: dark = close to tipping"),
     "giam": Scale(-1.0, 1.5, "m/s²", "viridis", "mean GIAM: dark = close to tipping"),
     "contacts": Scale(0.0, 1.0, "fraction of samples", "magma", "non-foot body contacts"),
+    "hazard": Scale(0.0, 3.0, "reports", "magma", "hazard stops: ground a scout could not hold"),
 }
 COUNT_SCALE = Scale(0.0, 1000.0, "observations", "viridis", "observations behind each cell", log=True)
 

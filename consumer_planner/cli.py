@@ -1,7 +1,7 @@
 """`psrmap plan` and `psrmap compare`: costed paths and route breakdowns from the shared (or a saved) map.
 
     psrmap plan --map ID --connect tcp/HOST:7447 --from x,y --to x,y [--weights cot=1,slip=2]
-                [--unknown forbid|penalty|infer] [--slip-spread M] [--json] [--rrd PATH]
+                [--unknown forbid|penalty|infer] [--slip-spread M] [--hazard forbid|penalty] [--json] [--rrd PATH]
     psrmap compare --map ID --connect ... --route "x,y x,y ..." [--route ...] [--json]
 
 `--npz FILE` plans on a scout's saved map instead of querying a server. `--slip-spread M` (default
@@ -21,6 +21,7 @@ from common.session import endpoint_arg
 from consumer_planner import component
 from consumer_planner.compare import Route
 from consumer_planner.component import CompareConfig, MapSource, PlanConfig, PlanSummary
+from consumer_planner.cost_config import HAZARD_POLICIES
 from consumer_planner.costs import TERMS, UNKNOWN_POLICIES, CostConfig, parse_weights
 from consumer_planner.errors import PlannerError
 from consumer_planner.table import route_table, term_lines
@@ -106,6 +107,19 @@ def _common(p: argparse.ArgumentParser) -> None:
         help="each cell's slip term reads the largest slip rate within M metres, 0 <= M "
         f"(default {CostConfig.slip_spread_m:g}; 0 = the raw slip layer)",
     )
+    p.add_argument(
+        "--hazard",
+        choices=HAZARD_POLICIES,
+        default=CostConfig.hazard,
+        help="cells near a scout's hazard report: forbid (impassable, default) or penalty",
+    )
+    p.add_argument(
+        "--hazard-penalty",
+        type=float,
+        default=CostConfig.hazard_penalty,
+        metavar="C",
+        help=f"with --hazard penalty: added cost [1/m] (default {CostConfig.hazard_penalty:g})",
+    )
     p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
     p.add_argument("--rrd", metavar="PATH", help="also save a Rerun recording of the cost grid and routes")
     p.add_argument(
@@ -184,9 +198,11 @@ def _config(args: argparse.Namespace) -> CostConfig:
             weights=parse_weights(args.weights),
             unknown=args.unknown,
             slip_spread_m=args.slip_spread,
+            hazard=args.hazard,
+            hazard_penalty=args.hazard_penalty,
         )
     except PlannerError as exc:
-        args._parser.error(f"--weights: {exc}")
+        args._parser.error(f"--weights/--hazard-penalty: {exc}")
         raise  # unreachable: error() exits
 
 

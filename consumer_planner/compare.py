@@ -23,9 +23,9 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from skimage.draw import line
 
+from common.pathsearch import Method, PathSearchError, nearest_passable, plan_path, step_lengths
 from consumer_planner.costs import CostMap
 from consumer_planner.errors import PlannerError
-from consumer_planner.search import Method, nearest_passable, plan_path, step_lengths
 from mapcore import LayerGrid
 
 __all__ = ["Breakdown", "Route", "breakdown", "cell_weights", "evaluate_route", "plan_route", "route_cells"]
@@ -166,7 +166,10 @@ def plan_route(
     s, g = _cell(grid, start, "start"), _cell(grid, goal, "goal")
     if goal_tolerance_m > 0:
         g = nearest_passable(costs.cost, g, goal_tolerance_m / grid.res) or g
-    found = plan_path(costs.cost, s, g, grid.res, method)
+    try:
+        found = plan_path(costs.cost, s, g, grid.res, method)
+    except PathSearchError as exc:
+        raise PlannerError(str(exc)) from None
     if found is None:
         return None
     return Route(name, found.cells, grid.centers(found.cells), breakdown(costs, found.cells, grid.res))

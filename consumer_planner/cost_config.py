@@ -14,14 +14,16 @@ import numpy as np
 
 from consumer_planner.errors import PlannerError
 
-__all__ = ["METRICS", "TERMS", "UNKNOWN_POLICIES", "CostConfig", "CostMap", "Limits", "UnknownPolicy", "Weights",
+__all__ = ["HAZARD_POLICIES", "METRICS", "TERMS", "UNKNOWN_POLICIES", "CostConfig", "CostMap", "Limits", "UnknownPolicy", "Weights",
            "parse_weights"]  # fmt: skip
 
 
 UNKNOWN_POLICIES = ("forbid", "penalty", "infer")
+HAZARD_POLICIES = ("forbid", "penalty")
 
 
 UnknownPolicy = Literal["forbid", "penalty", "infer"]
+HazardPolicy = Literal["forbid", "penalty"]
 
 
 METRICS = ("cot", "slip_rate", "giim", "giam", "slope_deg")  # per-cell values the terms read
@@ -70,10 +72,21 @@ class CostConfig:
     # [m] the slip term of a cell reads the largest slip rate within this radius (0 = the raw layer);
     # 0.8 m = half a slippery patch: in the map-utility experiment this made planned routes avoid patches
     slip_spread_m: float = 0.8
+    # cells within `hazard_spread_m` of a scout's hazard report (the `hazard` layer: ground a scout felt it
+    # could not hold and stopped on): `forbid` = impassable, `penalty` = + `hazard_penalty` [1/m]
+    hazard: HazardPolicy = "forbid"
+    hazard_penalty: float = 50.0
+    hazard_spread_m: float = 0.8  # a report marks where the scout stopped, not the whole patch
 
     def __post_init__(self) -> None:
         if self.unknown not in UNKNOWN_POLICIES:
             raise PlannerError(f"no unknown policy {self.unknown!r}; policies: {', '.join(UNKNOWN_POLICIES)}")
+        if self.hazard not in HAZARD_POLICIES:
+            raise PlannerError(f"no hazard policy {self.hazard!r}; policies: {', '.join(HAZARD_POLICIES)}")
+        if not (self.hazard_spread_m >= 0 and math.isfinite(self.hazard_spread_m)):
+            raise PlannerError(f"hazard_spread_m={self.hazard_spread_m} must be a finite radius >= 0 m")
+        if not (self.hazard_penalty >= 0 and math.isfinite(self.hazard_penalty)):
+            raise PlannerError(f"hazard_penalty={self.hazard_penalty} must be finite and >= 0 [1/m]")
         if not (self.slip_spread_m >= 0 and math.isfinite(self.slip_spread_m)):
             raise PlannerError(f"slip_spread_m={self.slip_spread_m} must be a finite radius >= 0 m (0 = off)")
         bad = [f"{t}={getattr(self.weights, t)}" for t in TERMS if not getattr(self.weights, t) >= 0]
@@ -103,7 +116,7 @@ def parse_weights(text: str, base: Weights | None = None) -> Weights:
 @dataclass(frozen=True, eq=False)
 class CostMap:
     """Everything a route breakdown needs, all (h, w): `cost` [1/m] (+inf impassable), the weighted
-    `terms` (summing to `cost` on passable cells; `unknown` = the penalty), the `metrics` the terms read
+    `terms` (summing to `cost` on passable cells; `unknown` = the penalty, `hazard` its penalty), the `metrics` the terms read
     (filled where inferred), and the masks `known`, `inferred`, `impassable`."""
 
     cost: np.ndarray

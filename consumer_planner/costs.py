@@ -37,6 +37,10 @@ it does not make a cell `inferred`, and it counts as unknown in a route's `unkno
 same spread rate the slip term charges (so terms["slip"] = weights.slip * expected_slip_events): an
 upper estimate near slip cells; `slip_spread_m=0` gives the raw layer's count.
 
+Hazards (`hazard` layer: a scout's reflex stopped there, ground it could not hold): every cell whose centre
+lies within `hazard_spread_m` of a cell with hazard reports is impassable (`hazard="forbid"`, the default)
+or costs `hazard_penalty` more (`hazard="penalty"`, terms["hazard"]), whatever the other layers say there.
+
 Speed (2000 x 2000 cells in well under a second; `benchmarks/plan.py`), with results bit for bit those
 of the plain full-grid formulas (tests/consumer_planner/test_build_costs_reference.py keeps them): the
 fill weight (the Gaussian of the finite-mask) is computed once per distinct mask; a fill filters only
@@ -241,7 +245,25 @@ def build_costs(grid: LayerGrid, config: CostConfig | None = None) -> CostMap:
             for r in range(0, grid.h, step)
         ]:
             f.result()
-    return CostMap(out.cost, out.terms, metrics, known, inferred, out.impassable, config)
+    terms = out.terms | {"hazard": _hazard_rule(grid, config, out.cost, out.impassable)}
+    return CostMap(out.cost, terms, metrics, known, inferred, out.impassable, config)
+
+
+def _hazard_rule(grid: LayerGrid, config: CostConfig, cost: np.ndarray, impassable: np.ndarray) -> np.ndarray:
+    """Apply the hazard policy in place to `cost` / `impassable`; returns the hazard term (zeros without)."""
+    reports = grid.value("hazard") if "hazard" in grid.layers else None
+    if reports is None or not np.any(reports > 0):
+        return np.zeros(grid.shape)
+    near = np.isfinite(reports) & (reports > 0)
+    if spread_cells(config.hazard_spread_m, grid.res) >= 1:
+        near = np.isfinite(spread_finite(np.where(near, 1.0, np.nan), near, config.hazard_spread_m, grid.res))
+    if config.hazard == "forbid":
+        impassable |= near
+        cost[near] = np.inf
+        return np.zeros(grid.shape)
+    term = np.where(near & ~impassable, config.hazard_penalty, 0.0)
+    cost += term
+    return term
 
 
 def _fill_metrics(

@@ -16,6 +16,7 @@ import numpy as np
 from protocol.errors import ProtocolError
 
 __all__ = [
+    "HAZARD_REASONS",
     "LAYERS",
     "MIN_COT_DIST_M",
     "MIN_PLANE_SPREAD_M",
@@ -101,8 +102,20 @@ LAYERS: dict[str, Layer] = {
             "contact; value = nonfoot / n",
             counts=("n", "nonfoot"),
         ),
+        Layer(
+            "hazard",
+            ("n", "slip", "margin", "contact", "attitude"),
+            "1",
+            "ground a scout could not hold and stopped on (its hazard reflex, contract extension of issue 24); "
+            "n = hazard reports in the cell, slip / margin / contact / attitude = how many of them each "
+            "trigger raised (repeated slips, GIIM or GIAM below the reflex margin, a non-foot contact, trunk "
+            "attitude beyond the limit; one report may count several); value = n",
+            counts=("n", "slip", "margin", "contact", "attitude"),
+        ),
     )
 }
+
+HAZARD_REASONS = ("slip", "margin", "contact", "attitude")  # the hazard layer's per-trigger counts
 
 
 def get_layer(name: str) -> Layer:
@@ -217,6 +230,7 @@ _VALUE = {
     "giim": _mean,
     "giam": _mean,
     "contacts": lambda s: _ratio(_f(s, "nonfoot"), _f(s, "n"), _f(s, "n") > 0),
+    "hazard": lambda s: np.where(_f(s, "n") > 0, _f(s, "n"), np.nan),
 }
 
 # Named quantities beyond `value` that a reader (or a region query) may ask for.
@@ -239,6 +253,10 @@ _DERIVED = {
         "nonfoot": lambda s: np.where(_f(s, "n") > 0, _f(s, "nonfoot"), np.nan),
         "rate": _VALUE["contacts"],
     },
+    "hazard": {
+        reason: (lambda r: lambda s: np.where(_f(s, "n") > 0, _f(s, r), np.nan))(reason)
+        for reason in ("slip", "margin", "contact", "attitude")
+    },
 }
 
 
@@ -248,7 +266,7 @@ def layer_value(layer_name: str, stats: Stats) -> np.ndarray:
     elevation: plane-fit height at the cell centre (`plane_fit`: along the directions the footholds span by
     at least `MIN_PLANE_SPREAD_M`; the mean height where they span none) [m];
     slip: events / n; cot: work / dist (NaN where dist < `MIN_COT_DIST_M`); giim, giam: mean;
-    contacts: nonfoot / n.
+    contacts: nonfoot / n; hazard: n (hazard reports).
     """
     get_layer(layer_name)
     return _VALUE[layer_name](stats)

@@ -114,12 +114,18 @@ class TrotController:
         self._kd_rot = np.asarray(config.kd_rot)
         self.v_cmd = 0.0  # forward speed command [m/s]
         self.yaw_rate_cmd = 0.0  # [rad/s]
+        self.mu_feet: np.ndarray | None = None  # each foot's friction for the stance QP (None: its constant)
+        self.height_offset = 0.0  # trunk height change from the adaptive gait [m] (negative: lower)
         self._initialized = False
         self.t0 = 0.0
 
     def set_command(self, forward_speed: float, yaw_rate: float) -> None:
         self.v_cmd = forward_speed
         self.yaw_rate_cmd = yaw_rate
+
+    def set_friction(self, mu_feet: np.ndarray | None) -> None:
+        """Each foot's friction coefficient the stance QP's cone uses from now on (None: the constant)."""
+        self.mu_feet = None if mu_feet is None else np.asarray(mu_feet, dtype=float).copy()
 
     def reset(self, state: RobotState) -> None:
         feet_w = state.pos + K.fk(state.q) @ state.R.T
@@ -186,7 +192,7 @@ class TrotController:
             self.p_ref = s.pos[:2] + err * (c.max_pos_err / norm)
         self.yaw_ref += self.yaw_rate_cmd * dt
         self.yaw_ref = yaw + min(0.2, max(-0.2, (self.yaw_ref - yaw + np.pi) % (2 * np.pi) - np.pi))
-        z_des = grad @ s.pos[:2] + z0 + c.height / n[2]
+        z_des = grad @ s.pos[:2] + z0 + (c.height + self.height_offset) / n[2]
         pos_err = np.array([self.p_ref[0] - s.pos[0], self.p_ref[1] - s.pos[1], z_des - s.pos[2]])
         F = c.mass * (self._kp_pos * pos_err + self._kd_pos * (v_des - s.vel))
         F[2] += c.mass * c.gravity
@@ -209,7 +215,8 @@ class TrotController:
         idx = np.flatnonzero(stance)
         if idx.size:
             r = feet_w[idx] - s.pos
-            forces[idx] = self.qp.solve(r, n, wrench, self.f_prev[idx])
+            mu = None if self.mu_feet is None else self.mu_feet[idx]
+            forces[idx] = self.qp.solve(r, n, wrench, self.f_prev[idx], mu)
         self.f_prev = forces
 
         tau = np.zeros(12)

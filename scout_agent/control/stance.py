@@ -1,9 +1,11 @@
 """Stance forces by a small QP (quadprog): track a desired body wrench under friction-pyramid constraints.
 
     min_f  ‖A f − w‖²_S + α‖f‖² + β‖f − f_prev‖²
-    s.t.   f_min ≤ n·f ≤ f_max,  |t_k·f| ≤ μ n·f  (k = 1, 2)   for each stance foot
+    s.t.   f_min ≤ n·f ≤ f_max,  |t_k·f| ≤ μ_i n·f  (k = 1, 2)   for each stance foot i
 
-with A = [I …; [r_i]× …] (world frame, r_i foot relative to the CoM) and n the terrain normal.
+with A = [I …; [r_i]× …] (world frame, r_i foot relative to the CoM) and n the terrain normal. μ_i is the
+configured constant unless the caller passes each foot's friction (the scout's own estimate,
+`friction_estimate`), so the forces ask no more of the ground than it was felt to hold.
 """
 
 from __future__ import annotations
@@ -32,10 +34,16 @@ class StanceQP:
         self._S = np.array([c.force_weight] * 3 + [c.moment_weight] * 3)
 
     def solve(
-        self, r: np.ndarray, normal: np.ndarray, wrench: np.ndarray, f_prev: np.ndarray | None = None
+        self,
+        r: np.ndarray,
+        normal: np.ndarray,
+        wrench: np.ndarray,
+        f_prev: np.ndarray | None = None,
+        mu: np.ndarray | None = None,
     ) -> np.ndarray:
         """Forces (k, 3) on the k stance feet (world frame) from their positions `r` (k, 3) relative to the
-        CoM, the ground normal (3,) and the desired wrench (6,) = (force, moment about the CoM)."""
+        CoM, the ground normal (3,), the desired wrench (6,) = (force, moment about the CoM) and optionally
+        each foot's friction coefficient `mu` (k,) (default: the configured constant)."""
         c = self.config
         k = r.shape[0]
         n = 3 * k
@@ -57,13 +65,14 @@ class StanceQP:
         t1 = np.array([-nz, 0.0, nx]) if abs(nx) < 0.9 else np.array([ny, -nx, 0.0])  # ⊥ normal
         t1 /= np.sqrt(t1 @ t1)
         t2 = np.array([ny * t1[2] - nz * t1[1], nz * t1[0] - nx * t1[2], nx * t1[1] - ny * t1[0]])
-        rows = np.array(
-            [normal, -normal, c.mu * normal - t1, c.mu * normal + t1, c.mu * normal - t2, c.mu * normal + t2]
-        )  # (6, 3)
         lo = np.array([c.f_min, -c.f_max, 0.0, 0.0, 0.0, 0.0])
         Cm = np.zeros((n, 6 * k))
         b = np.tile(lo, k)
         for i in range(k):
+            m = c.mu if mu is None else float(mu[i])
+            rows = np.array(
+                [normal, -normal, m * normal - t1, m * normal + t1, m * normal - t2, m * normal + t2]
+            )
             Cm[3 * i : 3 * i + 3, 6 * i : 6 * i + 6] = rows.T
         try:
             f = quadprog.solve_qp(G, a, Cm, b, 0)[0]

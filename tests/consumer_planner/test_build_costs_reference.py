@@ -124,6 +124,7 @@ def ref_build_costs(grid: LayerGrid, config: CostConfig) -> CostMap:
     for t in terms.values():
         cost += t
     cost[impassable] = np.inf
+    terms["hazard"] = np.zeros(grid.shape)  # these maps hold no hazard reports
     return CostMap(cost, terms, metrics, known, inferred, impassable, config)
 
 

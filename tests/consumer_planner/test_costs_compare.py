@@ -176,3 +176,32 @@ def test_slope_term_and_limit_from_elevation_plane_fit():
     assert steep.impassable.all()
     assert sorted(consumer_planner.__all__) == consumer_planner.__all__
     assert all(hasattr(consumer_planner, name) for name in consumer_planner.__all__)
+
+
+def _with_hazard(g, cells):
+    """The grid `g` with one hazard report in each (row, col) of `cells` (raw stats, as a server replies)."""
+    n = np.zeros(g.shape)
+    for r, c in cells:
+        n[r, c] = 1.0
+    stats = {"n": n, "slip": n.copy(), "margin": np.zeros(g.shape), "contact": np.zeros(g.shape),
+             "attitude": np.zeros(g.shape)}  # fmt: skip
+    return replace(g, layers={**g.layers, "hazard": stats})
+
+
+def test_a_hazard_report_forbids_its_neighbourhood_or_costs_a_penalty():
+    g = _with_hazard(make_grid((9, 9), res=0.4), [(4, 4)])
+    straight = plan_route(
+        make_grid((9, 9), res=0.4), build_costs(make_grid((9, 9), res=0.4)), (0.2, 1.8), (3.4, 1.8)
+    )
+    assert straight is not None and (straight.cells[:, 0] == 4).all()  # without the report: straight through
+    cm = build_costs(g)  # default: forbid, within 0.8 m
+    rr, cc = np.mgrid[0:9, 0:9]
+    near = (rr - 4) ** 2 + (cc - 4) ** 2 <= 4
+    assert cm.impassable[near].all() and not cm.impassable[~near].any()
+    route = plan_route(g, cm, (0.2, 1.8), (3.4, 1.8))
+    assert route is not None and not near[route.cells[:, 0], route.cells[:, 1]].any()
+    pen = build_costs(g, CostConfig(hazard="penalty", hazard_penalty=7.0, hazard_spread_m=0.0))
+    assert not pen.impassable.any() and pen.terms["hazard"][4, 4] == 7.0 and pen.terms["hazard"].sum() == 7.0
+    np.testing.assert_allclose(sum(pen.terms.values()), pen.cost)
+    with pytest.raises(PlannerError, match="policies: forbid, penalty"):
+        CostConfig(hazard="avoid")  # type: ignore[arg-type]

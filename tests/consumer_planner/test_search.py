@@ -6,8 +6,8 @@ from cp_helpers import path_cost, reference_dijkstra
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from consumer_planner.errors import PlannerError
-from consumer_planner.search import plan_path
+from common.pathsearch import PathSearchError
+from common.pathsearch.search import plan_path
 
 
 def _random_costs(seed, h, w, blocked, low=0.5):
@@ -56,11 +56,11 @@ def test_unreachable_goal_is_none_and_bad_endpoints_raise():
     cost = np.ones((5, 5))
     cost[:, 2] = np.inf
     assert plan_path(cost, (0, 0), (4, 4), 1.0) is None
-    with pytest.raises(PlannerError, match="impassable"):
+    with pytest.raises(PathSearchError, match="impassable"):
         plan_path(cost, (0, 2), (4, 4), 1.0)
-    with pytest.raises(PlannerError, match="outside the grid of 5 x 5"):
+    with pytest.raises(PathSearchError, match="outside the grid of 5 x 5"):
         plan_path(cost, (0, 0), (9, 4), 1.0)
-    with pytest.raises(PlannerError, match="methods: auto, compiled, skimage"):
+    with pytest.raises(PathSearchError, match="methods: auto, compiled, skimage"):
         plan_path(cost, (0, 0), (0, 1), 1.0, "dijkstra")  # type: ignore[arg-type]
 
 
@@ -100,7 +100,7 @@ def test_wide_cost_range_matches_reference():
 
 
 def test_a_goal_on_an_impassable_cell_moves_to_the_nearest_passable_one_within_tolerance():
-    from consumer_planner.search import nearest_passable
+    from common.pathsearch.search import nearest_passable
 
     cost = np.ones((9, 9))
     cost[3:6, 3:6] = np.inf  # a robot fell here: the map forbids these cells
@@ -115,7 +115,7 @@ def test_a_goal_on_an_impassable_cell_moves_to_the_nearest_passable_one_within_t
     [(0.0, "> 0"), (-1.0, "> 0"), (float("nan"), "finite"), (float("inf"), "finite"), ("a", "number")],
 )
 def test_bad_cell_size_is_a_planner_error_not_a_crash(res, why):
-    with pytest.raises(PlannerError, match=why):
+    with pytest.raises(PathSearchError, match=why):
         plan_path(np.ones((4, 4)), (0, 0), (3, 3), res)
 
 

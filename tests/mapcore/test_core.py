@@ -37,6 +37,14 @@ def test_services_import_protocol_and_the_map_core_never_each_other():
             assert not tops & others, f"{module} imports {sorted(tops & others)}"
 
 
+def test_the_shared_path_search_imports_no_service():
+    allowed = {"common", "numpy", "numba", "skimage", "__future__", "dataclasses", "typing", "math"}
+    mods = _imports("common/pathsearch")
+    assert "common/pathsearch/search.py" in mods
+    for module, tops in mods.items():
+        assert tops <= allowed, f"{module} imports {sorted(tops - allowed)}"
+
+
 def test_the_map_core_is_pure_numpy_on_the_contract():
     allowed = {"mapcore", "protocol", "numpy", "__future__", "collections", "dataclasses", "typing",
                "pathlib", "mmap", "itertools", "math"}  # fmt: skip

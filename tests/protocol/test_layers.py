@@ -35,8 +35,10 @@ def elevation_stats(x, y, z) -> dict[str, np.ndarray]:
 
 
 def test_layers_and_merge_rule():
-    assert list(LAYERS) == ["elevation", "slip", "cot", "giim", "giam", "contacts"]
+    assert list(LAYERS)[:6] == ["elevation", "slip", "cot", "giim", "giam", "contacts"]
+    assert "hazard" in LAYERS  # contract extensions follow the six layers of the paper
     assert LAYERS["contacts"].stats == ("n", "nonfoot")
+    assert LAYERS["hazard"].stats == ("n", "slip", "margin", "contact", "attitude")
     assert [merge_op(s) for s in ("n", "min", "min_z", "max", "max_v", "minimum")] == [
         "add",
         "min",
@@ -99,6 +101,12 @@ def test_values_nan_where_no_data_and_cot_threshold():
     assert layer_value("giim", g)[0] == pytest.approx(0.3)
     assert layer_derived("giam", "worst", g)[0] == 0.1
     assert layer_value("contacts", {"n": np.array([10.0]), "nonfoot": np.array([2.0])})[0] == 0.2
+    hz = {k: np.array([0.0, 2.0]) for k in ("n", "slip", "margin", "contact", "attitude")}
+    hz["margin"] = np.array([0.0, 1.0])
+    v = layer_value("hazard", hz)
+    assert np.isnan(v[0]) and v[1] == 2.0  # reports; merged by adding (the generic rule)
+    assert layer_derived("hazard", "margin", hz)[1] == 1.0
+    assert all(merge_op(s) == "add" for s in LAYERS["hazard"].stats)
 
 
 def test_unknown_names_list_the_valid_ones():

@@ -1,6 +1,6 @@
 """Optimal path search on an 8-connected cost grid.
 
-Path cost (the one definition used everywhere in consumer_planner): a path is a sequence of cells
+Path cost (the one definition the planner and the scout's detours use): a path is a sequence of cells
 p_0 .. p_k, each step to one of the 8 neighbours; a step a -> b costs
 
     len(a, b) * (cost[a] + cost[b]) / 2,   len = res [m] straight, res * sqrt(2) [m] diagonal,
@@ -27,10 +27,10 @@ from typing import Literal
 
 import numpy as np
 
-from consumer_planner import kernels
-from consumer_planner.errors import PlannerError
+from common.pathsearch import kernels
+from common.pathsearch.errors import PathSearchError
 
-__all__ = ["GridPath", "METHODS", "nearest_passable", "plan_path", "step_lengths"]
+__all__ = ["GridPath", "METHODS", "Method", "nearest_passable", "plan_path", "step_lengths"]
 
 METHODS = ("auto", "compiled", "skimage")
 _MAX_BUCKETS = 1 << 16  # above this many buckets (cost range max/min x 1.4) the heap search is used
@@ -57,9 +57,9 @@ def _check_cell(cost: np.ndarray, cell: tuple[int, int], name: str) -> int:
     h, w = cost.shape
     r, c = int(cell[0]), int(cell[1])
     if not (0 <= r < h and 0 <= c < w):
-        raise PlannerError(f"{name} cell (row {r}, col {c}) is outside the grid of {h} x {w} cells")
+        raise PathSearchError(f"{name} cell (row {r}, col {c}) is outside the grid of {h} x {w} cells")
     if not np.isfinite(cost[r, c]):
-        raise PlannerError(f"{name} cell (row {r}, col {c}) is impassable (cost {cost[r, c]})")
+        raise PathSearchError(f"{name} cell (row {r}, col {c}) is impassable (cost {cost[r, c]})")
     return r * w + c
 
 
@@ -85,27 +85,27 @@ def plan_path(
     cost: np.ndarray, start: tuple[int, int], goal: tuple[int, int], res: float, method: Method = "auto"
 ) -> GridPath | None:
     """Cheapest 8-connected path from `start` to `goal` (row, col) over `cost` (h, w) [1/m], cell size
-    `res` [m]; None when the goal cannot be reached. Raises PlannerError for an endpoint outside the grid
+    `res` [m]; None when the goal cannot be reached. Raises PathSearchError for an endpoint outside the grid
     or on an impassable cell, or a negative cost."""
     if method not in METHODS:
-        raise PlannerError(f"no search method {method!r}; methods: {', '.join(METHODS)}")
+        raise PathSearchError(f"no search method {method!r}; methods: {', '.join(METHODS)}")
     cost = np.ascontiguousarray(cost, dtype=np.float64)
     if cost.ndim != 2 or cost.size == 0:
-        raise PlannerError(f"cost grid must be a non-empty 2-D array, got shape {cost.shape}")
+        raise PathSearchError(f"cost grid must be a non-empty 2-D array, got shape {cost.shape}")
     s = _check_cell(cost, start, "start")
     g = _check_cell(cost, goal, "goal")
     try:
         res = float(res)
     except (TypeError, ValueError):
-        raise PlannerError(f"cell size res must be a number > 0 m, got {res!r}") from None
+        raise PathSearchError(f"cell size res must be a number > 0 m, got {res!r}") from None
     if not (math.isfinite(res) and res > 0):
-        raise PlannerError(f"cell size res must be a finite number > 0 m, got {res!r}")
+        raise PathSearchError(f"cell size res must be a finite number > 0 m, got {res!r}")
     if (cost.shape[0] + 2) * (cost.shape[1] + 2) > _MAX_CELLS:
-        raise PlannerError(f"cost grid of {cost.shape} cells is too large; at most {_MAX_CELLS} cells")
+        raise PathSearchError(f"cost grid of {cost.shape} cells is too large; at most {_MAX_CELLS} cells")
     # the kernels want a border of impassable cells instead of bounds checks, impassable cells closed
     flat, closed, cmin, cmax, neg = kernels.pad(cost)
     if neg < 0:
-        raise PlannerError(f"cell costs must be >= 0 (min {neg}); use inf for impassable")
+        raise PathSearchError(f"cell costs must be >= 0 (min {neg}); use inf for impassable")
     if method == "skimage":
         return _skimage_path(cost, start, goal, res)
     return _compiled_path(flat, closed, cost.shape, s, g, res, cmin, cmax)
