@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from interop.errors import InteropError
 from protocol.layers import LAYERS
 
 __all__ = ["MOON_GEOGRAPHIC", "MOON_SOUTH_POLAR", "MoonOrigin", "map_affine", "write_geotiff"]
@@ -42,11 +43,11 @@ class MoonOrigin:
 
     def __post_init__(self) -> None:
         if not -90.0 <= self.lat_deg < -60.0:
-            raise ValueError(
+            raise InteropError(
                 f"origin latitude {self.lat_deg}: the south polar projection needs -90 <= lat < -60"
             )
         if not -360.0 <= self.lon_deg <= 360.0:
-            raise ValueError(f"origin longitude {self.lon_deg}: need -360..360 degrees")
+            raise InteropError(f"origin longitude {self.lon_deg}: need -360..360 degrees")
 
     @classmethod
     def parse(cls, text: str) -> MoonOrigin:
@@ -55,7 +56,7 @@ class MoonOrigin:
         except ValueError:
             vals = []
         if len(vals) not in (2, 3):
-            raise ValueError(f"origin {text!r}: need LAT,LON[,HEADING] in degrees, e.g. -89.45,222.7,30")
+            raise InteropError(f"origin {text!r}: need LAT,LON[,HEADING] in degrees, e.g. -89.45,222.7,30")
         return cls(*vals)
 
     def projected(self) -> tuple[float, float, float]:
@@ -102,7 +103,7 @@ def write_geotiff(
 
     names = list(values)
     if not names:
-        raise ValueError("nothing to write: the region holds no layer")
+        raise InteropError("nothing to write: the region holds no layer")
     h, w = values[names[0]].shape
     bands: list[tuple[np.ndarray, str, dict[str, str]]] = []
     for name in names:
@@ -129,7 +130,7 @@ def write_geotiff(
         for i, (arr, desc, btags) in enumerate(bands, start=1):
             a = np.asarray(arr, dtype=np.float32)
             if a.shape != (h, w):
-                raise ValueError(f"band {desc!r} is {a.shape}; every band must be {(h, w)}")
+                raise InteropError(f"band {desc!r} is {a.shape}; every band must be {(h, w)}")
             ds.write(a[::-1], i)  # GeoTIFF row 0 is the top (north) edge
             ds.set_band_description(i, desc)
             ds.update_tags(i, **btags)

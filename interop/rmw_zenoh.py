@@ -26,6 +26,7 @@ import xxhash
 import zenoh
 import zenoh.ext as zext
 
+from interop.errors import InteropError
 from interop.ros2_messages import dds_type_name, serialize, type_hash
 
 __all__ = [
@@ -100,7 +101,7 @@ def attachment(seq: int, stamp_ns: int, source_gid: bytes) -> bytes:
     """The per-sample attachment rmw_zenoh subscribers read: int64 seq, int64 timestamp [ns], then the GID as a
     sequence of 16 uint8 (a list serialises with its length first, as zenoh-cpp's std::array does)."""
     if len(source_gid) != GID_BYTES:
-        raise ValueError(f"a GID is {GID_BYTES} bytes, got {len(source_gid)}")
+        raise InteropError(f"a GID is {GID_BYTES} bytes, got {len(source_gid)}")
     return zext.z_serialize(
         (zext.Int64(seq), zext.Int64(stamp_ns), [zext.UInt8(b) for b in source_gid])
     ).to_bytes()

@@ -19,6 +19,7 @@ import sys
 from collections.abc import Sequence
 
 from common.cli_parser import Parser
+from psrmap.errors import exit_code_for
 
 # command -> (module whose `register` adds it, its one-line help), in `psrmap --help` order
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -79,13 +80,21 @@ def main(argv: Sequence[str] | None = None) -> int:
     except BrokenPipeError:  # output piped into `head` and the reader left: not an error of ours
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
-    except (
-        RuntimeError
-    ) as exc:  # Rerun's live stream: what answers at --connect-viewer is not (or no longer) a viewer
-        if "gRPC" not in str(exc):
+    except KeyboardInterrupt:
+        print(f"psrmap {args.command}: interrupted", file=sys.stderr)
+        return 130
+    except Exception as exc:  # one mapping from every package's root exception to a message and exit code
+        code = exit_code_for(exc)
+        if code is None and isinstance(exc, RuntimeError) and "gRPC" in str(exc):
+            # Rerun's live stream: what answers at --connect-viewer is not (or no longer) a viewer
+            print(
+                f"psrmap {args.command}: error: the live Rerun viewer stream failed ({exc})", file=sys.stderr
+            )
+            return 1
+        if code is None:
             raise
-        print(f"psrmap {args.command}: error: the live Rerun viewer stream failed ({exc})", file=sys.stderr)
-        return 1
+        print(f"psrmap {args.command}: error: {exc}", file=sys.stderr)
+        return code
     return int(result or 0)
 
 

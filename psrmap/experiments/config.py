@@ -10,10 +10,12 @@ import argparse
 from dataclasses import dataclass, field
 from typing import Any
 
+from psrmap.errors import PsrmapError
+
 __all__ = ["ExperimentConfig", "ExperimentError", "from_args"]
 
 
-class ExperimentError(ValueError):
+class ExperimentError(PsrmapError, ValueError):
     """An experiment option that cannot run; the message names the valid values."""
 
 

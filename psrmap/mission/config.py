@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from common.defaults import DEFAULT_DELTA_HZ, DEFAULT_MAP_ID, DEFAULT_RES_M, DEFAULT_SEED, DEFAULT_TILE
+from psrmap.errors import PsrmapError
 
 __all__ = [
     "DRIFT_KEYS",
@@ -39,7 +40,7 @@ SCENES = ("lunar", "ramps")
 UNKNOWN_POLICIES = ("forbid", "penalty", "infer")
 
 
-class MissionError(ValueError):
+class MissionError(PsrmapError, ValueError):
     """A mission config or flag that cannot run; the message names what would have been valid."""
 
 

@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from psrmap.agreement import elevation_agreement
+from psrmap.errors import MissionRunError
 from psrmap.mission.components import plan_and_compare, scout_config
 from psrmap.mission.config import DRIFT_KEYS, MissionConfig, _credential_files, server_names, validate
 from psrmap.mission.processes import Proc, free_port, spawn
@@ -48,9 +49,9 @@ def _wait_for_server(
             return aggregate_status(parts)
         for p in procs:
             if not p.proc.is_alive():
-                raise RuntimeError(f"{p.name} exited early with code {p.proc.exitcode}; see {p.log}")
+                raise MissionRunError(f"{p.name} exited early with code {p.proc.exitcode}; see {p.log}")
         time.sleep(0.2)
-    raise RuntimeError(
+    raise MissionRunError(
         f"the map server(s) did not all answer within the mission's start-up time; see {procs[0].log}"
     )
 
@@ -137,7 +138,7 @@ def run_mission(cfg: MissionConfig, run_dir: Path | None = None, progress: bool 
             bar = progress_bar(round(total), "scouts", "sim-s", disable=not progress, every_s=15.0)
             while any(p.proc.is_alive() for p in procs):
                 if time.monotonic() > deadline:
-                    raise RuntimeError(f"mission timed out after {cfg.timeout_s:g} s")
+                    raise MissionRunError(f"mission timed out after {cfg.timeout_s:g} s")
                 st = _status(session, cfg.map, timeout=1.0)
                 if st is not None:
                     walked = sum(
@@ -150,7 +151,7 @@ def run_mission(cfg: MissionConfig, run_dir: Path | None = None, progress: bool 
                     bar.refresh()
                 for server in servers:
                     if not server.proc.is_alive():
-                        raise RuntimeError(
+                        raise MissionRunError(
                             f"map server {server.name} died (code {server.proc.exitcode}); see {server.log}"
                         )
                 time.sleep(0.5)

@@ -17,7 +17,9 @@ def test_subcommands_registered():
     args = parse(["server", "--map", "m1", "--res", "0.4", "--connect", "tcp/127.0.0.1:1"])
     assert (args.map, args.res, args.connect) == ("m1", 0.4, ["tcp/127.0.0.1:1"])
     assert parse(["router", "--listen", "tcp/127.0.0.1:1"]).listen == ["tcp/127.0.0.1:1"]
-    assert parse(["query", "--map", "m", "--box", "0,0,1,1", "--connect", "tcp/127.0.0.1:1"]).stats == "value,n"
+    assert (
+        parse(["query", "--map", "m", "--box", "0,0,1,1", "--connect", "tcp/127.0.0.1:1"]).stats == "value,n"
+    )
 
 
 def test_server_without_endpoints_is_a_usage_error(capsys):
