@@ -104,6 +104,18 @@ def _positive_int(text: str) -> int:
     return v
 
 
+def _bbox(text: str) -> tuple[float, float, float, float]:
+    import math
+
+    try:
+        x0, y0, x1, y1 = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: give x0,y0,x1,y1 in map-frame metres") from None
+    if not all(math.isfinite(v) for v in (x0, y0, x1, y1)) or x0 > x1 or y0 > y1:
+        raise argparse.ArgumentTypeError(f"{text!r}: need finite numbers with x0 <= x1 and y0 <= y1")
+    return x0, y0, x1, y1
+
+
 def server_config(args: argparse.Namespace) -> Any:
     """The parsed `psrmap server` options as a ServerConfig."""
     from map_server.service import ServerConfig
@@ -123,6 +135,8 @@ def server_config(args: argparse.Namespace) -> Any:
         shards=args.shards,
         shard=args.shard,
         tile_budget_mib=args.tile_budget_mib,
+        bbox_m=args.bbox,
+        max_queries_in_flight=args.max_queries,
         linger_s=args.linger_ms / 1000.0,
         limits=Limits(**{f.name: getattr(args, f"limit_{f.name}") for f in dataclasses.fields(Limits)}),
     )
@@ -139,8 +153,12 @@ def cmd_server(args: argparse.Namespace) -> int:
         args.parser.error(f"--res {args.res}: need a cell size > 0 [m]")
     if args.shards > 1 and (args.shard is None or not 0 <= args.shard < args.shards):
         args.parser.error(f"--shards {args.shards}: give --shard I with 0 ≤ I ≤ {args.shards - 1}")
-    if args.tile_budget_mib is not None and (not args.tile_budget_mib > 0 or not args.db):
-        args.parser.error(f"--tile-budget-mib {args.tile_budget_mib}: need a budget > 0 MiB and --db PATH")
+    if args.tile_budget_mib is not None and (
+        not args.tile_budget_mib >= 0 or (args.tile_budget_mib and not args.db)
+    ):
+        args.parser.error(
+            f"--tile-budget-mib {args.tile_budget_mib}: need a budget >= 0 MiB (0: none) and, above 0, --db PATH"
+        )
     if not 0 <= args.linger_ms <= 100:
         args.parser.error(f"--linger-ms {args.linger_ms}: need 0 (no wait) to 100 ms")
     if args.shards == 1 and args.shard not in (None, 0):
@@ -331,7 +349,23 @@ def register(subparsers: Any) -> None:
         type=float,
         default=None,
         metavar="MIB",
-        help="keep at most this many MiB of tiles in memory, the rest in the --db file (a map bigger than memory)",
+        help="keep at most this many MiB of tiles in memory, the rest in the --db file (a map bigger than "
+        "memory); default: 1/16 of physical memory within 64..256 MiB (without --db it caps the map's tiles); "
+        "0: no budget",
+    )
+    p.add_argument(
+        "--bbox",
+        type=_bbox,
+        default=None,
+        metavar="X0,Y0,X1,Y1",
+        help="mission area [m], map frame: deltas with a cell outside are rejected (outside_bbox)",
+    )
+    p.add_argument(
+        "--max-queries",
+        type=_positive_int,
+        default=64,
+        metavar="N",
+        help="queries queued or being answered at most; more get a `busy` reply (deltas never wait on queries)",
     )
     p.add_argument(
         "--linger-ms",

@@ -16,8 +16,8 @@ Acceptance and errors are exactly `protocol.codec.decode`'s (the contract's refe
    as fields, unknown stats refused), array lengths checked in Python, equal-length rows joined and cut
    the same way.
 3. Over the whole batch at once: ids against the key expression, `res` against the map, finite `t`;
-   then, one numpy pass per layer, finite statistics, counts >= 0, indices within +-2**30, no cell twice
-   in one delta and layer.
+   then, one numpy pass per layer, finite statistics, counts >= 0, magnitudes and consistency
+   (`protocol.consistency`), indices within +-2**30, no cell twice in one delta and layer.
 4. Any payload msgspec refuses, or that a batch check flags, goes through `codec.decode` alone, which
    gives the exact reason and message (or accepts it: e.g. an int `t`, extra top-level fields).
 
@@ -38,6 +38,7 @@ import msgspec
 import numpy as np
 
 from protocol.codec import DEFAULT_MAX_BYTES, INDEX_LIMIT, decode
+from protocol.consistency import bad_cells
 from protocol.errors import ProtocolError
 from protocol.keys import parse_delta_key, validate_id
 from protocol.layers import LAYERS, Layer
@@ -172,15 +173,24 @@ class _Template:
 
 
 def _flag_values(layer: Layer, vals: np.ndarray, seg: np.ndarray) -> set[int]:
-    """Deltas with a NaN/inf statistic or a negative count in this layer."""
+    """Deltas with a NaN/inf statistic, a negative count, a statistic out of range or inconsistent ones in
+    this layer (`protocol.consistency`)."""
     counts = [r for r, s in enumerate(layer.stats) if s in layer.counts]
     # a sum is finite only if every term is (an overflow only sends the batch to the exact check)
-    if np.isfinite(np.add.reduce(vals, axis=None)) and all(vals[r].min() >= 0 for r in counts):
+    bad = np.zeros(seg.size, bool)
+    with np.errstate(over="ignore", invalid="ignore"):
+        total = np.add.reduce(vals, axis=None)
+    if not (np.isfinite(total) and all(vals[r].min() >= 0 for r in counts)):
+        bad = ~np.isfinite(vals).all(axis=0)
+        for r in counts:
+            bad |= vals[r] < 0
+        vals = np.where(bad, 0.0, vals)  # the other cells are judged on their own below
+    # magnitudes within MAX_STAT and statistics a real sample set could have
+    for mask in bad_cells(layer, vals).values():
+        bad |= mask
+    if not bad.any():
         return set()
-    bad = ~np.isfinite(vals).all(axis=0)
-    for r in counts:
-        bad |= vals[r] < 0
-    return set(np.unique(seg[bad]).tolist()) if bad.any() else set()
+    return set(np.unique(seg[bad]).tolist())
 
 
 def _flag_index(ix: np.ndarray, iy: np.ndarray, seg: np.ndarray) -> set[int]:

@@ -12,8 +12,9 @@ is rejected as `seq_conflict` and named in the ack, never silently dropped as a 
 from __future__ import annotations
 
 import logging
+import time
 from collections import Counter
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
@@ -95,6 +96,7 @@ class MergeBook:
     merged: int = 0
     duplicates: int = 0
     rejected: Counter[str] = field(default_factory=Counter)
+    scout_tiles: Counter[str] = field(default_factory=Counter)  # tiles each scout created (its quota's use)
 
     def latest(self) -> dict[str, tuple[int, int]]:
         """scout -> (newest epoch, its hw)."""
@@ -138,9 +140,13 @@ class Merger:
         limits: Limits | None = None,
         partition: Partition | None = None,
         shard: int | None = None,
+        bbox: tuple[int, int, int, int] | None = None,
+        clock: Callable[[], float] = time.monotonic,
     ) -> None:
         """partition, shard: this merger holds shard `shard` of a sharded map and rejects deltas with cells
-        of other shards (`wrong_shard`); None: an unsharded map."""
+        of other shards (`wrong_shard`); None: an unsharded map. bbox: (ix0, iy0, ix1, iy1), the cells a
+        delta may touch (inclusive; `outside_bbox` otherwise); None: anywhere. clock [s]: the scouts' tile
+        rate buckets refill by it."""
         self.map = tiled
         self.map_id = map_id
         self.extra_tiles = 0  # tiles of the map not in `tiled` (paged out to the store: map_server.paging)
@@ -149,6 +155,9 @@ class Merger:
         if self.partition is not None:
             self.partition.check_shard(shard)  # type: ignore[arg-type]
         self.book = book or MergeBook()
+        self.bbox = bbox
+        self.clock = clock
+        self._buckets: dict[str, tuple[float, float]] = {}  # scout -> (tiles it may still create, at time)
         self.limits = limits or Limits(max_message_bytes=max_bytes)
         self.max_bytes = self.limits.max_message_bytes
         self._decoder = DeltaDecoder(res=tiled.res, max_bytes=self.max_bytes)
@@ -182,6 +191,8 @@ class Merger:
         no_layer = self._without_layer(batch, unknown) if unknown else {}
         if self.partition is not None:
             no_layer.update(self._foreign(batch, no_layer))
+        if self.bbox is not None:
+            no_layer.update(self._outside(batch, no_layer))
         no_layer.update(self._over_limits(batch, no_layer))
         take = [False] * len(samples)
         acked: dict[tuple[str, int], CellDelta] = {}
@@ -291,24 +302,78 @@ class Merger:
             np.stack([np.concatenate(segs)[fresh], tk[fresh]]), axis=1
         )  # (2, K) (delta, new tile)
         created: set[int] = set()
+        now = self.clock()
         for i in np.unique(seg_tile[0]).tolist():
-            if i in out or i in already or type(batch.results[i]) is not CellDelta:
+            d = batch.results[i]
+            if i in out or i in already or type(d) is not CellDelta:
                 continue
             mine = {int(k) for k in seg_tile[1][seg_tile[0] == i].tolist()}
             new = mine - created
-            if len(new) > lim.max_new_tiles_per_delta:
-                out[i] = ProtocolError(
-                    "limit_new_tiles",
-                    f"delta would create {len(new)} tiles; limit max_new_tiles_per_delta={lim.max_new_tiles_per_delta}",
-                )
-            elif len(known) + self.extra_tiles + len(created) + len(new) > lim.max_tiles:
-                out[i] = ProtocolError(
-                    "limit_tiles",
-                    f"delta would grow the map to {len(known) + self.extra_tiles + len(created) + len(new)} tiles; limit "
-                    f"max_tiles={lim.max_tiles} (the map's extent budget)",
-                )
-            else:
+            err = self._tile_quota(d.scout, len(new), len(known) + self.extra_tiles + len(created), now)
+            if err is not None:
+                out[i] = err
+            elif new:
                 created |= new
+                self._charge(d.scout, len(new), now)
+        return out
+
+    def _tile_quota(self, scout: str, new: int, tiles: int, now: float) -> ProtocolError | None:
+        """Why a delta of `scout` that creates `new` tiles in a map of `tiles` may not, or None."""
+        lim = self.limits
+        if new > lim.max_new_tiles_per_delta:
+            return ProtocolError(
+                "limit_new_tiles",
+                f"delta would create {new} tiles; limit max_new_tiles_per_delta={lim.max_new_tiles_per_delta}",
+            )
+        if tiles + new > lim.max_tiles:
+            return ProtocolError(
+                "limit_tiles",
+                f"delta would grow the map to {tiles + new} tiles; limit max_tiles={lim.max_tiles} (the map's "
+                "extent budget)",
+            )
+        had = self.book.scout_tiles[scout]
+        if had + new > lim.max_tiles_per_scout:
+            return ProtocolError(
+                "limit_scout_tiles",
+                f"scout {scout} created {had} tiles; {new} more would pass its quota "
+                f"max_tiles_per_scout={lim.max_tiles_per_scout} (other scouts' quotas are untouched)",
+            )
+        left = self._tokens(scout, now)
+        if new > left:
+            return ProtocolError(
+                "limit_scout_tile_rate",
+                f"scout {scout} may create {int(left)} more tiles now; {new} asked: limit "
+                f"max_new_tiles_per_scout_minute={lim.max_new_tiles_per_scout_minute} (resend later)",
+            )
+        return None
+
+    def _tokens(self, scout: str, now: float) -> float:
+        """Tiles `scout` may create at `now`: its bucket refilled at the per-minute rate, at most a minute's."""
+        rate = self.limits.max_new_tiles_per_scout_minute
+        left, at = self._buckets.get(scout, (float(rate), now))
+        return min(float(rate), left + max(0.0, now - at) * rate / 60.0)
+
+    def _charge(self, scout: str, new: int, now: float) -> None:
+        self._buckets[scout] = (self._tokens(scout, now) - new, now)
+        self.book.scout_tiles[scout] += new
+
+    def _outside(self, batch: DeltaBatch, already: dict[int, ProtocolError]) -> dict[int, ProtocolError]:
+        """Deltas with a cell outside the mission bounding box -> `outside_bbox`."""
+        assert self.bbox is not None
+        x0, y0, x1, y1 = self.bbox
+        out: dict[int, ProtocolError] = {}
+        for c in batch.columns.values():
+            bad = (c.ix < x0) | (c.ix > x1) | (c.iy < y0) | (c.iy > y1)
+            if not bad.any():
+                continue
+            for i in np.unique(c.seg[bad]).tolist():
+                if i not in out and i not in already:
+                    k = int(np.flatnonzero((c.seg == i) & bad)[0])
+                    out[int(i)] = ProtocolError(
+                        "outside_bbox",
+                        f"cell ({int(c.ix[k])}, {int(c.iy[k])}) of layer {c.layer.name} is outside the mission "
+                        f"bounding box, cells x {x0}..{x1}, y {y0}..{y1} (psrmap server --bbox)",
+                    )
         return out
 
     def _foreign(self, batch: DeltaBatch, already: dict[int, ProtocolError]) -> dict[int, ProtocolError]:

@@ -12,7 +12,7 @@ import queue
 import sqlite3
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import msgpack
@@ -22,7 +22,7 @@ import zenoh
 from common.defaults import DEFAULT_MAP_ID, DEFAULT_RES_M, DEFAULT_TILE
 from common.session import open_session, zenoh_config
 from map_server.errors import MapServerConfigError
-from map_server.limits import Limits
+from map_server.limits import Limits, default_tile_budget_mib, tile_bytes
 from map_server.merge import Merger
 from map_server.paging import TilePager
 from map_server.store import MapStore
@@ -91,8 +91,13 @@ class ServerConfig:
     shards: int = 1
     shard: int | None = None
     changes: bool = True  # publish the tiles each committed batch changed (TileChanges, psr/<map>/changes/…)
-    # a map bigger than memory: keep at most this many MiB of tiles in memory, the rest in the store (needs db)
+    # a map bigger than memory: keep at most this many MiB of tiles in memory, the rest in the store (db).
+    # None: `limits.default_tile_budget_mib()` (sized for the machine); 0: no budget (whole map in memory, bounded
+    # by limits.max_tiles only). Without a db the budget caps max_tiles (nowhere to page to).
     tile_budget_mib: float | None = None
+    # the mission area, map frame [m] (x0, y0, x1, y1): a delta with a cell outside is rejected (`outside_bbox`)
+    bbox_m: tuple[float, float, float, float] | None = None
+    max_queries_in_flight: int = 64  # queries queued or being answered; more get a `busy` reply at once
 
     def __post_init__(self) -> None:
         part = Partition(self.shards, self.tile)  # ProtocolError naming what is valid
@@ -104,6 +109,30 @@ class ServerConfig:
             raise ValueError(f"shard={self.shard} of an unsharded map (shards=1): give shards=K > 1 too")
         if not 0.0 <= self.linger_s <= 0.1:
             raise ValueError(f"linger_s={self.linger_s}: need 0 (no wait) to 0.1 s")
+        if self.tile_budget_mib is not None and not self.tile_budget_mib >= 0:
+            raise ValueError(f"tile_budget_mib={self.tile_budget_mib}: need >= 0 MiB (0: no budget)")
+        if self.bbox_m is not None:
+            x0, y0, x1, y1 = self.bbox_m
+            if not (x0 <= x1 and y0 <= y1) or not all(abs(v) <= INDEX_LIMIT * self.res for v in self.bbox_m):
+                raise ValueError(
+                    f"bbox {self.bbox_m}: need x0 <= x1, y0 <= y1 [m], within ±{INDEX_LIMIT * self.res:.4g} m"
+                )
+        if self.max_queries_in_flight < 1:
+            raise ValueError(f"max_queries_in_flight={self.max_queries_in_flight}: need >= 1")
+
+    @property
+    def budget_mib(self) -> float:
+        """The tile budget in effect [MiB] (0: none)."""
+        return default_tile_budget_mib() if self.tile_budget_mib is None else float(self.tile_budget_mib)
+
+    @property
+    def bbox_cells(self) -> tuple[int, int, int, int] | None:
+        """`bbox_m` as inclusive cell indices (ix0, iy0, ix1, iy1)."""
+        if self.bbox_m is None:
+            return None
+        x0, y0, x1, y1 = self.bbox_m
+        (ix0, iy0), (ix1, iy1) = cell_index(x0, y0, self.res), cell_index(x1, y1, self.res)
+        return int(ix0), int(iy0), int(ix1), int(iy1)
 
     @property
     def partition(self) -> Partition:
@@ -131,8 +160,22 @@ class MapService:
         self.config = config
         self.map = TiledMap(config.res, config.tile)
         self.newest_t = 0.0  # newest merged sample's scout clock [s] (the recording's sim_time)
+        if config.tile_budget_mib and not config.db:
+            raise MapServerConfigError(
+                "a tile budget needs a database file (--db PATH): the tiles out of memory live there"
+            )
+        budget = int(config.budget_mib * 2**20)
+        limits = config.limits
+        if budget and not config.db:  # nowhere to page to: the budget bounds the map's extent
+            per_tile = tile_bytes(config.tile)
+            limits = replace(limits, max_tiles=max(1, min(limits.max_tiles, budget // per_tile)))
         self.merger = Merger(
-            self.map, config.map_id, limits=config.limits, partition=config.partition, shard=config.shard_id
+            self.map,
+            config.map_id,
+            limits=limits,
+            partition=config.partition,
+            shard=config.shard_id,
+            bbox=config.bbox_cells,
         )
         self.store = (
             MapStore(config.db, config.map_id, config.res, config.tile, auto_checkpoint=False)
@@ -141,12 +184,9 @@ class MapService:
         )
         self.replayed = self.store.load(self.merger) if self.store else 0
         self.pager: TilePager | None = None
-        if config.tile_budget_mib is not None:  # (after load: the map replays whole, then sheds cold tiles)
-            if self.store is None:
-                raise MapServerConfigError(
-                    "a tile budget needs a database file (--db PATH): the tiles out of memory live there"
-                )
-            self.pager = TilePager(self.store, int(config.tile_budget_mib * 2**20))
+        if budget and self.store is not None and self.store.path != ":memory:":
+            # (after load: the map replays whole, then sheds cold tiles)
+            self.pager = TilePager(self.store, budget)
             self._set_map(self.pager.evict(self.map))
         self.lock = threading.Lock()  # guards map + book between the worker and the query thread
         self.alive: dict[str, bool] = {}
@@ -155,7 +195,11 @@ class MapService:
         self.worker_state = "ok"
         self.worker_error: str | None = None
         self._stopping = threading.Event()
-        self._queries: queue.Queue[Any] = queue.Queue(maxsize=256)
+        # admission: at most max_queries_in_flight queries queued or being answered; the rest are answered
+        # `busy` at once in Zenoh's callback (which never blocks: a blocked callback would hold up deltas)
+        self._queries: queue.Queue[Any] = queue.Queue()
+        self._query_slots = threading.BoundedSemaphore(config.max_queries_in_flight)
+        self.busy_replies = 0
         self._session: Any = None
         self._entities: list[Any] = []
         self._threads: list[threading.Thread] = []
@@ -201,9 +245,9 @@ class MapService:
         self._entities += [
             self._sub,
             *([self._changes_pub] if self._changes_pub is not None else []),
-            s.declare_queryable(map_key(c.map_id), self._queries.put),
-            s.declare_queryable(status_key(c.map_id), self._queries.put),
-            s.declare_queryable(partition_key(c.map_id), self._queries.put),
+            s.declare_queryable(map_key(c.map_id), self._admit),
+            s.declare_queryable(status_key(c.map_id), self._admit),
+            s.declare_queryable(partition_key(c.map_id), self._admit),
             s.liveliness().declare_subscriber(alive_pattern(c.map_id), self._on_alive, history=True),
         ]
         self._threads = [
@@ -441,26 +485,48 @@ class MapService:
         if who != "server":
             self.alive[who] = sample.kind == zenoh.SampleKind.PUT
 
+    def _admit(self, query: Any) -> None:
+        """Zenoh's query callback: queue the query for the query worker, or answer `busy` when
+        max_queries_in_flight are already queued or being answered (never blocks)."""
+        if self._query_slots.acquire(blocking=False):
+            self._queries.put(query)
+            return
+        self.busy_replies += 1
+        with query:
+            try:
+                query.reply_err(
+                    f"busy: {self.config.max_queries_in_flight} queries in flight (limit "
+                    "max_queries_in_flight; deltas are served first): retry later".encode()
+                )
+            except zenoh.ZError as exc:
+                log.debug("busy reply: %s", exc)
+
     def _query_loop(self) -> None:
         while True:
             query = self._queries.get()
             if query is None:
                 break
-            with query:
-                try:
-                    key = str(query.key_expr)
-                    if key == status_key(self.config.map_id):
-                        query.reply(key, encode(self.status()))
-                    elif key == partition_key(self.config.map_id):
-                        query.reply(key, msgpack.packb(self.config.partition.to_dict()))
-                    else:
-                        rq = RegionQuery.parse(str(query.parameters))
-                        query.reply(key, encode(self.region(rq)))
-                except ProtocolError as exc:
-                    query.reply_err(f"{exc.reason}: {exc.detail}".encode())
-                except Exception as exc:  # a bad query must never kill the server
-                    log.exception("query failed")
-                    query.reply_err(f"internal: {exc}".encode())
+            try:
+                self._answer(query)
+            finally:
+                self._query_slots.release()
+
+    def _answer(self, query: Any) -> None:
+        with query:
+            try:
+                key = str(query.key_expr)
+                if key == status_key(self.config.map_id):
+                    query.reply(key, encode(self.status()))
+                elif key == partition_key(self.config.map_id):
+                    query.reply(key, msgpack.packb(self.config.partition.to_dict()))
+                else:
+                    rq = RegionQuery.parse(str(query.parameters))
+                    query.reply(key, encode(self.region(rq)))
+            except ProtocolError as exc:
+                query.reply_err(f"{exc.reason}: {exc.detail}".encode())
+            except Exception as exc:  # a bad query must never kill the server
+                log.exception("query failed")
+                query.reply_err(f"internal: {exc}".encode())
 
     def _reply_arrays(self, rq: RegionQuery) -> int:
         """How many (h, w) float64 arrays a reply to `rq` holds (an upper bound)."""

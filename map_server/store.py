@@ -156,6 +156,7 @@ class MapStore:
         book.merged = int(self._meta("merged", "0"))
         book.duplicates = int(self._meta("duplicates", "0"))
         book.rejected = Counter(json.loads(self._meta("rejected", "{}")))
+        book.scout_tiles = Counter(json.loads(self._meta("scout_tiles", "{}")))
         cur = self.db.execute("SELECT id, payload FROM deltas ORDER BY id")
         n = merger.replay(((int(i), p) for i, p in cur), upto)
         self.since_snapshot = n
@@ -192,6 +193,7 @@ class MapStore:
                     ("merged", str(book.merged)),
                     ("duplicates", str(book.duplicates)),
                     ("rejected", json.dumps(dict(book.rejected))),
+                    ("scout_tiles", json.dumps(dict(book.scout_tiles))),
                     ("last_id", str(first + len(accepted) - 1)),
                 ],
             )

@@ -8,6 +8,7 @@ from typing import Any
 import msgpack
 import numpy as np
 
+from protocol.consistency import check_consistent
 from protocol.errors import DEFAULT_MAX_BYTES, ProtocolError
 from protocol.keys import parse_ack_key, parse_delta_key, validate_id
 from protocol.layers import Layer, get_layer
@@ -220,6 +221,7 @@ def check_cells(where: str, layer: Any, ix: np.ndarray, iy: np.ndarray, block: n
     for stat, a in zip(layer.stats, block, strict=True):
         if stat in layer.counts and a.min() < 0:
             raise ProtocolError("negative_count", f"{where}.{stat} has {a.min()} < 0; counts must be >= 0")
+    check_consistent(where, layer, block)
     lo, hi = min(ix.min(), iy.min()), max(ix.max(), iy.max())
     if lo < -INDEX_LIMIT or hi > INDEX_LIMIT:
         raise ProtocolError(

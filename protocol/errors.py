@@ -24,6 +24,8 @@ REASONS: tuple[str, ...] = (
     "length_mismatch",  # arrays of one layer (or of a region) have different lengths
     "nonfinite",  # NaN or inf in a statistic
     "negative_count",  # a count-like statistic below zero
+    "stat_range",  # a statistic beyond ±1e30 (protocol.consistency.MAX_STAT: stored sums stay finite)
+    "inconsistent",  # statistics no set of samples has (variance < 0, min > max, impossible plane moments)
     "index_range",  # a cell index beyond +-2**30
     "duplicate_cell",  # a cell appears twice in one layer of one delta
     "seq_conflict",  # a (scout, epoch, seq) already merged with other content
@@ -34,6 +36,10 @@ REASONS: tuple[str, ...] = (
     "limit_query_cells",  # a query box of more cells than max_query_cells
     "limit_reply_bytes",  # a reply that would exceed max_reply_bytes
     "wrong_shard",  # a delta with a cell another shard of a sharded map owns (protocol.partition)
+    "limit_scout_tiles",  # a delta that would make its scout the creator of more than max_tiles_per_scout tiles
+    "limit_scout_tile_rate",  # a scout creating new tiles faster than its rate (max_new_tiles_per_scout_minute)
+    "outside_bbox",  # a delta with a cell outside the server's mission bounding box (--bbox)
+    "busy",  # the server's query budget is full (queries in flight); retry later — deltas are never delayed
 )
 
 

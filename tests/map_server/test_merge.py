@@ -20,6 +20,7 @@ def merger(
     limits: dict | None = None,
     partition: dict | None = None,
     shard: int | None = None,
+    bbox: tuple[int, int, int, int] | None = None,
 ) -> Merger:
     return Merger(
         TiledMap(RES, tile=8),
@@ -27,6 +28,7 @@ def merger(
         limits=Limits(max_message_bytes=max_bytes, **(limits or {})),
         partition=Partition(**partition) if partition else None,
         shard=shard,
+        bbox=bbox,
     )
 
 
@@ -105,6 +107,7 @@ def test_each_rejection_reason_leaves_the_map_unchanged(reason):
         limits=kw.get("limits"),
         partition=kw.get("partition"),
         shard=kw.get("shard"),
+        bbox=kw.get("bbox"),
     )
     if reason != "oversize":  # a small valid delta first, so "unchanged" is a non-empty map
         m.ingest([sample(make_delta(seq=5, scout="s9", cells=((1, 1),)))])
