@@ -106,8 +106,8 @@ def query_region(
             f"and reachable?"
         )
     try:
-        return stitch(regions, config.x0, config.y0)
-    except MapCoreError as exc:  # replies that cannot be one map (other map ids or cell sizes)
+        return stitch(regions, config.x0, config.y0, box_m=box)
+    except MapCoreError as exc:  # replies that cannot be one map (ids, cell sizes, outside the box asked)
         raise PlannerError(str(exc)) from None
 
 

@@ -16,6 +16,7 @@ from common.cli_parser import Parser
 from common.defaults import DEFAULT_RES_M
 from common.session import endpoint_arg
 from map_server.limits import Limits
+from mapcore.dense import MAX_CLIENT_CELLS
 from protocol.keys import id_arg
 
 __all__ = ["main", "register"]
@@ -261,17 +262,26 @@ def cmd_query(args: argparse.Namespace) -> int:
         args.parser.error(f"--box {args.box!r}: give x0,y0,x1,y1 in map-frame metres")
     layers = tuple(args.layers.split(",")) if args.layers else None
     rq = RegionQuery(x0, y0, x1, y1, layers, tuple(args.stats.split(",")))
-    regions = []
-    for payload in _get_all(args, f"{map_key(args.map)}?{rq.to_parameters()}"):
-        r = decode(payload, expected_type="map_region")
-        assert isinstance(r, MapRegion)
-        regions.append(r)
-    region = regions[0]
-    if len(regions) > 1:  # a sharded map: each shard answers for the tiles it owns
-        from mapcore import stitch
+    from mapcore import MapCoreError, check_replies, stitch
+    from protocol.errors import ProtocolError
 
-        g = stitch(regions)
-        region = MapRegion(g.map, g.res, g.ix0, g.iy0, g.w, g.h, sum(r.version for r in regions), g.layers)
+    regions = []
+    try:
+        for payload in _get_all(args, f"{map_key(args.map)}?{rq.to_parameters()}"):
+            r = decode(payload, expected_type="map_region", max_bytes=args.max_reply_mib << 20)
+            assert isinstance(r, MapRegion)
+            regions.append(r)
+        # each reply's box and the union's size checked before anything is allocated for them
+        check_replies(regions, (x0, y0, x1, y1), args.max_cells)
+        region = regions[0]
+        if len(regions) > 1:  # a sharded map: each shard answers for the tiles it owns
+            g = stitch(regions, box_m=(x0, y0, x1, y1), max_cells=args.max_cells)
+            region = MapRegion(
+                g.map, g.res, g.ix0, g.iy0, g.w, g.h, sum(r.version for r in regions), g.layers
+            )
+    except (ProtocolError, MapCoreError) as exc:
+        print(f"error: map {args.map!r}: bad reply: {exc}", file=sys.stderr)
+        return 1
     summary: dict[str, Any] = {
         "map": region.map,
         "res": region.res,
@@ -399,6 +409,20 @@ def register(subparsers: Any) -> None:
         add_security_arguments(p)
         if name == "query":
             p.add_argument("--box", required=True, help="x0,y0,x1,y1 [m], inclusive")
+            p.add_argument(
+                "--max-cells",
+                type=_positive_int,
+                default=MAX_CLIENT_CELLS,
+                metavar="N",
+                help=f"refuse replies spanning more cells than this (default {MAX_CLIENT_CELLS})",
+            )
+            p.add_argument(
+                "--max-reply-mib",
+                type=_positive_int,
+                default=64,
+                metavar="MIB",
+                help="refuse a reply larger than this (default 64, the server's max_reply_bytes)",
+            )
             p.add_argument("--layers", default=None, help="comma-separated layers (default: all)")
             p.add_argument("--stats", default="value,n", help="stats, derived names, or 'all'")
             p.add_argument(

@@ -13,7 +13,7 @@ It imports `protocol` (the layer table) and numpy, nothing else of psrmap and no
 
 from __future__ import annotations
 
-from mapcore.dense import LayerGrid, stitch
+from mapcore.dense import MAX_CLIENT_CELLS, LayerGrid, check_replies, stitch
 from mapcore.errors import MapCoreError, MapFileError, MapRequestError
 from mapcore.npz import read_npz, write_npz
 from mapcore.tiled import TiledMap
@@ -26,5 +26,7 @@ __all__ = [
     "TiledMap",
     "read_npz",
     "stitch",
+    "check_replies",
+    "MAX_CLIENT_CELLS",
     "write_npz",
 ]

@@ -14,10 +14,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from mapcore.errors import MapCoreError
-from protocol.layers import LAYERS, elevation_slope_deg, empty_value, layer_value
+from protocol.layers import LAYERS, cell_index, elevation_slope_deg, empty_value, layer_value
 from protocol.messages import MapRegion
 
-__all__ = ["LayerGrid", "Layers", "stitch"]
+__all__ = ["MAX_CLIENT_CELLS", "LayerGrid", "Layers", "check_replies", "stitch"]
+
+MAX_CLIENT_CELLS = (
+    1 << 24
+)  # cells a client allocates for one stitched reply at most (16 Mi: 128 MiB an array)
 
 Layers = dict[str, dict[str, np.ndarray]]
 
@@ -120,8 +124,45 @@ class LayerGrid:
         return np.full(self.shape, np.nan)
 
 
-def stitch(regions: Iterable[MapRegion], x0: float = 0.0, y0: float = 0.0) -> LayerGrid:
-    """One LayerGrid over the union box of several `map_region` replies (e.g. one per server shard).
+def check_replies(
+    regions: Iterable[MapRegion],
+    box_m: tuple[float, float, float, float] | None = None,
+    max_cells: int = MAX_CLIENT_CELLS,
+) -> None:
+    """Before anything is allocated for them: every reply lies within the box the client asked for (`box_m`,
+    map frame [m], inclusive; None: not checked), and their union box holds at most `max_cells` cells.
+    MapCoreError naming the reply's box and the limit otherwise (a bad or hostile reply is refused, never
+    allocated)."""
+    regions = list(regions)
+    if not regions:
+        return
+    for r in regions:
+        if box_m is not None and r.w and r.h:
+            ax0, ay0 = (int(v) for v in cell_index(box_m[0], box_m[1], r.res))
+            ax1, ay1 = (int(v) for v in cell_index(box_m[2], box_m[3], r.res))
+            if r.ix0 < ax0 or r.iy0 < ay0 or r.ix0 + r.w - 1 > ax1 or r.iy0 + r.h - 1 > ay1:
+                raise MapCoreError(
+                    f"a reply of map {r.map!r} covers cells x {r.ix0}..{r.ix0 + r.w - 1}, y {r.iy0}..{r.iy0 + r.h - 1}"
+                    f"; the query asked for x {ax0}..{ax1}, y {ay0}..{ay1}: refused (not allocated)"
+                )
+    w = max(r.ix0 + r.w for r in regions) - min(r.ix0 for r in regions)
+    h = max(r.iy0 + r.h for r in regions) - min(r.iy0 for r in regions)
+    if w * h > max_cells:
+        raise MapCoreError(
+            f"replies span {w} × {h} = {w * h} cells; a client allocates at most {max_cells} (MAX_CLIENT_CELLS): "
+            "refused (ask for a smaller box)"
+        )
+
+
+def stitch(
+    regions: Iterable[MapRegion],
+    x0: float = 0.0,
+    y0: float = 0.0,
+    box_m: tuple[float, float, float, float] | None = None,
+    max_cells: int = MAX_CLIENT_CELLS,
+) -> LayerGrid:
+    """One LayerGrid over the union box of several `map_region` replies (e.g. one per server shard), after
+    `check_replies(regions, box_m, max_cells)`.
 
     Shards own disjoint tiles, so per cell and layer the reply with data (largest `n`) wins; cells no
     reply covers hold the merge identity of each stat (0 for sums, +inf for min, -inf for max) and
@@ -129,6 +170,7 @@ def stitch(regions: Iterable[MapRegion], x0: float = 0.0, y0: float = 0.0) -> La
     regions = [r for r in regions]
     if not regions:
         raise MapCoreError("no map_region to stitch")
+    check_replies(regions, box_m, max_cells)
     first = regions[0]
     for r in regions[1:]:
         if r.map != first.map or r.res != first.res:

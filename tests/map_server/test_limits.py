@@ -250,3 +250,52 @@ def test_a_full_query_budget_answers_busy_and_deltas_are_still_merged(router, tm
                     errs.append(r.err.payload.to_bytes().decode())
         assert oks == 2 and len(errs) == 4 and all(e.startswith("busy: 2 queries in flight") for e in errs)
         assert service.busy_replies == 4
+
+
+# ------------------------------------------------------------------ clients bound what they allocate
+
+
+def _fake_region(ix0: int, iy0: int, w: int = 1, h: int = 1) -> bytes:
+    from protocol.messages import MapRegion
+
+    return encode(
+        MapRegion(MAP, RES, ix0, iy0, w, h, 1, {"slip": {"n": np.ones((h, w)), "value": np.zeros((h, w))}})
+    )
+
+
+@pytest.mark.parametrize("far", [(-(2**30), 0), (0, 2**30 - 1)])
+def test_psrmap_query_refuses_a_reply_far_outside_its_box_without_allocating_it(router, capsys, far):
+    """Issue 25: one fake reply holding a cell at ix = -2**30 made `psrmap query` allocate 64 GiB and die with a
+    traceback. Two impostor replies (one honest-looking, one far away): an error message, exit 1."""
+    import psutil
+    import zenoh
+
+    from common.session import zenoh_config
+    from map_server.cli import main
+
+    with zenoh.open(zenoh_config(connect=[router], mode="client")) as fake:
+        replies = [_fake_region(0, 0), _fake_region(*far)]
+
+        def answer(q):
+            for r in replies:
+                q.reply(str(q.key_expr), r)
+
+        qa = fake.declare_queryable(map_key(MAP), answer)
+        rss = psutil.Process().memory_info().rss
+        code = main(["query", "--map", MAP, "--connect", router, "--box", "0,0,2,2", "--timeout", "3"])
+        qa.undeclare()
+    err = capsys.readouterr().err
+    assert code == 1 and "bad reply" in err and "refused (not allocated)" in err, err
+    assert str(far[0] if far[0] else far[1]) in err
+    assert psutil.Process().memory_info().rss - rss < 256 << 20
+
+
+def test_stitch_refuses_a_union_box_over_the_client_limit():
+    from mapcore import MapCoreError, stitch
+    from protocol.messages import MapRegion
+
+    a, b = (decode(_fake_region(x, 0)) for x in (0, 5000))
+    assert isinstance(a, MapRegion) and isinstance(b, MapRegion)
+    with pytest.raises(MapCoreError, match="at most 4000"):
+        stitch([a, b], max_cells=4000)
+    assert stitch([a, b], max_cells=6000).w == 5001
