@@ -19,6 +19,7 @@ __all__ = [
     "SessionError",
     "check_endpoint",
     "endpoint_arg",
+    "file_endpoints",
     "open_session",
     "zenoh_config",
 ]
@@ -73,6 +74,20 @@ def _loopback(endpoint: str) -> bool:
         return ipaddress.ip_address(addr).is_loopback
     except ValueError:
         return False
+
+
+def file_endpoints(config_file: str | Path | None, kind: str = "connect") -> tuple[str, ...]:
+    """The `connect` or `listen` endpoints a Zenoh config file names (`psrmap secure init` writes the router's
+    endpoint into every agent's file), () without a file; ValueError for an unreadable file."""
+    if config_file is None:
+        return ()
+    import zenoh
+
+    try:
+        eps = json.loads(zenoh.Config.from_file(str(config_file)).get_json(f"{kind}/endpoints") or "[]")
+    except (zenoh.ZError, OSError, ValueError) as exc:
+        raise ValueError(f"cannot read the Zenoh config {config_file}: {exc}") from None
+    return tuple(e for e in eps if isinstance(e, str)) if isinstance(eps, list) else ()
 
 
 def zenoh_config(

@@ -17,7 +17,7 @@ import json
 import math
 from dataclasses import asdict, replace
 
-from common.session import endpoint_arg
+from common.session import endpoint_arg, file_endpoints
 from consumer_planner import component
 from consumer_planner.compare import Route
 from consumer_planner.component import CompareConfig, MapSource, PlanConfig, PlanSummary
@@ -207,6 +207,11 @@ def _config(args: argparse.Namespace) -> CostConfig:
 
 
 def _source(args: argparse.Namespace) -> MapSource:
+    if args.npz is None and not args.connect and args.zenoh_config:  # the router its credentials are for
+        try:
+            args.connect = list(file_endpoints(args.zenoh_config, "connect"))
+        except ValueError as exc:
+            args._parser.error(str(exc))
     if (args.npz is None) == (not args.connect):
         args._parser.error("give either --connect ENDPOINT (with --map ID) or --npz FILE")
     if args.connect and not args.map:

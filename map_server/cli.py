@@ -59,6 +59,25 @@ def _endpoints(values: Sequence[str] | None) -> tuple[str, ...]:
     return tuple(out)
 
 
+def _file_endpoints(args: argparse.Namespace, kind: str) -> tuple[str, ...]:
+    """The endpoints of kind `connect`/`listen` named in `--zenoh-config`, or a usage error if unreadable."""
+    from common.session import file_endpoints
+
+    try:
+        return file_endpoints(getattr(args, "zenoh_config", None), kind)
+    except ValueError as exc:
+        args.parser.error(str(exc))
+        raise  # unreachable: error() exits
+
+
+def _client_endpoints(args: argparse.Namespace) -> tuple[str, ...]:
+    """`--connect`, else the router the `--zenoh-config` file names, else a usage error."""
+    eps = _endpoints(args.connect) or _file_endpoints(args, "connect")
+    if not eps:
+        args.parser.error("give --connect tcp/HOST:PORT (a router), or a --zenoh-config file that names one")
+    return eps
+
+
 def _logging(args: argparse.Namespace) -> None:
     logging.basicConfig(
         level=logging.DEBUG if getattr(args, "verbose", False) else logging.INFO,
@@ -90,7 +109,8 @@ def cmd_router(args: argparse.Namespace) -> int:
 
     stop = stop_on_signals()
     with _open(_conf(args, _endpoints(args.connect), listen, "router"), args):
-        print(json.dumps({"router": "up", "listen": list(listen)}), flush=True)
+        shown = listen or _file_endpoints(args, "listen")  # what it listens on, from the flags or the file
+        print(json.dumps({"router": "up", "listen": list(shown)}), flush=True)
         stop.wait()
     return 0
 
@@ -149,7 +169,12 @@ def cmd_server(args: argparse.Namespace) -> int:
 
     _logging(args)
     if not args.connect and not args.listen:
-        args.parser.error("give --connect tcp/HOST:PORT (a router) and/or --listen tcp/HOST:PORT")
+        args.connect = list(_file_endpoints(args, "connect"))
+    if not args.connect and not args.listen:
+        args.parser.error(
+            "give --connect tcp/HOST:PORT (a router) and/or --listen tcp/HOST:PORT, or a --zenoh-config file "
+            "that names the router (psrmap secure init writes one)"
+        )
     if not args.res > 0:
         args.parser.error(f"--res {args.res}: need a cell size > 0 [m]")
     if args.shards > 1 and (args.shard is None or not 0 <= args.shard < args.shards):
@@ -181,7 +206,7 @@ def _get_all(args: argparse.Namespace, selector: str) -> list[bytes]:
     """Every server's (every shard's) good reply (`common.query`, fanned out), or exit 1 saying why none."""
     from common.query import get_replies
 
-    with _open(_conf(args, _endpoints(args.connect)), args) as s:
+    with _open(_conf(args, _client_endpoints(args)), args) as s:
         replies = get_replies(s, selector, args.timeout, fan_out=True)
     if replies.ok:
         return replies.ok
@@ -194,7 +219,7 @@ def cmd_status(args: argparse.Namespace) -> int:
     """The map's status; for a sharded map the aggregate over its shards, each shard's own under `shards`."""
     from common.query import aggregate_status, get_statuses
 
-    with _open(_conf(args, _endpoints(args.connect)), args) as s:
+    with _open(_conf(args, _client_endpoints(args)), args) as s:
         parts = get_statuses(s, args.map, args.timeout)
     if not parts:
         print(f"error: no server of map {args.map!r} answered within {args.timeout:g} s", file=sys.stderr)
@@ -404,7 +429,12 @@ def register(subparsers: Any) -> None:
     ):
         p = subparsers.add_parser(name, help=helptext)
         p.add_argument("--map", required=True, type=id_arg("map"), help="map id ([A-Za-z0-9_-]+)")
-        p.add_argument("--connect", type=endpoint_arg, action="append", required=True, help="router endpoint")
+        p.add_argument(
+            "--connect",
+            type=endpoint_arg,
+            action="append",
+            help="router endpoint (default: the one the --zenoh-config file names)",
+        )
         p.add_argument("--timeout", type=float, default=5.0, help="reply timeout [s]")
         add_security_arguments(p)
         if name == "query":

@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from common.defaults import DEFAULT_DELTA_HZ, DEFAULT_RES_M
-from common.session import endpoint_arg
+from common.session import endpoint_arg, file_endpoints
 from protocol.keys import id_arg
 from scout_agent.cells import CellAccumulator, LocalMap
 from scout_agent.errors import ScoutConfigError
@@ -267,6 +267,13 @@ def open_mapping(
 def link_from_args(args: argparse.Namespace) -> LinkConfig | None:
     """The `--map/--connect/--outbox/--resume/--zenoh-config` options as a LinkConfig (None: no --connect);
     raises ScoutConfigError when they do not go together."""
+    if (
+        args.map and not args.connect and getattr(args, "zenoh_config", None)
+    ):  # the router it holds credentials for
+        try:
+            args.connect = list(file_endpoints(args.zenoh_config, "connect"))
+        except ValueError as exc:
+            raise ScoutConfigError(str(exc)) from None
     if args.connect and not args.map:
         raise ScoutConfigError("--connect needs --map ID (the map to publish to)")
     if args.map and not args.connect:

@@ -1,16 +1,16 @@
 """The seed paper's experiments, reproduced and extended: `psrmap experiment {ramps,slopes,lunar,utility,all}`.
 
-    psrmap experiment ramps   [--seeds 0] [--runs 4] [--angles 5,10,15,20] --out DIR
-    psrmap experiment slopes  [--seeds 0] [--runs 4] --out DIR
-    psrmap experiment lunar   [--seeds 0,1,2,3,4] [--runs 1] [--slippery-patches 4] --out DIR
+    psrmap experiment ramps   [--seeds 0] [--runs 4] [--angles 5,10,15,20] [--out DIR]
+    psrmap experiment slopes  [--seeds 0] [--runs 4] [--out DIR]
+    psrmap experiment lunar   [--seeds 0,1,2,3,4] [--runs 1] [--slippery-patches 4] [--out DIR]
     psrmap experiment utility [--seeds 0,1,2,3,4] [--runs 1] [--scouts west,east] [--unknown infer]
-                              [--slip-spread 0.8] --out DIR
-    psrmap experiment all     --out DIR          # each experiment in DIR/<name>/, runs shared
+                              [--slip-spread 0.8] [--out DIR]
+    psrmap experiment all     [--out DIR]        # each experiment in DIR/<name>/, runs shared
 
-Each writes `results.json` (every figure quoted in docs/results.md) and PNG figures into its folder, with
-a tqdm bar over the runs. Independent runs go to `--workers` spawn processes (default 2); every run is
-cached in `<out>/runs/`, so a second experiment needing the same walk reads it instead (`--fresh` ignores
-the cache).
+Without `--out`, the folder is `runs/<timestamp>-<experiment>/`. Each writes `results.json` (every figure
+quoted in docs/results.md) and PNG figures into its folder, with a tqdm bar over the runs. Independent runs
+go to `--workers` spawn processes (default 2); every run is cached in `<out>/runs/`, so a second experiment
+needing the same walk reads it instead (`--fresh` ignores the cache).
 """
 
 from __future__ import annotations
@@ -56,7 +56,9 @@ def _positive_int(text: str) -> int:
 
 def _add_common(p: argparse.ArgumentParser) -> None:
     p.add_argument(
-        "--out", required=True, metavar="DIR", help="output folder (results.json, PNGs, run cache)"
+        "--out",
+        metavar="DIR",
+        help="output folder (results.json, PNGs, run cache); default runs/<timestamp>-<experiment>/",
     )
     p.add_argument(
         "--seeds",
@@ -149,7 +151,7 @@ def _command(args: argparse.Namespace) -> str:
 def _cmd(args: argparse.Namespace) -> int:
     if args.sim_seconds is not None and not args.sim_seconds > 0:
         args._parser.error(f"--sim-seconds {args.sim_seconds}: need > 0")
-    out = Path(args.out)
+    out = Path(args.out or f"runs/{time.strftime('%Y%m%d-%H%M%S')}-{args.experiment}")
     cache = Path(args.cache) if args.cache else out / "runs"
     pool = RunPool(cache, workers=args.workers, progress=not args.quiet, fresh=args.fresh)
     try:
