@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from dataclasses import replace
 
 from common.defaults import DEFAULT_SEED
@@ -224,6 +225,15 @@ def _dem(args: argparse.Namespace, parser: argparse.ArgumentParser) -> DemWindow
     return DemWindow(args.dem, (b.left + b.right) / 2 - 10.0, (b.bottom + b.top) / 2 - 10.0)
 
 
+def _compile_notice(args: argparse.Namespace) -> None:
+    """One line before a first run's silent numba compile of the state estimator's kernels."""
+    from common.jit import COMPILE_NOTICE, uncached
+    from scout_agent.state_estimation import kernels
+
+    if not args.quiet and args.state != "exact" and uncached([kernels.propagate, kernels.update]):
+        print(f"psrmap scout: {COMPILE_NOTICE}", file=sys.stderr, flush=True)
+
+
 def scout_config(args: argparse.Namespace, parser: argparse.ArgumentParser) -> ScoutConfig:
     """The parsed options as a ScoutConfig, or a usage error naming what would be valid."""
     run_cfg = config_from_args(args, parser)
@@ -247,6 +257,7 @@ def scout_config(args: argparse.Namespace, parser: argparse.ArgumentParser) -> S
 
 
 def cmd_scout(args: argparse.Namespace) -> int:
+    _compile_notice(args)
     try:
         result = component.run(scout_config(args, args._parser))
     except ViewerUnavailable as exc:  # one line: nothing is wrong with the command, only the place

@@ -22,6 +22,7 @@ import numpy as np
 
 from psrmap.agreement import elevation_agreement
 from psrmap.errors import MissionRunError
+from psrmap.mission.compile import compile_ahead
 from psrmap.mission.components import plan_and_compare, scout_config
 from psrmap.mission.config import DRIFT_KEYS, MissionConfig, _credential_files, server_names, validate
 from psrmap.mission.processes import Proc, free_port, spawn
@@ -127,6 +128,7 @@ def run_mission(cfg: MissionConfig, run_dir: Path | None = None, progress: bool 
             )
             say(f"[mission] map server up (map {cfg.map!r}, res {cfg.res} m, {where})")
             _log_context(cfg, run_dir, recording_id)
+            compile_ahead(say)  # a first run after install: one line, not a silent 0 %
             for s in cfg.scouts:
                 sc = scout_config(cfg, s, endpoint, run_dir, creds.get(s.id))
                 procs.append(spawn(ctx, s.id, run_scout_component, sc, run_dir, env))
