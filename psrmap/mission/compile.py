@@ -18,7 +18,7 @@ __all__ = ["compile_ahead"]
 def compile_ahead(say: Callable[[str], None]) -> float:
     """Compile what is not cached yet (saying so first); returns the seconds it took (0.0 when cached)."""
     from common.jit import COMPILE_NOTICE, uncached
-    from consumer_planner import kernels as plan_kernels
+    from common.pathsearch import kernels as plan_kernels
     from scout_agent.state_estimation import kernels as ekf_kernels
 
     todo = uncached(
@@ -50,7 +50,7 @@ def _run_ekf() -> None:
 
 
 def _run_search() -> None:
-    from consumer_planner.search import plan_path
+    from common.pathsearch import plan_path
 
     plan_path(np.ones((6, 6)), (0, 0), (5, 5), 0.4)  # Dial's buckets
     cost = np.ones((6, 6))
