@@ -29,7 +29,7 @@ from scout_agent.sensors.foot_pressure import CONTACT_SOURCES
 from scout_agent.sim.dem import DemWindow
 from scout_agent.sim.friction import Patch
 from scout_agent.sim.simulator import STATE_SOURCES, SimConfig
-from scout_agent.sim.terrain import LUNAR_ROUTES, RampConfig
+from scout_agent.sim.terrain import LUNAR_ROUTES, PAPER_FIELD_M, RampConfig
 
 
 def _floats(n_min: int, n_max: int, what: str):
@@ -74,6 +74,14 @@ def add_scout_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--route", choices=tuple(LUNAR_ROUTES), help="lunar: a named corner-to-corner route")
     p.add_argument(
+        "--field",
+        type=float,
+        default=PAPER_FIELD_M,
+        metavar="L",
+        help="lunar: side of the square field [m], 5–400 (default 20, the paper's); the named routes and "
+        "the default start/goal scale with it (100 m: 137 m corner to corner)",
+    )
+    p.add_argument(
         "--dem",
         metavar="FILE.tif",
         help="lunar: take the broad relief from this GeoTIFF DEM (projected, metres; e.g. a LOLA "
@@ -83,8 +91,8 @@ def add_scout_arguments(p: argparse.ArgumentParser) -> None:
         "--dem-window",
         type=_floats(2, 2, "x,y of the scene's corner in the DEM's CRS"),
         metavar="X,Y",
-        help="with --dem: the DEM-CRS coordinates [m] of the scene's (0, 0) corner; the 20 m scene "
-        "extends east and north from it (default: the DEM's centre minus 10 m)",
+        help="with --dem: the DEM-CRS coordinates [m] of the scene's (0, 0) corner; the --field L scene "
+        "extends east and north from it (default: the DEM's centre minus L/2)",
     )
     p.add_argument("--start", type=_floats(2, 3, "x,y[,yaw] start"), help="start x,y[,yaw] [m, rad]")
     p.add_argument("--goal", type=_floats(2, 2, "x,y goal"), help="goal x,y [m]")
@@ -169,6 +177,10 @@ def config_from_args(args: argparse.Namespace, parser: argparse.ArgumentParser) 
         parser.error("--holdable-patches applies to --slippery-patches N (lunar)")
     if args.slippery_patches < 0:
         parser.error("--slippery-patches must be ≥ 0")
+    if args.field != PAPER_FIELD_M and args.scene != "lunar":
+        parser.error("--field applies to --scene lunar")
+    if not 5.0 <= args.field <= 400.0:
+        parser.error(f"--field {args.field:g}: valid lunar field sides are 5–400 m")
     if args.route and args.scene != "lunar":
         parser.error(f"--route applies to --scene lunar (routes: {', '.join(LUNAR_ROUTES)})")
     ramp = RampConfig()
@@ -185,6 +197,7 @@ def config_from_args(args: argparse.Namespace, parser: argparse.ArgumentParser) 
         ramp=ramp,
         seed=args.seed,
         route=args.route,
+        field_m=args.field,
         start=args.start,
         goal=tuple(args.goal) if args.goal else None,
         via=tuple(tuple(v) for v in args.via),
@@ -214,7 +227,8 @@ def _dem(args: argparse.Namespace, parser: argparse.ArgumentParser) -> DemWindow
     if args.scene != "lunar":
         parser.error("--dem builds the lunar scene: add --scene lunar")
     if args.dem_window is not None:
-        return DemWindow(args.dem, *args.dem_window)
+        x, y = args.dem_window
+        return DemWindow(args.dem, x, y, size_m=args.field)
     try:
         import rasterio
 
@@ -222,7 +236,8 @@ def _dem(args: argparse.Namespace, parser: argparse.ArgumentParser) -> DemWindow
             b = ds.bounds
     except Exception as exc:  # rasterio raises its own error types for unreadable files
         parser.error(f"--dem {args.dem}: cannot read it as a GeoTIFF ({exc})")
-    return DemWindow(args.dem, (b.left + b.right) / 2 - 10.0, (b.bottom + b.top) / 2 - 10.0)
+    h = args.field / 2
+    return DemWindow(args.dem, (b.left + b.right) / 2 - h, (b.bottom + b.top) / 2 - h, size_m=args.field)
 
 
 def _compile_notice(args: argparse.Namespace) -> None:

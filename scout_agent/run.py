@@ -29,7 +29,7 @@ from scout_agent.sim.friction import (
 )
 from scout_agent.sim.simulator import ScoutSim, SimConfig
 from scout_agent.sim.terrain import (
-    LUNAR_ROUTES,
+    PAPER_FIELD_M,
     LunarConfig,
     RampConfig,
     Terrain,
@@ -48,7 +48,8 @@ class ScoutRunConfig:
     slope_deg: float = 15.0  # ramps: α [deg]
     ramp: RampConfig = field(default_factory=RampConfig)  # ramps: lengths (slope_deg overrides its α)
     seed: int = DEFAULT_SEED  # lunar terrain (and noise) seed
-    route: str | None = None  # lunar: a named route of LUNAR_ROUTES (start, via, goal)
+    route: str | None = None  # lunar: a named route of lunar_routes(field_m) (start, via, goal)
+    field_m: float = PAPER_FIELD_M  # lunar: the field's side [m]; the named routes scale with it
     start: tuple[float, ...] | None = None  # x, y [m][, yaw [rad]]; default: the scene's spawn; yaw
     # defaults to the heading of the first path segment
     goal: tuple[float, float] | None = None
@@ -80,7 +81,9 @@ def build_world(cfg: ScoutRunConfig) -> World:
     if cfg.scene == "ramps":
         terrain = make_ramps(replace(cfg.ramp, slope_deg=cfg.slope_deg))
     elif cfg.scene == "lunar":
-        lunar = LunarConfig(seed=cfg.seed)
+        if not 5.0 <= cfg.field_m <= 400.0:
+            raise ScoutConfigError(f"--field {cfg.field_m:g}: valid lunar field sides are 5–400 m")
+        lunar = LunarConfig(seed=cfg.seed, size_m=cfg.field_m)
         if cfg.dem is not None:
             base, info = read_dem_window(cfg.dem, lunar.res) if cfg.dem.size_m == lunar.size_m else (None, {})
             if base is None:
@@ -108,10 +111,11 @@ def build_world(cfg: ScoutRunConfig) -> World:
     friction = FrictionMap(cfg.friction_default, tuple(patches))
     start_xy: tuple[float, ...]
     if cfg.route is not None:
-        if cfg.scene != "lunar" or cfg.route not in LUNAR_ROUTES:
-            raise ScoutConfigError(f"unknown route {cfg.route!r}; valid (lunar): {', '.join(LUNAR_ROUTES)}")
-        pts = LUNAR_ROUTES[cfg.route]
-        start_xy, via, goal = pts[0], pts[1:-1], pts[-1]
+        routes = terrain.info.get("routes", {})
+        if cfg.scene != "lunar" or cfg.route not in routes:
+            raise ScoutConfigError(f"unknown route {cfg.route!r}; valid (lunar): direct, west, east")
+        pts = routes[cfg.route]
+        start_xy, via, goal = tuple(pts[0]), tuple(tuple(p) for p in pts[1:-1]), tuple(pts[-1])
     else:
         start_xy, via, goal = terrain.spawn[:2], cfg.via, terrain.goal
     if cfg.start is not None:

@@ -130,7 +130,8 @@ def lunar_slippery_patches(
     grid = np.linspace(-h, h, 17)
     gx_, gy_ = np.meshgrid(grid, grid)
     pools = []
-    for route in LUNAR_ROUTES.values():
+    routes = terrain.info.get("routes") or LUNAR_ROUTES  # the field's own (scaled with --field)
+    for route in routes.values():
         cands: list[tuple[float, float]] = []
         fallback: list[tuple[float, float]] = []
         pts = np.asarray(route, dtype=float)

@@ -45,7 +45,7 @@ def build_scene(terrain: Terrain, physics: PhysicsConfig = PhysicsConfig()) -> m
         size=[(xb - xa) / 2, (yb - ya) / 2, zrange, 0.2],
         nrow=ny,
         ncol=nx,
-        userdata=((z - zmin) / zrange).astype(np.float32).ravel().tolist(),
+        userdata=((z - zmin) / zrange).astype(np.float32).ravel(),  # an array: a list of 16 M floats is ~1 GB
     )
     spec.worldbody.add_geom(
         name=TERRAIN_GEOM,

@@ -28,6 +28,23 @@ LUNAR_ROUTES: dict[str, tuple[tuple[float, float], ...]] = {
     "west": ((1.5, 1.5), (5.0, 13.0), (18.5, 18.5)),
     "east": ((1.5, 1.5), (13.0, 5.0), (18.5, 18.5)),
 }
+PAPER_FIELD_M = 20.0  # the paper's lunar field; `--field L` scales it
+ROUTE_MARGIN_M = 1.5  # route ends this far from the field's edges, at any size
+
+
+def lunar_routes(size_m: float = PAPER_FIELD_M) -> dict[str, tuple[tuple[float, float], ...]]:
+    """The paper's routes stretched onto a `size_m` field: the ends stay `ROUTE_MARGIN_M` from the corners,
+    the via points keep their place relative to the field (100 m: direct is 137 m corner to corner)."""
+    if size_m < 2 * ROUTE_MARGIN_M + 2.0:
+        raise ScoutConfigError(f"lunar field {size_m:g} m: too small; valid: ≥ {2 * ROUTE_MARGIN_M + 2:g} m")
+    k = (size_m - 2 * ROUTE_MARGIN_M) / (PAPER_FIELD_M - 2 * ROUTE_MARGIN_M)
+    return {
+        name: tuple(
+            (ROUTE_MARGIN_M + (x - ROUTE_MARGIN_M) * k, ROUTE_MARGIN_M + (y - ROUTE_MARGIN_M) * k)
+            for x, y in pts
+        )
+        for name, pts in LUNAR_ROUTES.items()
+    }
 
 
 @dataclass(frozen=True)
@@ -216,10 +233,10 @@ class LunarConfig:
     """Seeded lunar field (OmniLRS-like). Lengths in metres, slopes in degrees."""
 
     seed: int = 0
-    size_m: float = 20.0
+    size_m: float = PAPER_FIELD_M  # the field's side [m] (`--field`); routes scale with it
     res: float = 0.05
     relief_m: float = 3.0  # peak-to-peak of the coarse relief (±1.5 m), before the slope cap
-    relief_cells: int = 3  # coarse noise grid (bicubic-upsampled)
+    relief_spacing_m: float = 10.0  # coarse noise grid spacing (bicubic-upsampled): 3 × 3 on 20 m
     relief_max_slope_deg: float = 12.0  # the broad relief is scaled down until its steepest slope is this
     fine_noise_m: float = 0.004  # smoothed fine noise std
     # crater classes: (min radius, max radius, density per m²), OmniLRS-like
@@ -237,7 +254,7 @@ class LunarConfig:
     rock_cluster_sigma_m: float = 0.6
     rock_height_m: tuple[float, float] = (0.02, 0.08)  # rocks near routes
     hazard_rock_height_m: tuple[float, float] = (0.15, 0.3)  # some rocks off routes
-    routes: tuple[tuple[tuple[float, float], ...], ...] = tuple(LUNAR_ROUTES.values())
+    routes: tuple[tuple[tuple[float, float], ...], ...] | None = None  # default: `lunar_routes(size_m)`
     corridor_m: float = 1.2  # half-width of the surveyed corridors along routes
     spawn_radius_m: float = 0.9  # flattened patch around route ends
     corridor_max_slope_deg: float = 26.0  # slopes within corridors are smoothed down to this cap
@@ -248,34 +265,39 @@ class LunarConfig:
 
 
 def make_lunar(cfg: LunarConfig = LunarConfig()) -> Terrain:
+    """The seeded field. Densities are per m², so a larger field holds proportionally more craters and rocks
+    and the same relief per coarse cell (`relief_spacing_m`): its statistics do not change with size."""
     rng = np.random.default_rng(cfg.seed)
+    named = lunar_routes(cfg.size_m)
+    routes = cfg.routes if cfg.routes is not None else tuple(named.values())
     n = int(round(cfg.size_m / cfg.res)) + 1
     xs = np.arange(n) * cfg.res
     X, Y = np.meshgrid(xs, xs)
     # broad relief: uniform noise on a coarse grid, bicubic upsampling, then slope cap (or a DEM's)
-    coarse = rng.uniform(-0.5, 0.5, (cfg.relief_cells, cfg.relief_cells))  # drawn either way: same detail
+    cells = max(3, int(round(cfg.size_m / cfg.relief_spacing_m)) + 1)
+    coarse = rng.uniform(-0.5, 0.5, (cells, cells))  # drawn either way: same detail
     if cfg.base is not None:
         if cfg.base.shape != (n, n):
             raise ScoutConfigError(f"base relief {cfg.base.shape}: need ({n}, {n}) at res {cfg.res} m")
         z = np.array(cfg.base, dtype=np.float64)
     else:
-        z = zoom(coarse, (n - 1) / (cfg.relief_cells - 1) + 1e-9, order=3, mode="nearest")[:n, :n]
+        z = zoom(coarse, (n - 1) / (cells - 1) + 1e-9, order=3, mode="nearest")[:n, :n]
         z = (z - z.min()) / max(np.ptp(z), 1e-9) * cfg.relief_m - cfg.relief_m / 2
         g = np.hypot(*np.gradient(z, cfg.res))
         z *= min(1.0, np.tan(np.radians(cfg.relief_max_slope_deg)) / g.max())
     z += gaussian_filter(rng.normal(0.0, 1.0, z.shape), 2.0) * cfg.fine_noise_m * 2.0 / 0.14
 
     route_dist = np.full(z.shape, np.inf)
-    for route in cfg.routes:
+    for route in routes:
         route_dist = np.minimum(route_dist, _polyline_distance(X, Y, route))
-    routes_arr = [np.asarray(r, dtype=float) for r in cfg.routes]
+    routes_arr = [np.asarray(r, dtype=float) for r in routes]
 
     def dist_to_routes(px: float, py: float) -> float:
         return float(min(_polyline_distance(np.array(px), np.array(py), r) for r in routes_arr))
 
     # craters: hard-core Poisson process per class, largest first
     area = cfg.size_m**2
-    placed: list[tuple[float, float, float]] = []
+    placed = _Buckets(cell_m=2.0 * cfg.crater_classes[0][1])  # placed craters, hashed by position
     craters = []
     for rmin, rmax, density in cfg.crater_classes:
         for _ in range(rng.poisson(density * area)):
@@ -283,7 +305,7 @@ def make_lunar(cfg: LunarConfig = LunarConfig()) -> Terrain:
             cx, cy = rng.uniform(0, cfg.size_m, 2)
             near = dist_to_routes(cx, cy) < r * 1.3 + cfg.corridor_m
             gap = 1.3 if near else 0.9  # craters do not overlap where routes run
-            if any(np.hypot(cx - px, cy - py) < gap * (r + pr) for px, py, pr in placed):
+            if any(np.hypot(cx - px, cy - py) < gap * (r + pr) for px, py, pr in placed.near(cx, cy)):
                 continue
             ends = min(np.hypot(cx - e[0], cy - e[1]) for rt in routes_arr for e in (rt[0], rt[-1]))
             if ends < r * 1.3 + cfg.spawn_radius_m + 0.5:
@@ -301,7 +323,7 @@ def make_lunar(cfg: LunarConfig = LunarConfig()) -> Terrain:
             depth = ratio * 2 * r
             ell = rng.uniform(0.85, 1.0)
             rot = rng.uniform(0, np.pi)
-            placed.append((cx, cy, r))
+            placed.add(cx, cy, r)
             craters.append(
                 {"x": float(cx), "y": float(cy), "r": float(r), "depth": float(depth), "hazard": bool(hazard)}
             )
@@ -335,18 +357,22 @@ def make_lunar(cfg: LunarConfig = LunarConfig()) -> Terrain:
             d2 = (X[i0:i1, j0:j1] - cx) ** 2 + (Y[i0:i1, j0:j1] - cy) ** 2
             z[i0:i1, j0:j1] += h * np.exp(-d2 / (2 * sigma**2))
 
-    # flat spawn/goal patches: blend to the local mean height
+    # flat spawn/goal patches: blend to the local mean height (on a window around each end)
     for rt in routes_arr:
         for ex, ey in (rt[0], rt[-1]):
-            d = np.hypot(X - ex, Y - ey)
+            rad = cfg.spawn_radius_m + 0.6
+            i0, i1 = int(max(0, (ey - rad) / cfg.res - 1)), int(min(n, (ey + rad) / cfg.res + 2))
+            j0, j1 = int(max(0, (ex - rad) / cfg.res - 1)), int(min(n, (ex + rad) / cfg.res + 2))
+            d = np.hypot(X[i0:i1, j0:j1] - ex, Y[i0:i1, j0:j1] - ey)
             inner = d <= cfg.spawn_radius_m
-            w = np.clip((cfg.spawn_radius_m + 0.6 - d) / 0.6, 0.0, 1.0)
+            w = np.clip((rad - d) / 0.6, 0.0, 1.0)
             w = w * w * (3 - 2 * w)
-            z = z * (1 - w) + float(z[inner].mean()) * w
+            zw = z[i0:i1, j0:j1]
+            z[i0:i1, j0:j1] = zw * (1 - w) + float(zw[inner].mean()) * w
 
     z = _cap_corridor_slopes(z, route_dist <= cfg.corridor_m, cfg.res, cfg.corridor_max_slope_deg)
 
-    direct = LUNAR_ROUTES["direct"]
+    direct = named["direct"]
     yaw = float(np.arctan2(direct[1][1] - direct[0][1], direct[1][0] - direct[0][0]))
     name = f"dem{cfg.seed}" if cfg.base is not None else f"lunar{cfg.seed}"
     terrain = Terrain(
@@ -362,37 +388,79 @@ def make_lunar(cfg: LunarConfig = LunarConfig()) -> Terrain:
             "craters": craters,
             "rocks": rocks,
             **cfg.base_info,
-            "routes": {k: [list(p) for p in v] for k, v in LUNAR_ROUTES.items()},
+            "routes": {k: [list(p) for p in v] for k, v in named.items()},
+            "size_m": cfg.size_m,
         },
     )
     return terrain
 
 
+class _Buckets:
+    """Points with a radius, hashed on a square grid, so a neighbour test on a 200 m field with ~9,000
+    craters costs the few nearby ones, not all placed so far."""
+
+    def __init__(self, cell_m: float) -> None:
+        self.cell = cell_m
+        self.grid: dict[tuple[int, int], list[tuple[float, float, float]]] = {}
+
+    def add(self, x: float, y: float, r: float) -> None:
+        self.grid.setdefault((int(x // self.cell), int(y // self.cell)), []).append((x, y, r))
+
+    def near(self, x: float, y: float) -> list[tuple[float, float, float]]:
+        """Every point within one cell (≥ the largest gap · (r + r')) of (x, y)."""
+        i, j = int(x // self.cell), int(y // self.cell)
+        out: list[tuple[float, float, float]] = []
+        for di in (-1, 0, 1):
+            for dj in (-1, 0, 1):
+                out.extend(self.grid.get((i + di, j + dj), ()))
+        return out
+
+
+_CLUSTER_GAP = 40
+
+
+def _steep_cells(z: np.ndarray, corridor_cells: np.ndarray, res: float, cap: float) -> np.ndarray:
+    """Corridor cells whose steeper MuJoCo triangle (as Terrain.slope_grid_deg) exceeds `cap` (a tangent)."""
+    g1 = np.hypot(z[:-1, 1:] - z[:-1, :-1], z[1:, 1:] - z[:-1, 1:])
+    g2 = np.hypot(z[1:, 1:] - z[1:, :-1], z[1:, :-1] - z[:-1, :-1])
+    return (np.maximum(g1, g2) / res > cap) & corridor_cells
+
+
 def _cap_corridor_slopes(z: np.ndarray, corridor: np.ndarray, res: float, cap_deg: float) -> np.ndarray:
-    """Smooth, locally and repeatedly, wherever the slope inside `corridor` exceeds `cap_deg`."""
-    from scipy.ndimage import binary_dilation
+    """Smooth, locally and repeatedly, wherever the slope inside `corridor` exceeds `cap_deg`. Each cluster of
+    steep cells is smoothed in its own window: a pass changes heights within 5 cells of a steep cell and reads
+    6 further (the filter), so clusters more than 24 cells apart do not interact and a 200 m field costs what
+    its steep spots do, not 80 passes over 16 M heights."""
+    from scipy.ndimage import binary_dilation, find_objects, label
 
     z = z.copy()
     cap = np.tan(np.radians(cap_deg))
     corridor_cells = corridor[:-1, :-1] & corridor[1:, 1:]
-    for _ in range(80):
-        # steepest of the two MuJoCo triangles of each cell (as Terrain.slope_grid_deg)
-        g1 = np.hypot(z[:-1, 1:] - z[:-1, :-1], z[1:, 1:] - z[:-1, 1:])
-        g2 = np.hypot(z[1:, 1:] - z[1:, :-1], z[1:, :-1] - z[:-1, :-1])
-        bad_cells = (np.maximum(g1, g2) / res > cap) & corridor_cells
-        if not bad_cells.any():
-            break
-        bad = np.zeros(z.shape, bool)
-        bad[:-1, :-1] |= bad_cells
-        bad[1:, 1:] |= bad_cells
-        region = binary_dilation(bad, iterations=4)
-        z[region] = gaussian_filter(z, 1.5)[region]
+    steep = _steep_cells(z, corridor_cells, res, cap)
+    if not steep.any():
+        return z
+    clusters, _ = label(binary_dilation(steep, iterations=_CLUSTER_GAP))
+    for sl in find_objects(clusters):
+        # the cluster's window (cells) with a 12-cell margin, as heights (one more row/column)
+        r0, r1 = max(0, sl[0].start - _CLUSTER_GAP), min(corridor_cells.shape[0], sl[0].stop + _CLUSTER_GAP)
+        c0, c1 = max(0, sl[1].start - _CLUSTER_GAP), min(corridor_cells.shape[1], sl[1].stop + _CLUSTER_GAP)
+        sub = z[r0 : r1 + 1, c0 : c1 + 1]  # a view: smoothing writes into z
+        cells = corridor_cells[r0:r1, c0:c1]
+        for _ in range(80):
+            bad_cells = _steep_cells(sub, cells, res, cap)
+            if not bad_cells.any():
+                break
+            bad = np.zeros(sub.shape, bool)
+            bad[:-1, :-1] |= bad_cells
+            bad[1:, 1:] |= bad_cells
+            region = binary_dilation(bad, iterations=4)
+            sub[region] = gaussian_filter(sub, 1.5)[region]
     return z
 
 
 def route_slope_stats(terrain: Terrain, half_width: float = 0.5) -> dict[str, dict[str, float]]:
     """Slope statistics of the whole field and of the cells within `half_width` of each lunar route."""
     out = {"all": terrain.slope_stats()}
-    for name, route in LUNAR_ROUTES.items():
+    for name, route in lunar_routes(float(terrain.info.get("size_m", PAPER_FIELD_M))).items():
         out[name] = terrain.slope_stats(terrain.corridor_mask(route, half_width))
     return out

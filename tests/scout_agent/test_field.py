@@ -1,0 +1,75 @@
+"""Mission scale: the lunar field at any size keeps the generator's statistics, its routes span it, MuJoCo
+collides with the same heights; the simulated orbital DEM is what an orbiter would deliver and reads back."""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+import pytest
+
+from scout_agent.sim.dem import DemWindow, OrbitalDemConfig, orbital_dem, read_dem_grid, write_orbital_dem
+from scout_agent.sim.scene import build_scene
+from scout_agent.sim.terrain import LUNAR_ROUTES, LunarConfig, lunar_routes, make_lunar
+
+
+@pytest.fixture(scope="module")
+def big():
+    return make_lunar(LunarConfig(seed=21, size_m=100.0))
+
+
+def test_routes_scale_with_the_field_and_keep_their_margin() -> None:
+    assert lunar_routes(20.0) == LUNAR_ROUTES
+    r = lunar_routes(100.0)
+    assert r["direct"][0] == pytest.approx((1.5, 1.5)) and r["direct"][-1] == pytest.approx((98.5, 98.5))
+    assert np.hypot(97.0, 97.0) == pytest.approx(np.hypot(*np.subtract(r["direct"][-1], r["direct"][0])))
+    assert r["west"][1][0] < 50.0 < r["west"][1][1]  # the via point stays west of the diagonal
+
+
+def test_a_100m_field_has_the_20m_fields_statistics(big) -> None:
+    small = [make_lunar(LunarConfig(seed=s)) for s in (21, 22, 23)]
+    per_m2_small = np.mean([len(t.info["craters"]) for t in small]) / 400.0
+    per_m2_big = len(big.info["craters"]) / 10_000.0
+    assert per_m2_big == pytest.approx(per_m2_small, rel=0.3)
+    med_small = np.mean([t.slope_stats()["median"] for t in small])
+    assert big.slope_stats()["median"] == pytest.approx(med_small, abs=2.0)
+    assert big.slope_stats()["relief_m"] < 6.0  # the broad relief per coarse cell, not 5x taller
+    # the routes' corridors are capped at 100 m as at 20 m
+    for route in big.info["routes"].values():
+        assert big.slope_stats(big.corridor_mask(route, 0.5))["p99"] <= 26.5
+    assert big.spawn[:2] == pytest.approx((1.5, 1.5)) and big.goal == pytest.approx((98.5, 98.5))
+
+
+def test_mujoco_collides_with_the_100m_field(big) -> None:
+    m = build_scene(big)
+    d = mujoco.MjData(m)
+    mujoco.mj_forward(m, d)
+    gid = np.zeros(1, np.int32)
+    for x, y in np.random.default_rng(1).uniform(1.0, 99.0, (50, 2)):
+        dist = mujoco.mj_ray(m, d, np.array([x, y, 10.0]), np.array([0.0, 0.0, -1.0]), None, 1, 1, gid)
+        assert 10.0 - dist == pytest.approx(float(big.height(x, y)), abs=2e-5)
+
+
+def test_orbital_dem_is_coarse_noisy_biased_and_reads_back(big, tmp_path) -> None:
+    cfg = OrbitalDemConfig(seed=3)
+    g = orbital_dem(big, cfg)
+    assert g.z.shape == (20, 20) and g.pixel_m == 5.0
+    # against the true relief averaged over each pixel, the error is the stated noise plus the bias
+    clean = orbital_dem(big, OrbitalDemConfig(seed=3, noise_m=0.0, bias_z_m=0.0, bias_xy_m=0.0))
+    err = g.z - clean.z
+    assert np.std(err) == pytest.approx(cfg.noise_m, rel=0.25)
+    assert abs(np.mean(err)) < 0.1
+    # the DEM does not see the small craters and rocks: footholds differ from it by more than its noise
+    xs, ys = np.meshgrid(np.linspace(5, 95, 60), np.linspace(5, 95, 60))
+    assert np.std(big.height(xs, ys) - clean.height(xs, ys)) > 0.02
+    path = tmp_path / "orbital.tif"
+    write_orbital_dem(big, path, cfg)
+    back = read_dem_grid(DemWindow(str(path), 0.0, 0.0, size_m=100.0))
+    np.testing.assert_allclose(back.z, g.z, atol=1e-4)  # float32 storage
+    assert (back.x0, back.y0, back.pixel_m, back.noise_m) == (2.5, 2.5, 5.0, cfg.noise_m)
+    assert back.height(np.array([1.0]), np.array([99.0]))[0] == pytest.approx(g.z[-1, 0], abs=1e-4)
+    assert np.isnan(back.height(np.array([-3.0]), np.array([50.0]))[0])
+
+
+def test_bad_orbital_dem_config_is_refused() -> None:
+    with pytest.raises(ValueError, match="pixel_m > 0"):
+        OrbitalDemConfig(pixel_m=0.0)
