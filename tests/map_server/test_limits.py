@@ -299,3 +299,29 @@ def test_stitch_refuses_a_union_box_over_the_client_limit():
     with pytest.raises(MapCoreError, match="at most 4000"):
         stitch([a, b], max_cells=4000)
     assert stitch([a, b], max_cells=6000).w == 5001
+
+
+# ------------------------------------------------------------------ one scout against a default server
+
+
+def test_one_scout_spreading_cells_over_new_tiles_cannot_exhaust_a_default_server():
+    """Issue 25: 256 tiny deltas from one scout, each cell in a new tile, grew the server by 3.5 GiB and shut every
+    other scout out of new area. A default `psrmap server` (with --db: paging on) now grows ≤ 256 MiB, says why
+    it refused the rest, and still merges another scout's new area (`python benchmarks/scout_flood.py`)."""
+    import json
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    bench = Path(__file__).resolve().parents[2] / "benchmarks" / "scout_flood.py"
+    res = subprocess.run(
+        [sys.executable, str(bench), "--deltas", "64", "--cells", "16"],
+        check=True, capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    out = json.loads(res.stdout)
+    assert out["rss_growth_mib"] <= 256, out
+    # 128 tiles a minute, 16 a delta: 8 deltas at once, one more per 7.5 s of refill
+    assert 8 <= out["hog_merged"] <= 10 and list(out["hog_rejected"]) == ["limit_scout_tile_rate"], out
+    assert out["hog_merged"] + out["hog_rejected"]["limit_scout_tile_rate"] == 64, out
+    assert out["other_scout_new_area_merged"], out
+    assert out["wal_mib"] < 64, out
