@@ -26,6 +26,7 @@ from map_server.limits import Limits
 from mapcore import TiledMap
 from protocol.codec import DEFAULT_MAX_BYTES, decode
 from protocol.errors import ProtocolError
+from protocol.layers import pack_pair, unpack_pair
 from protocol.messages import Ack, CellDelta
 from protocol.partition import Partition
 
@@ -37,12 +38,6 @@ log = logging.getLogger(__name__)
 def payload_digest(payload: bytes) -> int:
     """64-bit digest of a delta's payload (xxh3), never 0 (0 = unknown)."""
     return xxhash.xxh3_64_intdigest(payload) or 1
-
-
-def _tile_of(key: int) -> tuple[int, int]:
-    """(tx << 32) | (ty & 0xFFFFFFFF) -> (tx, ty)."""
-    lo = key & 0xFFFFFFFF
-    return key >> 32, lo - (1 << 32) if lo >= 1 << 31 else lo
 
 
 _DENSE_AHEAD = 1 << 16  # digests of seqs up to this far above hw live in the dense array
@@ -286,7 +281,7 @@ class Merger:
                 continue
             seen.append((c.seg, c.ix, c.iy))
             segs.append(c.seg)
-            tks.append((c.ix.astype(np.int64) >> sh << 32) | ((c.iy.astype(np.int64) >> sh) & 0xFFFFFFFF))
+            tks.append(pack_pair(c.ix.astype(np.int64) >> sh, c.iy.astype(np.int64) >> sh))
         for i in np.flatnonzero(cells > lim.max_cells_per_delta).tolist():
             out[i] = ProtocolError(
                 "limit_cells",
@@ -294,7 +289,7 @@ class Merger:
             )
         tk = np.concatenate(tks)
         known = self.map.gslots
-        fresh_keys = {int(k) for k in np.unique(tk).tolist() if _tile_of(int(k)) not in known}
+        fresh_keys = {int(k) for k in np.unique(tk).tolist() if unpack_pair(int(k)) not in known}
         if not fresh_keys:  # the common case: every cell lands in a tile the map has
             return out
         fresh = np.isin(tk, np.fromiter(fresh_keys, np.int64, len(fresh_keys)))
@@ -472,7 +467,7 @@ class Merger:
             for name, c in list(batch.columns.items()):
                 if not c.seg.size:
                     continue
-                tkey = (c.ix.astype(np.int64) >> sh << 32) | ((c.iy.astype(np.int64) >> sh) & 0xFFFFFFFF)
+                tkey = pack_pair(c.ix.astype(np.int64) >> sh, c.iy.astype(np.int64) >> sh)
                 uniq, inv = np.unique(tkey, return_inverse=True)
                 lim = np.array(
                     [upto.get((name, k >> 32, ((k & 0xFFFFFFFF) ^ 2**31) - 2**31), 0) for k in uniq.tolist()],

@@ -25,6 +25,7 @@ import numpy as np
 
 from map_server.store import MapStore
 from mapcore import TiledMap
+from protocol.layers import pack_pair, unpack_pair
 
 __all__ = ["TilePager"]
 
@@ -60,14 +61,8 @@ class TilePager:
     @staticmethod
     def tiles_of(tiled: TiledMap, ix: np.ndarray, iy: np.ndarray) -> list[TileKey]:
         sh = tiled.shift
-        k = np.unique(
-            (np.asarray(ix, np.int64) >> sh << 32) | ((np.asarray(iy, np.int64) >> sh) & 0xFFFFFFFF)
-        )
-        out = []
-        for v in k.tolist():
-            lo = v & 0xFFFFFFFF
-            out.append((v >> 32, lo - (1 << 32) if lo >= 1 << 31 else lo))
-        return out
+        k = np.unique(pack_pair(np.asarray(ix, np.int64) >> sh, np.asarray(iy, np.int64) >> sh))
+        return [unpack_pair(v) for v in k.tolist()]
 
     def _blobs(self, tiled: TiledMap, key: TileKey) -> list[tuple[str, bytes]]:
         out = []

@@ -18,18 +18,12 @@ import numpy as np
 from mapcore.dense import LayerGrid
 from mapcore.errors import MapRequestError
 from mapcore.layer_tiles import LayerTiles, TileKey
-from protocol.layers import LAYERS, derived_names, get_layer, layer_derived, merge_op
+from protocol.layers import LAYERS, derived_names, get_layer, layer_derived, merge_op, pack_pair, unpack_pair
 
 __all__ = ["TiledMap"]
 
 _DIR_LIMIT = 1 << 22  # entries of the dense tile directory (int32) before falling back to a dict lookup
 _GROW_MIN = 16  # tiles added at least when the occupancy array grows
-
-
-def _unkey(k: int) -> TileKey:
-    """(tx << 32) | (ty & 0xFFFFFFFF) -> (tx, ty)."""
-    lo = k & 0xFFFFFFFF
-    return k >> 32, lo - (1 << 32) if lo >= 1 << 31 else lo
 
 
 class _Cells:
@@ -158,13 +152,13 @@ class TiledMap:
                     miss = g < 0
                     if not miss.any():
                         return g
-                    keys = np.unique((tx[miss] << 32) | (ty[miss] & 0xFFFFFFFF))
-                    self._new_global([_unkey(int(k)) for k in keys])
+                    keys = np.unique(pack_pair(tx[miss], ty[miss]))
+                    self._new_global([unpack_pair(k) for k in keys])
                     continue
             break
-        tkey = (tx.astype(np.int64) << 32) | (ty.astype(np.int64) & 0xFFFFFFFF)
+        tkey = pack_pair(tx, ty)
         uniq, inv = np.unique(tkey, return_inverse=True)
-        tiles = [_unkey(k) for k in uniq.tolist()]
+        tiles = [unpack_pair(k) for k in uniq.tolist()]
         fresh = [k for k in tiles if k not in self.gslots]
         if fresh:
             self._new_global(fresh)

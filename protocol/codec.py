@@ -11,7 +11,7 @@ import numpy as np
 from protocol.consistency import check_consistent
 from protocol.errors import DEFAULT_MAX_BYTES, ProtocolError
 from protocol.keys import parse_ack_key, parse_delta_key, validate_id
-from protocol.layers import Layer, get_layer
+from protocol.layers import Layer, get_layer, pack_pair
 from protocol.messages import VERSION, Ack, CellDelta, MapRegion, ScoutStatus, Status, TileChanges
 
 __all__ = ["DEFAULT_MAX_BYTES", "INDEX_LIMIT", "Message", "decode", "encode"]
@@ -228,7 +228,7 @@ def check_cells(where: str, layer: Any, ix: np.ndarray, iy: np.ndarray, block: n
             "index_range",
             f"{where} has index {lo if lo < -INDEX_LIMIT else hi}; indices must be within +-2**30",
         )
-    keys = (ix.astype(np.int64) << 32) | (iy.astype(np.int64) & 0xFFFFFFFF)
+    keys = pack_pair(ix, iy)
     if n > 1 and len(np.unique(keys)) != n:
         raise ProtocolError("duplicate_cell", f"{where} lists a cell more than once; each cell at most once")
 

@@ -23,6 +23,8 @@ __all__ = [
     "Layer",
     "cell_center",
     "cell_index",
+    "pack_pair",
+    "unpack_pair",
     "derived_names",
     "elevation_slope_deg",
     "plane_fit",
@@ -300,3 +302,18 @@ def cell_center(ix, iy, res: float, x0: float = 0.0, y0: float = 0.0) -> tuple[n
     x = x0 + (np.asarray(ix, dtype=np.float64) + 0.5) * res
     y = y0 + (np.asarray(iy, dtype=np.float64) + 0.5) * res
     return x, y
+
+
+def pack_pair(a, b):
+    """Two signed 32-bit indices (cell ix, iy or tile tx, ty; ints or arrays) as one int64 key:
+    (a << 32) | (b & 0xFFFFFFFF). Keys sort by a, then by b's bit pattern; `unpack_pair` inverts it."""
+    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+        return (np.asarray(a, np.int64) << 32) | (np.asarray(b, np.int64) & 0xFFFFFFFF)
+    return (int(a) << 32) | (int(b) & 0xFFFFFFFF)
+
+
+def unpack_pair(key: int) -> tuple[int, int]:
+    """The (a, b) that `pack_pair` packed into `key`."""
+    key = int(key)
+    lo = key & 0xFFFFFFFF
+    return key >> 32, lo - (1 << 32) if lo >= 1 << 31 else lo

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from mapcore import LayerGrid, TiledMap, write_npz
-from protocol.layers import LAYERS, cell_center, cell_index, empty_value, get_layer, merge_op
+from protocol.layers import LAYERS, cell_center, cell_index, empty_value, get_layer, merge_op, pack_pair
 from scout_agent.errors import ScoutConfigError
 
 __all__ = ["CellAccumulator", "LocalMap"]
@@ -88,7 +88,7 @@ def reduce_cells(
     One sort by cell and one `reduceat` per merge op, whatever the number of stats.
     """
     ix, iy = cell_index(x, y, res, x0, y0)
-    keys = (ix.astype(np.int64) << 32) | (iy.astype(np.int64) & 0xFFFFFFFF)  # one int64 per cell
+    keys = pack_pair(ix, iy)  # one int64 per cell
     order = np.argsort(keys, kind="stable")
     keys = keys[order]
     values = values[order]

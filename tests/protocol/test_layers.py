@@ -121,3 +121,16 @@ def test_cell_index_floor_and_centre():
     assert ix.tolist() == [-1, 0, 0, 1] and iy.tolist() == [2, -3, 0, 0] and ix.dtype == np.int32
     x, y = cell_center(ix, iy, 0.4)
     assert x.tolist() == pytest.approx([-0.2, 0.2, 0.2, 0.6])
+
+
+def test_pack_pair_round_trips_signed_indices_for_ints_and_arrays() -> None:
+    from protocol.layers import pack_pair, unpack_pair
+
+    pairs = [(0, 0), (-1, 0), (0, -1), (-(2**30), 2**30), (2**31 - 1, -(2**31)), (5, -7)]
+    for a, b in pairs:
+        assert unpack_pair(pack_pair(a, b)) == (a, b)
+    a = np.array([p[0] for p in pairs])
+    b = np.array([p[1] for p in pairs])
+    keys = pack_pair(a, b)
+    assert keys.dtype == np.int64 and len(np.unique(keys)) == len(pairs)
+    assert [unpack_pair(k) for k in keys.tolist()] == pairs
