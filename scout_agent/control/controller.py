@@ -5,6 +5,10 @@ physics step (the controller itself may run at a lower rate).
 `TrotController.step(state)` returns a `ControlOutput`: feed-forward joint torques, PD targets and gains,
 and what the slip detector needs — each foot's desired position and velocity in the base frame (stance:
 the touchdown point held still in the world; swing: the swing trajectory), the planned stance and the phase.
+
+The tick's arithmetic is compiled (numba): `_trunk_wrench` (stance bookkeeping, foothold plane, the trunk's
+desired wrench) and `_joint_commands` (stance torques, swing trajectories, PD targets) around the stance QP,
+which quadprog solves. In numpy the tick cost ≈ 0.4 ms of small-array overhead, most of the scout loop.
 """
 
 from __future__ import annotations
@@ -12,18 +16,18 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from numba import njit
 
 from scout_agent.control.gait import GaitConfig, TrotGait
 from scout_agent.control.stance import StanceQP, StanceQPConfig
-from scout_agent.control.swing import swing_point
+from scout_agent.control.swing import swing_point_into
 from scout_agent.robot import constants as C
 from scout_agent.robot import kinematics as K
-from scout_agent.robot.vectors import cross
+from scout_agent.robot.kinematics import leg_ik, leg_kinematics
 
 _NOMINAL_FEET = K.fk(C.HOME_Q)  # (4, 3) base frame
 _NOMINAL_FEET[:, 2] = 0.0
-_EPS3 = 1e-6 * np.eye(3)
-_EZ = np.array([0.0, 0.0, 1.0])
+_EPS = 1e-6  # added to the Jacobian's diagonal before solving with it
 
 
 @dataclass(frozen=True)
@@ -78,20 +82,31 @@ class ControlOutput:
     stance_forces: np.ndarray  # (4, 3) QP forces on the feet, world frame [N]
 
 
+@njit(cache=True, nogil=True)
 def _fit_plane(P: np.ndarray) -> tuple[np.ndarray, float]:
     """Least-squares plane z = a x + b y + c through points P (n, 3); level through their mean if degenerate."""
-    m = P.mean(axis=0)
-    d = P - m
-    sxx, syy, sxy = float(d[:, 0] @ d[:, 0]), float(d[:, 1] @ d[:, 1]), float(d[:, 0] @ d[:, 1])
-    sxz, syz = float(d[:, 0] @ d[:, 2]), float(d[:, 1] @ d[:, 2])
+    n = P.shape[0]
+    m = np.zeros(3)
+    for i in range(n):
+        m += P[i]
+    m /= n
+    sxx = syy = sxy = sxz = syz = 0.0
+    for i in range(n):
+        dx, dy, dz = P[i, 0] - m[0], P[i, 1] - m[1], P[i, 2] - m[2]
+        sxx += dx * dx
+        syy += dy * dy
+        sxy += dx * dy
+        sxz += dx * dz
+        syz += dy * dz
     det = sxx * syy - sxy * sxy
     if det < 1e-9:
-        return np.zeros(2), float(m[2])
+        return np.zeros(2), m[2]
     a = (sxz * syy - syz * sxy) / det
     b = (syz * sxx - sxz * sxy) / det
-    return np.array([a, b]), float(m[2] - a * m[0] - b * m[1])
+    return np.array([a, b]), m[2] - a * m[0] - b * m[1]
 
 
+@njit(cache=True, nogil=True)
 def _rotvec(R: np.ndarray) -> np.ndarray:
     """Rotation vector (log map) of a rotation matrix."""
     c = min(1.0, max(-1.0, (R[0, 0] + R[1, 1] + R[2, 2] - 1.0) / 2.0))
@@ -102,16 +117,277 @@ def _rotvec(R: np.ndarray) -> np.ndarray:
     return v * (angle / (2.0 * np.sin(angle)))
 
 
+@njit(cache=True, nogil=True)
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
+
+
+@njit(cache=True, nogil=True)
+def _mv(R: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """R v for R (3, 3)."""
+    return np.array([R[j, 0] * v[0] + R[j, 1] * v[1] + R[j, 2] * v[2] for j in range(3)])
+
+
+@njit(cache=True, nogil=True)
+def _mtv(R: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Rᵀ v for R (3, 3)."""
+    return np.array([R[0, j] * v[0] + R[1, j] * v[1] + R[2, j] * v[2] for j in range(3)])
+
+
+@njit(cache=True, nogil=True)
+def _solve3(A: np.ndarray, b: np.ndarray, eps: float) -> np.ndarray:
+    """x with (A + eps I) x = b, A (3, 3): Gaussian elimination with partial pivoting."""
+    M = A.copy()
+    for i in range(3):
+        M[i, i] += eps
+    x = b.copy()
+    for col in range(3):
+        piv = col
+        for r in range(col + 1, 3):
+            if abs(M[r, col]) > abs(M[piv, col]):
+                piv = r
+        if piv != col:
+            for j in range(3):
+                M[col, j], M[piv, j] = M[piv, j], M[col, j]
+            x[col], x[piv] = x[piv], x[col]
+        for r in range(col + 1, 3):
+            f = M[r, col] / M[col, col]
+            for j in range(col, 3):
+                M[r, j] -= f * M[col, j]
+            x[r] -= f * x[col]
+    for i in range(2, -1, -1):
+        acc = x[i]
+        for j in range(i + 1, 3):
+            acc -= M[i, j] * x[j]
+        x[i] = acc / M[i, i]
+    return x
+
+
+@njit(cache=True, nogil=True)
+def _trunk_wrench(
+    t: float,
+    pos: np.ndarray,
+    R: np.ndarray,
+    vel: np.ndarray,
+    omega: np.ndarray,
+    q: np.ndarray,
+    contact: np.ndarray,
+    sched: np.ndarray,
+    sw: np.ndarray,
+    v_cmd: float,
+    yaw_rate_cmd: float,
+    dt: float,
+    gains: np.ndarray,
+    limits: np.ndarray,
+    ref: np.ndarray,
+    footholds: np.ndarray,
+    liftoff: np.ndarray,
+    in_stance: np.ndarray,
+    prev_sched: np.ndarray,
+    sched_td_t: np.ndarray,
+    J: np.ndarray,
+    feet_w: np.ndarray,
+    out: np.ndarray,
+) -> None:
+    """Stance bookkeeping, foothold plane and desired trunk wrench for one tick (compiled).
+
+    `gains` (17,): mass, gravity, inertia (3), kp_pos (3), kd_pos (3), kp_rot (3), kd_rot (3); `limits` (4,):
+    height (with the gait's offset), max_pos_err, terrain_tilt, early_contact (`ControllerConfig`). Updated in place: `ref` (3,)
+    (p_ref x, y and yaw_ref), footholds, liftoff, in_stance, prev_sched, sched_td_t. Filled: J (4, 3, 3), feet_w
+    (4, 3) and `out` (15,): plane gradient (2), plane offset, unit normal (3), wrench (6: force, moment about the
+    CoM, world), v_des (3)."""
+    mass, gravity = gains[0], gains[1]
+    height, max_pos_err, terrain_tilt, early_contact = limits[0], limits[1], limits[2], limits[3]
+    feet_b = np.empty((4, 3))
+    leg_kinematics(q, feet_b, J)
+    for i in range(4):
+        feet_w[i] = pos + _mv(R, feet_b[i])
+    # stance bookkeeping. A leg is in stance once it is scheduled in stance *and* has touched down
+    # (late touchdown: it keeps searching downwards); a contact late in swing ends the swing early.
+    for i in range(4):
+        if sched[i] and not prev_sched[i]:
+            sched_td_t[i] = t
+            if not in_stance[i] and contact[i]:
+                in_stance[i] = True
+                footholds[i] = feet_w[i]
+        elif not sched[i] and prev_sched[i]:
+            in_stance[i] = False
+            liftoff[i] = feet_w[i]
+        elif not in_stance[i] and contact[i] and (sched[i] or sw[i] > early_contact):
+            in_stance[i] = True
+            footholds[i] = feet_w[i]
+        prev_sched[i] = sched[i]
+
+    grad, z0 = _fit_plane(footholds)
+    n = np.array([-grad[0], -grad[1], 1.0])
+    n /= np.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2])
+
+    # desired trunk motion
+    yaw = np.arctan2(R[1, 0], R[0, 0])
+    v_des = np.array([v_cmd * np.cos(yaw), v_cmd * np.sin(yaw), 0.0])
+    v_des[2] = grad[0] * v_des[0] + grad[1] * v_des[1]
+    ref[0] += v_des[0] * dt
+    ref[1] += v_des[1] * dt
+    ex, ey = ref[0] - pos[0], ref[1] - pos[1]
+    norm = np.hypot(ex, ey)
+    if norm > max_pos_err:
+        ref[0] = pos[0] + ex * (max_pos_err / norm)
+        ref[1] = pos[1] + ey * (max_pos_err / norm)
+    yaw_ref = ref[2] + yaw_rate_cmd * dt
+    yaw_ref = yaw + min(0.2, max(-0.2, (yaw_ref - yaw + np.pi) % (2 * np.pi) - np.pi))
+    ref[2] = yaw_ref
+    z_des = grad[0] * pos[0] + grad[1] * pos[1] + z0 + height / n[2]
+    pos_err = np.array([ref[0] - pos[0], ref[1] - pos[1], z_des - pos[2]])
+    F = mass * (gains[5:8] * pos_err + gains[8:11] * (v_des - vel))
+    F[2] += mass * gravity
+
+    up = terrain_tilt * n
+    up[2] += 1.0 - terrain_tilt
+    up /= np.sqrt(up[0] * up[0] + up[1] * up[1] + up[2] * up[2])
+    hx = np.array([np.cos(yaw_ref), np.sin(yaw_ref), 0.0])
+    x_axis = hx - (hx[0] * up[0] + hx[1] * up[1]) * up
+    x_axis /= np.sqrt(x_axis[0] * x_axis[0] + x_axis[1] * x_axis[1] + x_axis[2] * x_axis[2])
+    R_des = np.empty((3, 3))
+    R_des[:, 0] = x_axis
+    R_des[:, 1] = _cross(up, x_axis)
+    R_des[:, 2] = up
+    E = np.empty((3, 3))  # R_des Rᵀ
+    for i in range(3):
+        for j in range(3):
+            E[i, j] = R_des[i, 0] * R[j, 0] + R_des[i, 1] * R[j, 1] + R_des[i, 2] * R[j, 2]
+    e_rot_w = _rotvec(E)
+    omega_w = _mv(R, omega)
+    w_des = np.array([0.0, 0.0, yaw_rate_cmd])
+    e_b = _mtv(R, e_rot_w)
+    de_b = _mtv(R, w_des - omega_w)
+    Tq = _mv(R, gains[2:5] * (gains[11:14] * e_b + gains[14:17] * de_b))
+    out[0], out[1], out[2] = grad[0], grad[1], z0
+    out[3:6] = n
+    out[6:9] = F
+    out[9:12] = Tq
+    out[12:15] = v_des
+
+
+@njit(cache=True, nogil=True)
+def _joint_commands(
+    t: float,
+    pos: np.ndarray,
+    R: np.ndarray,
+    vel: np.ndarray,
+    omega: np.ndarray,
+    q: np.ndarray,
+    J: np.ndarray,
+    stance: np.ndarray,
+    sched: np.ndarray,
+    sw: np.ndarray,
+    forces: np.ndarray,
+    plane_v: np.ndarray,
+    swing_s: float,
+    stance_s: float,
+    params: np.ndarray,
+    footholds: np.ndarray,
+    liftoff: np.ndarray,
+    targets: np.ndarray,
+    sched_td_t: np.ndarray,
+    tau: np.ndarray,
+    q_des: np.ndarray,
+    kp: np.ndarray,
+    kd: np.ndarray,
+    pos_des_b: np.ndarray,
+    vel_des_b: np.ndarray,
+) -> None:
+    """Joint torques, PD targets and gains, and each foot's desired position/velocity in the base frame
+    (compiled). `plane_v` is `_trunk_wrench`'s `out`; `params` (8,): stance_kd, swing_kp, swing_kd,
+    raibert_gain, max_foot_offset, swing_height, search_speed, search_depth (`ControllerConfig`); `targets`
+    (the swing targets, world) updated in place."""
+    stance_kd, swing_kp, swing_kd = params[0], params[1], params[2]
+    raibert, max_off, swing_h, search_speed, search_depth = (
+        params[3],
+        params[4],
+        params[5],
+        params[6],
+        params[7],
+    )
+    g0, g1, z0 = plane_v[0], plane_v[1], plane_v[2]
+    vd0, vd1 = plane_v[12], plane_v[13]
+    q_des[:] = q
+    kp[:] = 0.0
+    kd[:] = stance_kd
+    tau[:] = 0.0
+    p0, p1, p_w, v_w = np.empty((1, 3)), np.empty((1, 3)), np.empty((1, 3)), np.empty((1, 3))
+    prog = np.empty(1)
+    for i in range(4):
+        if stance[i]:
+            # stance foot: touchdown point held still in the world
+            p_b = _mtv(R, footholds[i] - pos)
+            v_b = -(_mtv(R, vel) + _cross(omega, p_b))
+            f_b = _mtv(R, forces[i])
+            dq = _solve3(J[i], v_b, _EPS)
+            for j in range(3):
+                tau[3 * i + j] = (
+                    -(J[i, 0, j] * f_b[0] + J[i, 1, j] * f_b[1] + J[i, 2, j] * f_b[2]) + stance_kd * dq[j]
+                )
+        else:
+            # swing foot: to the Raibert foothold on the plane or (late touchdown) down from its held target
+            late = sched[i]
+            if late:
+                p1[0] = targets[i]
+                p1[0, 2] -= min(search_speed * (t - sched_td_t[i]), search_depth)
+            else:
+                hip_w = pos + _mv(R, _NOMINAL_FEET[i])
+                rem = (1.0 - sw[i]) * swing_s
+                o0 = min(max(vd0 * stance_s / 2 + raibert * (vel[0] - vd0), -max_off), max_off)
+                o1 = min(max(vd1 * stance_s / 2 + raibert * (vel[1] - vd1), -max_off), max_off)
+                p1[0, 0] = hip_w[0] + vd0 * rem + o0
+                p1[0, 1] = hip_w[1] + vd1 * rem + o1
+                p1[0, 2] = p1[0, 0] * g0 + p1[0, 1] * g1 + z0 - 0.01
+            targets[i] = p1[0]
+            p0[0] = liftoff[i]
+            prog[0] = 1.0 if late else sw[i]
+            swing_point_into(p0, p1, prog, swing_h, swing_s, p_w, v_w)
+            p_b = _mtv(R, p_w[0] - pos)
+            v_b = _mtv(R, v_w[0] - vel) - _cross(omega, p_b)
+            dq = _solve3(J[i], v_b, _EPS)
+            for j in range(3):
+                kp[3 * i + j] = swing_kp
+                kd[3 * i + j] = swing_kd
+                tau[3 * i + j] = swing_kd * dq[j]
+        pos_des_b[i] = p_b
+        vel_des_b[i] = v_b
+    q_ik = np.empty(12)
+    leg_ik(pos_des_b, q_ik)
+    for i in range(4):
+        if not stance[i]:
+            q_des[3 * i : 3 * i + 3] = q_ik[3 * i : 3 * i + 3]
+
+
 class TrotController:
     def __init__(self, config: ControllerConfig = ControllerConfig()) -> None:
         self.config = config
         self.gait = TrotGait(config.gait)
         self.qp = StanceQP(config.qp)
-        self._I = np.diag(config.inertia)
-        self._kp_pos = np.asarray(config.kp_pos)
-        self._kd_pos = np.asarray(config.kd_pos)
-        self._kp_rot = np.asarray(config.kp_rot)
-        self._kd_rot = np.asarray(config.kd_rot)
+        c = config
+        # the compiled tick's parameters (layouts: `_trunk_wrench`, `_joint_commands`)
+        self._gains = np.array(
+            [c.mass, c.gravity, *c.inertia, *c.kp_pos, *c.kd_pos, *c.kp_rot, *c.kd_rot], dtype=float
+        )
+        self._limits = np.array([c.height, c.max_pos_err, c.terrain_tilt, c.early_contact], dtype=float)
+        self._params = np.array(
+            [
+                c.stance_kd,
+                c.swing_kp,
+                c.swing_kd,
+                c.raibert_gain,
+                c.max_foot_offset,
+                c.swing_height,
+                c.search_speed,
+                c.search_depth,
+            ],
+            dtype=float,
+        )
+        self._J = np.empty((4, 3, 3))
+        self._feet_w = np.empty((4, 3))
+        self._plane_v = np.empty(15)
         self.v_cmd = 0.0  # forward speed command [m/s]
         self.yaw_rate_cmd = 0.0  # [rad/s]
         self.mu_feet: np.ndarray | None = None  # each foot's friction for the stance QP (None: its constant)
@@ -131,10 +407,10 @@ class TrotController:
         feet_w = state.pos + K.fk(state.q) @ state.R.T
         self.footholds = feet_w.copy()  # (4, 3) last stance points, world
         self.liftoff = feet_w.copy()
-        self.in_stance = [True] * 4
-        self.prev_stance_sched = [True] * 4
-        self.p_ref = state.pos[:2].copy()
-        self.yaw_ref = float(np.arctan2(state.R[1, 0], state.R[0, 0]))
+        self.in_stance = np.ones(4, bool)
+        self.prev_stance_sched = np.ones(4, bool)
+        # p_ref x, y [m] and yaw_ref [rad]: where the trunk should be
+        self._ref = np.array([state.pos[0], state.pos[1], np.arctan2(state.R[1, 0], state.R[0, 0])])
         self.f_prev = np.zeros((4, 3))
         self.sched_td_t = np.zeros(4)
         self.targets = feet_w.copy()  # (4, 3) current swing targets, world
@@ -148,125 +424,70 @@ class TrotController:
     def step(self, s: RobotState, dt: float) -> ControlOutput:
         if not self._initialized:
             self.reset(s)
-        c = self.config
-        R = s.R
-        feet_b = K.fk(s.q)
-        J = K.jacobians(s.q)
-        feet_w = s.pos + feet_b @ R.T
         phase = self.gait.phase(s.t - self.t0)
         sched = self.gait.stance(phase)
         sw = self.gait.swing_progress(phase)
-        # stance bookkeeping. A leg is in stance once it is scheduled in stance *and* has touched down
-        # (late touchdown: it keeps searching downwards); a contact late in swing ends the swing early.
-        sched_l, sw_l, con_l, prev = sched.tolist(), sw.tolist(), s.contact.tolist(), self.prev_stance_sched
-        ins = self.in_stance
-        for i in range(4):
-            if sched_l[i] and not prev[i]:
-                self.sched_td_t[i] = s.t
-                if not ins[i] and con_l[i]:
-                    ins[i] = True
-                    self.footholds[i] = feet_w[i]
-            elif not sched_l[i] and prev[i]:
-                ins[i] = False
-                self.liftoff[i] = feet_w[i]
-            elif not ins[i] and con_l[i] and (sched_l[i] or sw_l[i] > c.early_contact):
-                ins[i] = True
-                self.footholds[i] = feet_w[i]
-        self.prev_stance_sched = sched_l
-        stance = np.array(ins)
-
-        grad, z0 = self.plane()
-        n = np.array([-grad[0], -grad[1], 1.0])
-        n /= np.linalg.norm(n)
-
-        # desired trunk motion
-        yaw = float(np.arctan2(R[1, 0], R[0, 0]))
-        heading = np.array([np.cos(yaw), np.sin(yaw)])
-        v_des = np.zeros(3)
-        v_des[:2] = self.v_cmd * heading
-        v_des[2] = grad @ v_des[:2]
-        self.p_ref += v_des[:2] * dt
-        err = self.p_ref - s.pos[:2]
-        norm = np.hypot(*err)
-        if norm > c.max_pos_err:
-            self.p_ref = s.pos[:2] + err * (c.max_pos_err / norm)
-        self.yaw_ref += self.yaw_rate_cmd * dt
-        self.yaw_ref = yaw + min(0.2, max(-0.2, (self.yaw_ref - yaw + np.pi) % (2 * np.pi) - np.pi))
-        z_des = grad @ s.pos[:2] + z0 + (c.height + self.height_offset) / n[2]
-        pos_err = np.array([self.p_ref[0] - s.pos[0], self.p_ref[1] - s.pos[1], z_des - s.pos[2]])
-        F = c.mass * (self._kp_pos * pos_err + self._kd_pos * (v_des - s.vel))
-        F[2] += c.mass * c.gravity
-
-        up = c.terrain_tilt * n + (1.0 - c.terrain_tilt) * _EZ
-        up /= np.linalg.norm(up)
-        hx = np.array([np.cos(self.yaw_ref), np.sin(self.yaw_ref), 0.0])
-        x_axis = hx - (hx @ up) * up
-        x_axis /= np.linalg.norm(x_axis)
-        R_des = np.column_stack([x_axis, cross(up, x_axis), up])
-        e_rot_w = _rotvec(R_des @ R.T)
-        omega_w = R @ s.omega
-        w_des = np.array([0.0, 0.0, self.yaw_rate_cmd])
-        e_b = R.T @ e_rot_w
-        de_b = R.T @ (w_des - omega_w)
-        Tq = R @ (self._I @ (self._kp_rot * e_b + self._kd_rot * de_b))
-        wrench = np.concatenate([F, Tq])
-
+        J, feet_w, pv = self._J, self._feet_w, self._plane_v
+        self._limits[0] = self.config.height + self.height_offset
+        _trunk_wrench(
+            s.t,
+            s.pos,
+            s.R,
+            s.vel,
+            s.omega,
+            s.q,
+            s.contact,
+            sched,
+            sw,
+            self.v_cmd,
+            self.yaw_rate_cmd,
+            dt,
+            self._gains,
+            self._limits,
+            self._ref,
+            self.footholds,
+            self.liftoff,
+            self.in_stance,
+            self.prev_stance_sched,
+            self.sched_td_t,
+            J,
+            feet_w,
+            pv,
+        )
+        stance = self.in_stance.copy()
         forces = np.zeros((4, 3))
         idx = np.flatnonzero(stance)
         if idx.size:
-            r = feet_w[idx] - s.pos
             mu = None if self.mu_feet is None else self.mu_feet[idx]
-            forces[idx] = self.qp.solve(r, n, wrench, self.f_prev[idx], mu)
+            forces[idx] = self.qp.solve(feet_w[idx] - s.pos, pv[3:6], pv[6:12], self.f_prev[idx], mu)
         self.f_prev = forces
-
-        tau = np.zeros(12)
-        q_des = s.q.copy()
-        kp = np.zeros(12)
-        kd = np.full(12, c.stance_kd)
-        pos_des_b = np.empty((4, 3))
-        vel_des_b = np.empty((4, 3))
-        f_b = forces @ R  # rows: R^T f
-        # stance feet: touchdown point held still in the world
-        p_hold_b = (self.footholds - s.pos) @ R
-        v_hold_b = -(s.vel @ R + cross(s.omega, p_hold_b))
-        tau_st = (
-            -np.einsum("lji,lj->li", J, f_b)
-            + c.stance_kd * np.linalg.solve(J + _EPS3, v_hold_b[..., None])[..., 0]
+        tau, q_des, kp, kd = np.empty(12), np.empty(12), np.empty(12), np.empty(12)
+        pos_des_b, vel_des_b = np.empty((4, 3)), np.empty((4, 3))
+        _joint_commands(
+            s.t,
+            s.pos,
+            s.R,
+            s.vel,
+            s.omega,
+            s.q,
+            J,
+            stance,
+            sched,
+            sw,
+            forces,
+            pv,
+            self.gait.swing_s,
+            self.gait.stance_s,
+            self._params,
+            self.footholds,
+            self.liftoff,
+            self.targets,
+            self.sched_td_t,
+            tau,
+            q_des,
+            kp,
+            kd,
+            pos_des_b,
+            vel_des_b,
         )
-        for i in idx.tolist():
-            tau[3 * i : 3 * i + 3] = tau_st[i]
-        pos_des_b[idx] = p_hold_b[idx]
-        vel_des_b[idx] = v_hold_b[idx]
-
-        sw_idx = np.flatnonzero(~stance)
-        if sw_idx.size:
-            T_sw, T_st = self.gait.swing_s, self.gait.stance_s
-            hips_w = s.pos + (_NOMINAL_FEET[sw_idx] @ R.T)
-            v_xy = s.vel[:2]
-            rem = (1.0 - sw[sw_idx])[:, None] * T_sw
-            off = v_des[:2] * T_st / 2 + c.raibert_gain * (v_xy - v_des[:2])
-            off = np.clip(off, -c.max_foot_offset, c.max_foot_offset)
-            target = np.empty((sw_idx.size, 3))
-            target[:, :2] = hips_w[:, :2] + v_des[:2] * rem + off
-            target[:, 2] = target[:, :2] @ grad + z0 - 0.01
-            late = sched[sw_idx]  # scheduled stance, no touchdown yet: hold xy, search downwards
-            if late.any():
-                li = sw_idx[late]
-                target[late] = self.targets[li]
-                target[late, 2] -= np.minimum(c.search_speed * (s.t - self.sched_td_t[li]), c.search_depth)
-            self.targets[sw_idx] = target
-            prog = np.where(late, 1.0, sw[sw_idx])
-            p_w, v_w = swing_point(self.liftoff[sw_idx], target, prog, c.swing_height, T_sw)
-            p_b = (p_w - s.pos) @ R
-            v_b = (v_w - s.vel) @ R - cross(s.omega, p_b)
-            pos_des_b[sw_idx] = p_b
-            vel_des_b[sw_idx] = v_b
-            q_ik = K.ik(pos_des_b).reshape(4, 3)
-            dq_sw = np.linalg.solve(J[sw_idx] + _EPS3, v_b[..., None])[..., 0]
-            for k, i in enumerate(sw_idx.tolist()):
-                sl = slice(3 * i, 3 * i + 3)
-                q_des[sl] = q_ik[i]
-                kp[sl] = c.swing_kp
-                kd[sl] = c.swing_kd
-                tau[sl] += c.swing_kd * dq_sw[k]
         return ControlOutput(tau, q_des, kp, kd, pos_des_b, vel_des_b, sched, phase, forces)

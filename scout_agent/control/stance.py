@@ -5,7 +5,8 @@
 
 with A = [I …; [r_i]× …] (world frame, r_i foot relative to the CoM) and n the terrain normal. μ_i is the
 configured constant unless the caller passes each foot's friction (the scout's own estimate,
-`friction_estimate`), so the forces ask no more of the ground than it was felt to hold.
+`friction_estimate`), so the forces ask no more of the ground than it was felt to hold. The problem's
+matrices are built compiled (`qp_problem`, numba); quadprog solves it.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import quadprog
+from numba import njit
 
 
 @dataclass(frozen=True)
@@ -46,37 +48,79 @@ class StanceQP:
         each foot's friction coefficient `mu` (k,) (default: the configured constant)."""
         c = self.config
         k = r.shape[0]
-        n = 3 * k
-        A = np.zeros((6, n))
-        for i in range(k):
-            x, y, z = r[i]
-            j = 3 * i
-            A[0, j] = A[1, j + 1] = A[2, j + 2] = 1.0
-            A[3, j + 1], A[3, j + 2] = -z, y
-            A[4, j], A[4, j + 2] = z, -x
-            A[5, j], A[5, j + 1] = -y, x
-        AS = A.T * self._S
-        G = AS @ A
-        G[np.diag_indices(n)] += c.reg + c.smooth
-        a = AS @ wrench
-        if f_prev is not None:
-            a += c.smooth * f_prev.ravel()
-        nx, ny, nz = normal
-        t1 = np.array([-nz, 0.0, nx]) if abs(nx) < 0.9 else np.array([ny, -nx, 0.0])  # ⊥ normal
-        t1 /= np.sqrt(t1 @ t1)
-        t2 = np.array([ny * t1[2] - nz * t1[1], nz * t1[0] - nx * t1[2], nx * t1[1] - ny * t1[0]])
-        lo = np.array([c.f_min, -c.f_max, 0.0, 0.0, 0.0, 0.0])
-        Cm = np.zeros((n, 6 * k))
-        b = np.tile(lo, k)
-        for i in range(k):
-            m = c.mu if mu is None else float(mu[i])
-            rows = np.array(
-                [normal, -normal, m * normal - t1, m * normal + t1, m * normal - t2, m * normal + t2]
-            )
-            Cm[3 * i : 3 * i + 3, 6 * i : 6 * i + 6] = rows.T
+        G, a, Cm, b = qp_problem(
+            np.ascontiguousarray(r, dtype=float),
+            np.asarray(normal, dtype=float),
+            np.asarray(wrench, dtype=float),
+            np.zeros(3 * k) if f_prev is None else np.ascontiguousarray(f_prev, dtype=float).reshape(3 * k),
+            self._S,
+            np.full(k, c.mu) if mu is None else np.asarray(mu, dtype=float),
+            c.f_min,
+            c.f_max,
+            c.reg,
+            c.smooth,
+        )
         try:
             f = quadprog.solve_qp(G, a, Cm, b, 0)[0]
         except ValueError:  # infeasible (should not happen with these box/cone constraints)
-            f = np.zeros(n)
+            f = np.zeros(3 * k)
             f[2::3] = wrench[2] / k
         return f.reshape(k, 3)
+
+
+@njit(cache=True, nogil=True)
+def qp_problem(
+    r: np.ndarray,
+    normal: np.ndarray,
+    wrench: np.ndarray,
+    f_prev: np.ndarray,
+    S: np.ndarray,
+    mu: np.ndarray,
+    f_min: float,
+    f_max: float,
+    reg: float,
+    smooth: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """quadprog's (G, a, C, b) for the problem above: min ½fᵀGf − aᵀf s.t. Cᵀf ≥ b (compiled; every tick)."""
+    k = r.shape[0]
+    n = 3 * k
+    A = np.zeros((6, n))
+    for i in range(k):
+        x, y, z = r[i, 0], r[i, 1], r[i, 2]
+        j = 3 * i
+        A[0, j] = A[1, j + 1] = A[2, j + 2] = 1.0
+        A[3, j + 1], A[3, j + 2] = -z, y
+        A[4, j], A[4, j + 2] = z, -x
+        A[5, j], A[5, j + 1] = -y, x
+    G = np.empty((n, n))
+    a = np.empty(n)
+    for i in range(n):
+        for j in range(n):
+            g = 0.0
+            for row in range(6):
+                g += (A[row, i] * S[row]) * A[row, j]
+            G[i, j] = g
+        G[i, i] += reg + smooth
+        s = 0.0
+        for row in range(6):
+            s += (A[row, i] * S[row]) * wrench[row]
+        a[i] = s + smooth * f_prev[i]
+    nx, ny, nz = normal[0], normal[1], normal[2]
+    t1 = np.array([-nz, 0.0, nx]) if abs(nx) < 0.9 else np.array([ny, -nx, 0.0])  # ⊥ normal
+    t1 /= np.sqrt(t1[0] * t1[0] + t1[1] * t1[1] + t1[2] * t1[2])
+    t2 = np.array([ny * t1[2] - nz * t1[1], nz * t1[0] - nx * t1[2], nx * t1[1] - ny * t1[0]])
+    Cm = np.zeros((n, 6 * k))
+    b = np.zeros(6 * k)
+    for i in range(k):
+        b[6 * i] = f_min
+        b[6 * i + 1] = -f_max
+        m = mu[i]
+        for j in range(3):
+            col = 3 * i + j
+            Cm[col, 6 * i] = normal[j]
+            Cm[col, 6 * i + 1] = -normal[j]
+            Cm[col, 6 * i + 2] = m * normal[j] - t1[j]
+            Cm[col, 6 * i + 3] = m * normal[j] + t1[j]
+            Cm[col, 6 * i + 4] = m * normal[j] - t2[j]
+            Cm[col, 6 * i + 5] = m * normal[j] + t2[j]
+    return G, a, Cm, b

@@ -1,5 +1,6 @@
 """Leg kinematics in the base frame: Pinocchio from the same MJCF (`LegKinematics`), and a closed form
-(`fk`, `jacobians`, `ik`) the controller uses at every tick because it is allocation-light.
+(`fk`, `jacobians`, `ik`; compiled with numba as `leg_kinematics` and `leg_ik`, which the controller calls every
+tick).
 
 All positions are foot-sphere centres relative to the trunk origin, in the trunk frame [m]; Jacobians are
 d(foot position)/d(leg joints) in the trunk frame, one 3×3 block per leg (legs in `LEG_NAMES` order).
@@ -12,6 +13,7 @@ import tempfile
 
 import numpy as np
 import pinocchio as pin
+from numba import njit
 
 from scout_agent.robot import constants as C
 from scout_agent.robot.model import aliengo_mjcf
@@ -21,43 +23,66 @@ _SY = np.array([s[1] for s in C.LEG_SIGNS], dtype=float)  # (4,)
 _L1 = C.THIGH_LENGTH
 _L2 = C.CALF_LENGTH
 _D = C.THIGH_OFFSET
+_HIP = C.HIP_POS_BASE.copy()  # (4, 3)
+
+
+@njit(cache=True, nogil=True)
+def leg_kinematics(q: np.ndarray, feet: np.ndarray, J: np.ndarray) -> None:
+    """Foot positions into `feet` (4, 3) and foot Jacobians into `J` (4, 3, 3), base frame, from joint angles
+    (12,); compiled, so the controller's tick pays one call for both."""
+    for i in range(4):
+        a, t, c = q[3 * i], q[3 * i + 1], q[3 * i + 2]
+        s1, c1 = np.sin(t), np.cos(t)
+        s12, c12 = np.sin(t + c), np.cos(t + c)
+        px = -_L1 * s1 - _L2 * s12
+        pz = -_L1 * c1 - _L2 * c12
+        py = _SY[i] * _D
+        ca, sa = np.cos(a), np.sin(a)
+        feet[i, 0] = _HIP[i, 0] + px
+        feet[i, 1] = _HIP[i, 1] + py * ca - pz * sa
+        feet[i, 2] = py * sa + pz * ca
+        dpx_dt, dpz_dt = -_L1 * c1 - _L2 * c12, _L1 * s1 + _L2 * s12
+        dpx_dc, dpz_dc = -_L2 * c12, _L2 * s12
+        J[i, 0, 0] = 0.0
+        J[i, 1, 0] = -py * sa - pz * ca
+        J[i, 2, 0] = py * ca - pz * sa
+        J[i, 0, 1] = dpx_dt
+        J[i, 1, 1] = -dpz_dt * sa
+        J[i, 2, 1] = dpz_dt * ca
+        J[i, 0, 2] = dpx_dc
+        J[i, 1, 2] = -dpz_dc * sa
+        J[i, 2, 2] = dpz_dc * ca
+
+
+@njit(cache=True, nogil=True)
+def leg_ik(p: np.ndarray, q: np.ndarray) -> None:
+    """Joint angles into `q` (12,) placing the feet at `p` (4, 3), base frame; knees backwards (calf < 0).
+    Unreachable targets are pulled onto the workspace boundary instead of raising."""
+    for i in range(4):
+        x, y, z = p[i, 0] - _HIP[i, 0], p[i, 1] - _HIP[i, 1], p[i, 2] - _HIP[i, 2]
+        rho2 = max(y * y + z * z, _D * _D + 1e-6)
+        L = np.sqrt(rho2 - _D * _D)
+        a = np.arctan2(z, y) - np.arctan2(-L, _SY[i] * _D)
+        a = (a + np.pi) % (2 * np.pi) - np.pi
+        D2 = x * x + L * L
+        cos_c = min(max((D2 - _L1 * _L1 - _L2 * _L2) / (2 * _L1 * _L2), -1.0), 0.999)
+        c = -np.arccos(cos_c)
+        q[3 * i] = a
+        q[3 * i + 1] = np.arctan2(-x, L) - np.arctan2(_L2 * np.sin(c), _L1 + _L2 * np.cos(c))
+        q[3 * i + 2] = c
 
 
 def fk(q: np.ndarray) -> np.ndarray:
     """Foot positions (4, 3) in the base frame from joint angles (12,)."""
-    q = q.reshape(4, 3)
-    a, t, c = q[:, 0], q[:, 1], q[:, 2]
-    px = -_L1 * np.sin(t) - _L2 * np.sin(t + c)
-    pz = -_L1 * np.cos(t) - _L2 * np.cos(t + c)
-    py = _SY * _D
-    ca, sa = np.cos(a), np.sin(a)
-    out = np.empty((4, 3))
-    out[:, 0] = C.HIP_POS_BASE[:, 0] + px
-    out[:, 1] = C.HIP_POS_BASE[:, 1] + py * ca - pz * sa
-    out[:, 2] = py * sa + pz * ca
-    return out
+    feet = np.empty((4, 3))
+    leg_kinematics(np.ascontiguousarray(q, dtype=float).reshape(12), feet, np.empty((4, 3, 3)))
+    return feet
 
 
 def jacobians(q: np.ndarray) -> np.ndarray:
     """Foot Jacobians (4, 3, 3) in the base frame: J[i] = d p_i / d (hip, thigh, calf)_i."""
-    q = q.reshape(4, 3)
-    a, t, c = q[:, 0], q[:, 1], q[:, 2]
-    s1, c1 = np.sin(t), np.cos(t)
-    s12, c12 = np.sin(t + c), np.cos(t + c)
-    pz = -_L1 * c1 - _L2 * c12
-    py = _SY * _D
-    ca, sa = np.cos(a), np.sin(a)
-    dpx_dt, dpz_dt = -_L1 * c1 - _L2 * c12, _L1 * s1 + _L2 * s12
-    dpx_dc, dpz_dc = -_L2 * c12, _L2 * s12
-    J = np.zeros((4, 3, 3))
-    J[:, 1, 0] = -py * sa - pz * ca
-    J[:, 2, 0] = py * ca - pz * sa
-    J[:, 0, 1] = dpx_dt
-    J[:, 1, 1] = -dpz_dt * sa
-    J[:, 2, 1] = dpz_dt * ca
-    J[:, 0, 2] = dpx_dc
-    J[:, 1, 2] = -dpz_dc * sa
-    J[:, 2, 2] = dpz_dc * ca
+    J = np.empty((4, 3, 3))
+    leg_kinematics(np.ascontiguousarray(q, dtype=float).reshape(12), np.empty((4, 3)), J)
     return J
 
 
@@ -66,18 +91,9 @@ def ik(p: np.ndarray) -> np.ndarray:
 
     Unreachable targets are pulled onto the workspace boundary instead of raising.
     """
-    r = p - C.HIP_POS_BASE
-    y, z = r[:, 1], r[:, 2]
-    rho2 = np.maximum(y * y + z * z, _D * _D + 1e-6)
-    L = np.sqrt(rho2 - _D * _D)
-    a = np.arctan2(z, y) - np.arctan2(-L, _SY * _D)
-    a = (a + np.pi) % (2 * np.pi) - np.pi
-    x = r[:, 0]
-    D2 = x * x + L * L
-    cos_c = np.clip((D2 - _L1 * _L1 - _L2 * _L2) / (2 * _L1 * _L2), -1.0, 0.999)
-    c = -np.arccos(cos_c)
-    t = np.arctan2(-x, L) - np.arctan2(_L2 * np.sin(c), _L1 + _L2 * np.cos(c))
-    return np.stack([a, t, c], axis=1).reshape(12)
+    q = np.empty(12)
+    leg_ik(np.ascontiguousarray(p, dtype=float).reshape(4, 3), q)
+    return q
 
 
 class LegKinematics:
