@@ -32,6 +32,7 @@ __all__ = [
     "get_replies",
     "get_status",
     "get_statuses",
+    "map_extent",
 ]
 
 log = logging.getLogger(__name__)
@@ -151,7 +152,16 @@ def aggregate_status(parts: list[Status]) -> Status:
         max(p.t for p in by_shard.values()),
         None,
         k,
+        _union_bounds([p.bounds for p in by_shard.values()]),
     )
+
+
+def _union_bounds(boxes: Iterable[tuple[int, int, int, int] | None]) -> tuple[int, int, int, int] | None:
+    """The smallest inclusive cell box holding every given box (None ones skipped; None when none is left)."""
+    got = [b for b in boxes if b is not None]
+    if not got:
+        return None
+    return (min(b[0] for b in got), min(b[1] for b in got), max(b[2] for b in got), max(b[3] for b in got))
 
 
 def get_partition(session: zenoh.Session, map_id: str, timeout_s: float = 2.0) -> Partition | None:
@@ -177,3 +187,14 @@ def get_status(session: zenoh.Session, map_id: str, timeout_s: float = 2.0) -> S
     no server answered (or no answer was a valid status)."""
     parts = get_statuses(session, map_id, timeout_s)
     return aggregate_status(parts) if parts else None
+
+
+def map_extent(statuses: list[Status], map_id: str) -> tuple[float, float, float, float]:
+    """The map-frame box [m] (x0, y0, x1, y1) that holds every cell with data, from the servers' statuses
+    (every shard's): what a whole-map query asks for. QueryError when none answered or the map is empty."""
+    if not statuses:
+        raise QueryError(f"no map server of {map_id!r} answered its status: the map's extent is unknown")
+    box = aggregate_status(statuses).extent_m()
+    if box is None:
+        raise QueryError(f"map {map_id!r} holds no data yet: its extent is empty")
+    return box

@@ -20,11 +20,12 @@ from typing import Any
 import numpy as np
 import zenoh
 
-from common.query import get_replies, get_statuses
+from common.errors import QueryError
+from common.query import get_replies, get_statuses, map_extent
 from common.session import zenoh_config
 from consumer_planner.errors import PlannerError
 from mapcore import LayerGrid, MapCoreError, stitch
-from protocol.codec import decode
+from protocol.codec import INDEX_LIMIT, decode
 from protocol.errors import ProtocolError
 from protocol.keys import changes_pattern, map_key
 from protocol.layers import cell_index
@@ -69,6 +70,9 @@ def trusted_servers(path: str | None, required: bool = False) -> tuple[str, ...]
         return tuple(str(v) for v in ids.values())
     except (ValueError, AttributeError) as exc:
         raise ValueError(f"{path}: not a servers.json ({{name: zenoh id}}): {exc}") from None
+
+
+Box = tuple[float, float, float, float]
 
 
 def query_region(
@@ -140,10 +144,21 @@ class MapClient:
         """The open session (inside the `with` block), e.g. for a `RegionFollower` on the same connection."""
         return self._session
 
-    def region(self, map_id: str, box: tuple[float, float, float, float]) -> LayerGrid:
+    def region(self, map_id: str, box: Box | None = None) -> LayerGrid:
+        """The map box (x0, y0, x1, y1) [m, inclusive]; None: the whole map (`extent`)."""
         if self._session is None:
             raise RuntimeError("MapClient used outside its `with` block")
-        return query_region(self._session, map_id, box, self.config)
+        return query_region(self._session, map_id, self.extent(map_id) if box is None else box, self.config)
+
+    def extent(self, map_id: str) -> Box:
+        """The box [m] holding every cell of the map with data, from every (trusted) server's status."""
+        if self._session is None:
+            raise RuntimeError("MapClient used outside its `with` block")
+        statuses = get_statuses(self._session, map_id, self.config.timeout_s, self.config.trusted_servers)
+        try:
+            return map_extent(statuses, map_id)
+        except QueryError as exc:
+            raise PlannerError(str(exc)) from None
 
     def newest_sample_t(self, map_id: str) -> float | None:
         """The newest merged sample's time [s] over every (trusted) server's `status` (mission time:
@@ -169,15 +184,17 @@ class RegionChange:
 
 
 class RegionWatch:
-    """`with RegionWatch(session, map_id, res, (x0, y0, x1, y1)) as w: ... w.changed(timeout)`."""
+    """`with RegionWatch(session, map_id, res, (x0, y0, x1, y1)) as w: ... w.changed(timeout)`; box None: the
+    whole map (every change)."""
 
-    def __init__(
-        self, session: zenoh.Session, map_id: str, res: float, box: tuple[float, float, float, float]
-    ):
-        x0, y0, x1, y1 = box
-        lo = cell_index(min(x0, x1), min(y0, y1), res)
-        hi = cell_index(max(x0, x1), max(y0, y1), res)
-        self.cells = (int(lo[0]), int(lo[1]), int(hi[0]), int(hi[1]))  # inclusive cell box
+    def __init__(self, session: zenoh.Session, map_id: str, res: float, box: Box | None):
+        if box is None:
+            self.cells = (-INDEX_LIMIT, -INDEX_LIMIT, INDEX_LIMIT, INDEX_LIMIT)
+        else:
+            x0, y0, x1, y1 = box
+            lo = cell_index(min(x0, x1), min(y0, y1), res)
+            hi = cell_index(max(x0, x1), max(y0, y1), res)
+            self.cells = (int(lo[0]), int(lo[1]), int(hi[0]), int(hi[1]))  # inclusive cell box
         self.versions: dict[
             int | None, int
         ] = {}  # newest version seen per shard (any change, in the box or not)
@@ -224,7 +241,8 @@ class RegionWatch:
 class RegionFollower:
     """When a box must be queried again: once at the start (as soon as a server answers), on every tile-change
     notice inside it (`RegionWatch`, every shard), and when a status poll every `resync_s` shows a server's
-    version beyond what its notices told (a lost notice, or a server that publishes none).
+    version beyond what its notices told (a lost notice, or a server that publishes none). Box None: the whole
+    map, whose every change counts; query `common.query.map_extent(statuses)` then.
 
         follow = RegionFollower(session, map_id, box)
         while ...:
@@ -239,7 +257,7 @@ class RegionFollower:
         self,
         session: zenoh.Session,
         map_id: str,
-        box: tuple[float, float, float, float],
+        box: Box | None,
         resync_s: float = 10.0,
         timeout_s: float = 2.0,
         trusted: Sequence[str] = (),

@@ -281,10 +281,21 @@ def cmd_query(args: argparse.Namespace) -> int:
     from protocol.keys import map_key
     from protocol.messages import MapRegion, RegionQuery
 
-    try:
-        x0, y0, x1, y1 = (float(v) for v in args.box.split(","))
-    except ValueError:
-        args.parser.error(f"--box {args.box!r}: give x0,y0,x1,y1 in map-frame metres")
+    if args.box is None:  # the whole map: the cells holding data, from every server's (shard's) status
+        from common.errors import QueryError
+        from common.query import get_statuses, map_extent
+
+        with _open(_conf(args, _endpoints(args.connect)), args) as s:
+            try:
+                x0, y0, x1, y1 = map_extent(get_statuses(s, args.map, args.timeout), args.map)
+            except QueryError as exc:
+                print(f"error: {exc}", file=sys.stderr)
+                return 1
+    else:
+        try:
+            x0, y0, x1, y1 = (float(v) for v in args.box.split(","))
+        except ValueError:
+            args.parser.error(f"--box {args.box!r}: give x0,y0,x1,y1 in map-frame metres")
     layers = tuple(args.layers.split(",")) if args.layers else None
     rq = RegionQuery(x0, y0, x1, y1, layers, tuple(args.stats.split(",")))
     from mapcore import MapCoreError, check_replies, stitch
@@ -438,7 +449,9 @@ def register(subparsers: Any) -> None:
         p.add_argument("--timeout", type=float, default=5.0, help="reply timeout [s]")
         add_security_arguments(p)
         if name == "query":
-            p.add_argument("--box", required=True, help="x0,y0,x1,y1 [m], inclusive")
+            p.add_argument(
+                "--box", help="x0,y0,x1,y1 [m], inclusive (default: the whole map, as far as it holds data)"
+            )
             p.add_argument(
                 "--max-cells",
                 type=_positive_int,

@@ -571,7 +571,22 @@ class MapService:
                 self.newest_t,
                 self.config.shard_id,
                 self.config.shards,
+                self._bounds(),
             )
+
+    def _bounds(self) -> tuple[int, int, int, int] | None:
+        """The inclusive cell box of the cells holding data: the hot map's cells exactly, paged-out tiles whole
+        (their occupancy is in the store only). Called under the lock."""
+        boxes = [b] if (b := self.map.bounds()) is not None else []
+        if self.pager is not None and self.pager.cold:
+            t = self.map.tile
+            keys = np.asarray(list(self.pager.cold), dtype=np.int64)
+            lo, hi = keys.min(axis=0) * t, keys.max(axis=0) * t + t - 1
+            boxes.append((int(lo[0]), int(lo[1]), int(hi[0]), int(hi[1])))
+        if not boxes:
+            return None
+        a = np.asarray(boxes, dtype=np.int64)
+        return int(a[:, 0].min()), int(a[:, 1].min()), int(a[:, 2].max()), int(a[:, 3].max())
 
     def region(self, rq: RegionQuery) -> MapRegion:
         res, lim = self.map.res, self.config.limits

@@ -95,6 +95,8 @@ def encode(msg: Message) -> bytes:
         }
         if msg.shards > 1:
             body["shard"], body["shards"] = int(msg.shard or 0), int(msg.shards)
+        if msg.bounds is not None:
+            body["bounds"] = [int(v) for v in msg.bounds]
     elif isinstance(msg, TileChanges):
         body = {
             "type": "tile_changes",
@@ -343,6 +345,7 @@ def _decode_status(d: dict) -> Status:
         raise ProtocolError("wrong_type", f"{w}.t must be a finite number of seconds")
     shards = _int(d, "shards", w, 1, 1024) if "shards" in d else 1
     shard = _int(d, "shard", w, 0, shards - 1) if shards > 1 else None
+    bounds = _bounds(d["bounds"], f"{w}.bounds") if d.get("bounds") is not None else None  # optional
     return Status(
         validate_id(_get(d, "map", w), "map"),
         _float(d, "res", w, positive=True),
@@ -356,7 +359,24 @@ def _decode_status(d: dict) -> Status:
         float(t),
         shard,
         shards,
+        bounds,
     )
+
+
+def _bounds(v: object, where: str) -> tuple[int, int, int, int]:
+    """An inclusive cell box [ix0, iy0, ix1, iy1] within the index range, ix0 <= ix1 and iy0 <= iy1."""
+    if (
+        not isinstance(v, list | tuple)
+        or len(v) != 4
+        or any(isinstance(x, bool) or not isinstance(x, int) or abs(x) > INDEX_LIMIT for x in v)
+    ):
+        raise ProtocolError(
+            "wrong_type", f"{where} must be 4 integer cell indices [ix0, iy0, ix1, iy1] within +-2**30"
+        )
+    ix0, iy0, ix1, iy1 = (int(x) for x in v)
+    if ix1 < ix0 or iy1 < iy0:
+        raise ProtocolError("bad_value", f"{where} {list(v)}: need ix0 <= ix1 and iy0 <= iy1")
+    return ix0, iy0, ix1, iy1
 
 
 def _decode_changes(d: dict) -> TileChanges:

@@ -119,6 +119,18 @@ class Status:
     t: float = 0.0  # newest merged sample's scout clock [s] since the server started (mission time; 0: none)
     shard: int | None = None  # which shard of a sharded map answered (None: an unsharded map)
     shards: int = 1  # K of the map's partition (protocol.partition)
+    # the inclusive cell box (ix0, iy0, ix1, iy1) of the cells holding data (paged-out tiles counted whole);
+    # None: no data (or a server from before it was added). Clients query the whole map with `extent_m`.
+    bounds: tuple[int, int, int, int] | None = None
+
+    def extent_m(self) -> tuple[float, float, float, float] | None:
+        """The map-frame box [m] (x0, y0, x1, y1) through the centres of the `bounds` corner cells: a query of
+        it returns every cell holding data. None when the map is empty."""
+        if self.bounds is None:
+            return None
+        ix0, iy0, ix1, iy1 = self.bounds
+        r = self.res
+        return ((ix0 + 0.5) * r, (iy0 + 0.5) * r, (ix1 + 0.5) * r, (iy1 + 0.5) * r)
 
     def to_json(self) -> dict:
         """Plain JSON-ready dict (what `psrmap status` prints and a mission's summary.json keeps)."""
@@ -138,6 +150,7 @@ class Status:
             "t": self.t,
             "shard": self.shard,
             "shards": self.shards,
+            "bounds": list(self.bounds) if self.bounds is not None else None,
         }
 
 

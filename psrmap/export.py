@@ -9,7 +9,8 @@
   `/psrmap/cost`, and with `--run-dir` each scout's own estimate of its walk as `nav_msgs/msg/Path` on
   `/psrmap/scouts/<id>/path` (growing, one message per simulated second) and the mission's planned path on
   `/psrmap/plan`.
-The region comes from the map servers (`--connect`, `--map`, `--box`) or a saved map (`--npz`).
+The region comes from the map servers (`--connect`, `--map`, and `--box`, by default the whole map: the cells
+holding data, from the servers' status) or a saved map (`--npz`).
 """
 
 from __future__ import annotations
@@ -73,17 +74,10 @@ def export_mcap(
     return write_mcap_bag(out, msgs)
 
 
-def _box(text: str) -> tuple[float, float, float, float]:
-    try:
-        x0, y0, x1, y1 = (float(v) for v in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r}: need x0,y0,x1,y1 in map-frame metres") from None
-    return (x0, y0, x1, y1)
-
-
 def register(sub: Any) -> None:
     from common.session import endpoint_arg
     from protocol.keys import id_arg
+    from psrmap.ros2 import box_arg
 
     p = sub.add_parser("export", help="write a map region as GeoTIFF (GIS) or rosbag2/MCAP (ROS tools)",
                        description=__doc__.split("\n\n")[0])  # fmt: skip
@@ -101,7 +95,8 @@ def register(sub: Any) -> None:
         metavar="ENDPOINT",
         help="Zenoh router endpoint",
     )
-    src.add_argument("--box", type=_box, metavar="X0,Y0,X1,Y1", help="map area [m] (with --connect)")
+    src.add_argument("--box", type=box_arg, metavar="X0,Y0,X1,Y1",
+                     help="map area [m] (with --connect; default: the whole map)")  # fmt: skip
     src.add_argument(
         "--zenoh-config", metavar="FILE", help="Zenoh config with credentials (`psrmap secure init`)"
     )
@@ -164,14 +159,14 @@ def _load(args: argparse.Namespace) -> Any:
     from mapcore import MapFileError, read_npz
 
     if (args.npz is None) == (not args.connect):
-        args.parser.error("give either --connect ENDPOINT (with --map ID and --box) or --npz FILE")
+        args.parser.error("give either --connect ENDPOINT (with --map ID) or --npz FILE")
     if args.npz:
         try:
             return read_npz(args.npz, map_id=args.map or "local")
         except MapFileError as exc:
             args.parser.error(str(exc))
-    if not args.map or not args.box:
-        args.parser.error("--connect needs --map ID and --box X0,Y0,X1,Y1")
+    if not args.map:
+        args.parser.error("--connect needs --map ID")
     from consumer_planner.client import ClientConfig, MapClient
 
     cfg = ClientConfig(connect=tuple(args.connect), zenoh_config=args.zenoh_config)

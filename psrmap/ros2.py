@@ -2,12 +2,14 @@
 
 Publishes, on a Zenoh network a ROS 2 system using `rmw_zenoh_cpp` shares (the same router):
 - `<prefix>/grid_map`: `grid_map_msgs/msg/GridMap`, every layer's value (`<layer>`) and observation count
-  (`<layer>_count`) over `--box` (RViz's grid_map plugin, `ros2 topic echo`);
+  (`<layer>_count`) over `--box`, by default over the whole map (the cells holding data, from the servers'
+  status: the published grid grows with the map) (RViz's grid_map plugin, `ros2 topic echo`);
 - `<prefix>/cost`: the planner's cost grid as `nav_msgs/msg/OccupancyGrid` (0..99 by cost, 100 impassable,
   -1 unknown);
 - `<prefix>/plan`: with `--plan-from/--plan-to`, the planned path as `nav_msgs/msg/Path`;
 all transient-local (a late subscriber gets the last one), at most `--rate` times a second and only when a tile
-inside `--box` changed (the servers' tile-change notices: a change elsewhere on the map costs no query). Wire details in `interop/rmw_zenoh.py`; messages in `interop/ros2_messages.py`.
+inside `--box` (without one: anywhere) changed (the servers' tile-change notices: a change elsewhere on the map
+costs no query). Wire details in `interop/rmw_zenoh.py`; messages in `interop/ros2_messages.py`.
 """
 
 from __future__ import annotations
@@ -20,13 +22,13 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
-__all__ = ["BridgeConfig", "register", "run_bridge"]
+__all__ = ["BridgeConfig", "box_arg", "register", "run_bridge"]
 
 
 @dataclass(frozen=True)
 class BridgeConfig:
     map_id: str
-    box: tuple[float, float, float, float]
+    box: tuple[float, float, float, float] | None  # None: the whole map (the extent in the servers' status)
     connect: tuple[str, ...]
     zenoh_config: str | None = None
     domain: int = 0
@@ -49,6 +51,8 @@ def run_bridge(cfg: BridgeConfig, stop: threading.Event | None = None, log=print
     """Run until `stop` (or SIGTERM/SIGINT via the CLI), `once`, or `max_seconds`; returns what was published."""
     import zenoh
 
+    from common.errors import QueryError
+    from common.query import map_extent
     from common.session import zenoh_config
     from consumer_planner.client import ClientConfig, RegionFollower, query_region
     from consumer_planner.compare import plan_route
@@ -81,17 +85,25 @@ def run_bridge(cfg: BridgeConfig, stop: threading.Event | None = None, log=print
         last_version = None
         client = ClientConfig(connect=cfg.connect, zenoh_config=cfg.zenoh_config)
         follow = RegionFollower(session, cfg.map_id, cfg.box, cfg.resync_s)
+        last_error = ""
         try:
             while not stop.is_set() and time.monotonic() < t_end:
                 grid = None
                 if follow.due():
                     statuses = follow.statuses()  # the query reflects at least these versions
                     try:
-                        grid = query_region(session, cfg.map_id, cfg.box, client)
+                        box = cfg.box or map_extent(statuses, cfg.map_id)
+                        grid = query_region(session, cfg.map_id, box, client)
                         queries += 1
-                    except PlannerError as exc:  # servers gone or refusing: say so, try again next tick
-                        log(f"[ros2] map query failed: {exc}")
+                    except (
+                        PlannerError,
+                        QueryError,
+                    ) as exc:  # servers gone or refusing, map empty: say so once
+                        if str(exc) != last_error:
+                            log(f"[ros2] map query failed: {exc}")
+                        last_error = str(exc)
                 if grid is not None:
+                    last_error = ""
                     version = sum(st.version for st in statuses)
                     follow.done(statuses)
                     stamp = time.time_ns()
@@ -138,7 +150,8 @@ def _pair(text: str) -> tuple[float, float]:
     return (x, y)
 
 
-def _box(text: str) -> tuple[float, float, float, float]:
+def box_arg(text: str) -> tuple[float, float, float, float]:
+    """argparse type of `--box X0,Y0,X1,Y1` [m]: four numbers, x0 <= x1 and y0 <= y1."""
     try:
         x0, y0, x1, y1 = (float(v) for v in text.split(","))
     except ValueError:
@@ -163,7 +176,8 @@ def register(sub: Any) -> None:
         metavar="ENDPOINT",
         help="the Zenoh router the map servers and the ROS 2 system (rmw_zenoh) share",
     )
-    p.add_argument("--box", required=True, type=_box, metavar="X0,Y0,X1,Y1", help="map area to publish [m]")
+    p.add_argument("--box", type=box_arg, metavar="X0,Y0,X1,Y1",
+                   help="map area to publish [m] (default: the whole map, as far as it holds data)")  # fmt: skip
     p.add_argument("--zenoh-config", metavar="FILE", help="Zenoh config with this bridge's credentials")
     p.add_argument("--domain", type=int, default=0, help="ROS_DOMAIN_ID (default 0)")
     p.add_argument("--prefix", default="/psrmap", help="topic namespace (default /psrmap)")

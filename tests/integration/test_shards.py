@@ -105,6 +105,13 @@ def test_two_shards_hold_what_one_server_would(router, tmp_path):
         assert st is not None and st.shards == 2 and st.shard is None
         assert (st.merged, st.cells) == (sum(sent), ref.map.cells)
         assert st.scouts["s1"].last_seq == sum(sent) - 1 and st.health["shards_answered"] == 2
+        # the map's extent: the union of the shards' own (each shard holds only its tiles' cells)
+        parts = get_statuses(client, MAP)
+        assert st.bounds == ref.map.bounds() and len(parts) == 2
+        for p in parts:  # each shard's own box lies inside the map's
+            assert p.bounds is not None and st.bounds is not None
+            (ax0, ay0, ax1, ay1), (bx0, by0, bx1, by1) = st.bounds, p.bounds
+            assert ax0 <= bx0 <= bx1 <= ax1 and ay0 <= by0 <= by1 <= ay1
         # every tile the walk touched was announced, by the shard that owns it
         seen: dict[tuple[int, int], int | None] = {}
         deadline = time.monotonic() + 5

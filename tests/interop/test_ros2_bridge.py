@@ -5,6 +5,7 @@ tokens are checked against rmw_zenoh's layout."""
 
 from __future__ import annotations
 
+import json
 import threading
 import time
 
@@ -356,3 +357,54 @@ def test_a_lost_notice_is_caught_by_the_resync(router, tmp_path) -> None:
             t.join(timeout=20)
     res = done[0]
     assert res["changes_in_box"] == 0 and res["resyncs"] >= 1 and res["published"]["grid_map"] == 2, res
+
+
+def _wait_for(cond, timeout_s: float = 10.0) -> None:
+    end = time.monotonic() + timeout_s
+    while not cond() and time.monotonic() < end:
+        time.sleep(0.05)
+
+
+def test_without_a_box_the_bridge_and_export_cover_the_whole_map_as_it_grows(
+    router, served_map, store, tmp_path, capsys
+) -> None:
+    """No --box: the bridge publishes the cells holding data (the extent in the servers' status), and again,
+    wider, when the map grows anywhere; `psrmap query` and `psrmap export --connect` return the same whole map."""
+    import rasterio
+
+    from psrmap.cli import main
+
+    map_id, res = "wholemap", 0.4
+    key = f"0/psrmap/grid_map/grid_map_msgs::msg::dds_::GridMap_/{store.hash_rihs01('grid_map_msgs/msg/GridMap')}"
+    with served_map(map_id, res) as (_, client):
+        _fill(client, map_id)  # cells ix 2..8, iy -1..4
+        got: list[bytes] = []
+        sub = client.declare_subscriber(key, lambda s: got.append(s.payload.to_bytes()))
+        stop = threading.Event()
+        t, done = _start_bridge(BridgeConfig(map_id, None, (router,), rate_hz=10.0, resync_s=60.0), stop)
+        try:
+            _wait_for(lambda: len(got) >= 1)
+            _put_cells(client, map_id, 1, np.array([30]), np.array([7]))  # far east and north: the map grows
+            _merged(client, map_id, 2)
+            _wait_for(lambda: len(got) >= 2)
+        finally:
+            stop.set()
+            t.join(timeout=20)
+            sub.undeclare()
+        capsys.readouterr()
+        assert main(["query", "--map", map_id, "--connect", router]) == 0
+        queried = json.loads(capsys.readouterr().out)
+        assert main(["export", "--format", "geotiff", "--connect", router, "--map", map_id,
+                     "--out", str(tmp_path / "whole.tif")]) == 0  # fmt: skip
+    assert done and done[0]["published"]["grid_map"] == 2, done
+    assert (queried["ix0"], queried["iy0"], queried["w"], queried["h"]) == (2, -1, 29, 9)
+    first, second = (store.deserialize_cdr(b, "grid_map_msgs/msg/GridMap") for b in got[:2])
+    # cells 2..8 x -1..4: 7 x 6 cells, centred at x = (2 + 9) / 2 * res, y = (-1 + 5) / 2 * res
+    assert (first.info.length_x, first.info.length_y) == pytest.approx((7 * res, 6 * res))
+    assert (first.info.pose.position.x, first.info.pose.position.y) == pytest.approx((5.5 * res, 2 * res))
+    elev = np.asarray(first.data[list(first.layers).index("elevation")].data)
+    assert elev.size == 42 and np.isfinite(elev).all()  # every published cell holds data
+    assert (second.info.length_x, second.info.length_y) == pytest.approx((29 * res, 9 * res))  # 2..30 x -1..7
+    with rasterio.open(tmp_path / "whole.tif") as ds:
+        assert (ds.width, ds.height) == (29, 9)
+        assert tuple(ds.transform)[:6] == pytest.approx((res, 0.0, 2 * res, 0.0, -res, 8 * res))

@@ -46,6 +46,14 @@ def test_a_map_four_times_its_budget_merges_and_answers_exactly(router, tmp_path
         assert len(service.pager.cold) >= 20  # most of the 40 tiles live only in the file
         st = service.status()
         assert st.cells == ref.cells and st.merged == len(ds)
+        # the extent holds every cell with data; paged-out tiles count whole, so it is exact to within a tile
+        (ax0, ay0, ax1, ay1), (bx0, by0, bx1, by1) = st.bounds, ref.bounds()
+        assert (
+            bx0 - TILE < ax0 <= bx0
+            and by0 - TILE < ay0 <= by0
+            and bx1 <= ax1 < bx1 + TILE
+            and by1 <= ay1 < by1 + TILE
+        )
         got = service.region(rq)
         want = ref.region(got.ix0, got.iy0, got.ix0 + got.w - 1, got.iy0 + got.h - 1, stats=("all",))
         for layer in ("slip", "cot", "elevation"):

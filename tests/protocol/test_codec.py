@@ -1,5 +1,6 @@
 from __future__ import annotations
 
+import msgpack
 import numpy as np
 import pytest
 
@@ -40,6 +41,21 @@ def test_map_region_round_trip():
 def test_status_round_trip():
     st = Status(MAP, RES, 5, 10, 5, 1, {"wrong_res": 2}, {"s1": ScoutStatus(7, 4, True)})
     assert decode(encode(st), expected_type="status") == st
+
+
+def test_status_bounds_round_trip_and_give_the_whole_map_box():
+    st = Status(MAP, RES, 5, 10, 5, 1, bounds=(-3, 2, 7, 4))
+    back = decode(encode(st), expected_type="status")
+    assert back == st and back.to_json()["bounds"] == [-3, 2, 7, 4]
+    # the box through the corner cells' centres: cell_index of each corner is the corner cell
+    assert back.extent_m() == pytest.approx((-2.5 * RES, 2.5 * RES, 7.5 * RES, 4.5 * RES))
+    assert Status(MAP, RES, 0, 0, 0, 0).extent_m() is None
+    body = msgpack.unpackb(encode(st))
+    for bad, reason in (([1, 2, 3], "wrong_type"), ([0, 0, 1.5, 1], "wrong_type"), ([2, 0, 1, 1], "bad_value"),
+                        ([0, 0, 2**31, 1], "wrong_type")):  # fmt: skip
+        with pytest.raises(ProtocolError) as info:
+            decode(msgpack.packb({**body, "bounds": bad}), expected_type="status")
+        assert info.value.reason == reason
 
 
 @pytest.mark.parametrize("reason", DECODE_REASONS)
