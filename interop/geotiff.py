@@ -1,12 +1,19 @@
 """A map region as a multi-band GeoTIFF: one band per layer value and one per layer's observation count.
 
-Bands are float32 with NaN as nodata, each described (`layer value`, `layer count`) with its unit, statistic
-and meaning as band tags. Georeferencing:
+Bands are float32 with NaN as nodata, each described (`layer value`, `layer count`), with its unit as the band's
+unit type (GDAL's `GetUnitType`: `gdalinfo` prints it) and its unit, statistic and meaning as band tags.
+Georeferencing:
 
 - with a `MoonOrigin` (latitude, longitude of the map frame's origin, heading of its +x axis), the file is in
   `IAU_2015:30135` (Moon south polar stereographic, sphere R = 1737.4 km, the CRS of the LOLA south-pole
   DEMs): the affine transform carries the map's heading as a rotation and the projection's scale at that
-  latitude, so every pixel lands where the map cell lies;
+  latitude, so every pixel lands where the map cell lies. GeoTIFF keys can name only EPSG codes, so the
+  file's keys hold the projection itself (a user-defined polar stereographic, which PROJ matches to
+  IAU_2015:30135 at 25 % only: the keys turn its variant A into variant B), and a GDAL side-car
+  `<file>.aux.xml` holds the CRS as WKT2 with its identifier `ID["IAU",30135,2015]`: GDAL reads the side-car
+  first, so GDAL, QGIS and PROJ identify the file as IAU_2015:30135 (rasterio 1.4 reads a dataset's CRS
+  through WKT1, which drops the identifier's version: `crs.to_authority()` finds it under
+  `rasterio.Env(OSR_WKT_FORMAT="WKT2_2019")`);
 - without one, a local engineering CRS (`LOCAL_CS`, metres, x east, y north of the launch site), and the
   file's `PSRMAP_CRS` tag says that it is not georeferenced.
 """
@@ -23,11 +30,12 @@ import numpy as np
 from interop.errors import InteropError
 from protocol.layers import LAYERS
 
-__all__ = ["MOON_GEOGRAPHIC", "MOON_SOUTH_POLAR", "MoonOrigin", "map_affine", "write_geotiff"]
+__all__ = ["MOON_GEOGRAPHIC", "MOON_SOUTH_POLAR", "MoonOrigin", "map_affine", "pam_path", "write_geotiff"]
 
 MOON_SOUTH_POLAR = "IAU_2015:30135"  # Moon (2015) sphere, south polar stereographic
 MOON_GEOGRAPHIC = "IAU_2015:30100"  # Moon (2015) sphere, planetocentric latitude / longitude
 MOON_RADIUS_M = 1_737_400.0
+COUNT_UNIT = "observations"  # the unit type of a count band
 LOCAL_WKT = ('LOCAL_CS["psrmap map frame: metres east (x) and north (y) of the mission origin, not georeferenced",'
              'LOCAL_DATUM["psrmap mission origin",0],UNIT["metre",1],AXIS["X",EAST],AXIS["Y",NORTH]]')  # fmt: skip
 
@@ -105,7 +113,7 @@ def write_geotiff(
     if not names:
         raise InteropError("nothing to write: the region holds no layer")
     h, w = values[names[0]].shape
-    bands: list[tuple[np.ndarray, str, dict[str, str]]] = []
+    bands: list[tuple[np.ndarray, str, dict[str, str]]] = []  # array, description, tags (with its unit)
     for name in names:
         spec = LAYERS.get(name)
         unit = spec.unit if spec else ""
@@ -114,11 +122,12 @@ def write_geotiff(
             (values[name], f"{name} value", {"layer": name, "stat": "value", "unit": unit, "meaning": doc})
         )
         if name in counts:
-            bands.append((counts[name], f"{name} count", {"layer": name, "stat": "n", "unit": "observations",
+            bands.append((counts[name], f"{name} count", {"layer": name, "stat": "n", "unit": COUNT_UNIT,
                                                            "meaning": f"observations behind {name}"}))  # fmt: skip
     transform = map_affine(x0, y0 + h * res, res, origin)
     crs = CRS.from_string(MOON_SOUTH_POLAR) if origin else CRS.from_wkt(LOCAL_WKT)
     out = Path(path)
+    pam_path(out).unlink(missing_ok=True)  # an overwritten file's side-car would override its new CRS
     profile = dict(driver="GTiff", width=w, height=h, count=len(bands), dtype="float32", crs=crs,
                    transform=transform, nodata=float("nan"), compress="deflate", tiled=w >= 256 and h >= 256)  # fmt: skip
     with rasterio.open(out, "w", **profile) as ds:
@@ -133,5 +142,31 @@ def write_geotiff(
                 raise InteropError(f"band {desc!r} is {a.shape}; every band must be {(h, w)}")
             ds.write(a[::-1], i)  # GeoTIFF row 0 is the top (north) edge
             ds.set_band_description(i, desc)
+            if btags["unit"]:
+                ds.set_band_unit(i, btags["unit"])
             ds.update_tags(i, **btags)
+    if origin:
+        _write_pam_crs(out, crs)
     return out
+
+
+def pam_path(path: str | Path) -> Path:
+    """The GDAL side-car (`<file>.aux.xml`) that holds a georeferenced GeoTIFF's identified CRS."""
+    return Path(f"{path}.aux.xml")
+
+
+def _write_pam_crs(path: Path, crs) -> None:
+    """Put `crs` as WKT2 (with its authority ID) in the GDAL side-car of `path`, keeping whatever else GDAL
+    wrote there."""
+    import xml.etree.ElementTree as ET
+
+    side = pam_path(path)
+    root = (
+        ET.parse(side).getroot() if side.exists() else ET.Element("PAMDataset")
+    )  # GDAL may have written one
+    for old in root.findall("SRS"):
+        root.remove(old)
+    srs = ET.Element("SRS", {"dataAxisToSRSAxisMapping": "1,2"})  # easting, northing: the transform's order
+    srs.text = crs.to_wkt(version="WKT2_2019")
+    root.insert(0, srs)
+    ET.ElementTree(root).write(side, encoding="unicode")

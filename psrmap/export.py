@@ -1,8 +1,9 @@
 """`psrmap export`: a map region in the field's formats.
 
 - `--format geotiff`: a multi-band GeoTIFF (`interop/geotiff.py`): each layer's value and count, NaN as nodata,
-  band descriptions and units; in `IAU_2015:30135` (Moon south polar stereographic) when the mission's origin on
-  the Moon is known (`--origin LAT,LON[,HEADING]`, or `[mission] origin` of `--config`), else in a local
+  band descriptions and unit types; in `IAU_2015:30135` (Moon south polar stereographic) when the mission's
+  origin on the Moon is known (`--origin LAT,LON[,HEADING]`, or `[mission] origin` of `--config`), with the
+  GDAL side-car `<out>.aux.xml` that names that CRS (keep the two files together), else in a local
   engineering CRS that says so.
 - `--format mcap`: a rosbag2 folder with MCAP storage (`interop/rosbag.py`): the map as
   `grid_map_msgs/msg/GridMap` on `/psrmap/grid_map`, the planner's cost as `nav_msgs/msg/OccupancyGrid` on
@@ -116,7 +117,7 @@ def register(sub: Any) -> None:
 
 
 def _cmd(args: argparse.Namespace) -> int:
-    from interop.geotiff import MoonOrigin
+    from interop.geotiff import MoonOrigin, pam_path
 
     origin = None
     try:
@@ -150,7 +151,8 @@ def _cmd(args: argparse.Namespace) -> int:
     )
     print(json.dumps({"format": args.format, "out": str(out), "map": grid.map, "version": grid.version,
                       "layers": list(grid.layers), "w": grid.w, "h": grid.h, "res": grid.res,
-                      "crs": "IAU_2015:30135" if origin and args.format == "geotiff" else None}))  # fmt: skip
+                      "crs": "IAU_2015:30135" if origin and args.format == "geotiff" else None,
+                      "crs_sidecar": str(pam_path(out)) if origin and args.format == "geotiff" else None}))  # fmt: skip
     return 0
 
 

@@ -218,3 +218,42 @@ def test_mcap_read_by_foxglove_mcap_ros2_support(npz: Path, tmp_path: Path, caps
     assert (occ.info.origin.position.x, occ.info.origin.position.y) == pytest.approx((xa, ya))
     cells = np.asarray(occ.data, dtype=np.int8).reshape(h, w)
     assert (cells[0, :3] == -1).all() and ((cells[1:] >= 0) & (cells[1:] <= 100)).all()
+
+
+def test_the_moon_geotiff_is_identified_as_iau_2015_30135_and_its_bands_have_unit_types(
+    npz: Path, tmp_path: Path, capsys
+) -> None:
+    """GDAL's view of the file (rasterio on GDAL, exporting the dataset's CRS as WKT2 so the identifier keeps
+    its version): PROJ identifies the CRS as IAU_2015:30135 at full confidence and it projects like that CRS;
+    each band has a unit type (what `gdalinfo` prints as "Unit Type"). The GeoTIFF keys alone still carry the
+    same projection for readers that ignore GDAL's side-car."""
+    import rasterio
+    from rasterio.crs import CRS
+    from rasterio.warp import transform
+
+    from interop.geotiff import pam_path
+
+    out = tmp_path / "moon.tif"
+    _run(
+        ["export", "--format", "geotiff", "--npz", str(npz), "--out", str(out), "--origin=-89.45,222.7,30"],
+        capsys,
+    )
+    assert pam_path(out).exists()
+    iau = CRS.from_string("IAU_2015:30135")
+    geo = CRS.from_string("IAU_2015:30100")
+    with rasterio.Env(OSR_WKT_FORMAT="WKT2_2019"), rasterio.open(out) as ds:
+        assert ds.crs.to_authority() == ("IAU_2015", "30135")
+        assert 'ID["IAU",30135,2015]' in ds.crs.to_wkt(version="WKT2_2019")
+        assert ds.units == ("m", "observations", "1", "observations")  # elevation [m], counts, slip [1]
+        crs = ds.crs
+    with rasterio.Env(GDAL_GEOREF_SOURCES="INTERNAL"), rasterio.open(out) as ds:  # the GeoTIFF keys only
+        keys_crs = ds.crs
+    for c in (crs, keys_crs):
+        (e,), (n,) = transform(geo, c, [222.7], [-89.45])
+        (e1,), (n1,) = transform(geo, iau, [222.7], [-89.45])
+        assert (e, n) == pytest.approx((e1, n1), abs=1e-6)
+    # overwritten without an origin: the side-car goes with the old CRS, the file is in its local frame again
+    _run(["export", "--format", "geotiff", "--npz", str(npz), "--out", str(out)], capsys)
+    assert not pam_path(out).exists()
+    with rasterio.Env(OSR_WKT_FORMAT="WKT2_2019"), rasterio.open(out) as ds:
+        assert ds.crs.to_authority() is None and "not georeferenced" in ds.crs.to_wkt()
