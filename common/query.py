@@ -1,8 +1,9 @@
 """The one Zenoh query client: status and region queries of the map service, as every process asks them.
 
 `get_replies` sends one query (to the nearest queryable, or fanned out to every shard with
-`fan_out=True`), keeps only the replies of trusted servers when ids are given, and returns the payloads
-and the error texts; `get_one` is the first good payload or a `QueryError` that says why there is none;
+`fan_out=True`), keeps only the replies of the servers its `Trust` believes (common.trust: the one check every
+client makes; each ignored reply is logged and listed with the reason), and returns the payloads and the error
+texts; `get_one` is the first good payload or a `QueryError` that says why there is none;
 `get_status` is the map's decoded `Status`, or None. The CLI (`psrmap status`, `psrmap query`), the
 planner's client and the mission all query through here.
 """
@@ -17,6 +18,7 @@ from typing import Any
 import zenoh
 
 from common.errors import QueryError
+from common.trust import Trust, believe, trusted_ids
 from protocol.codec import decode
 from protocol.errors import ProtocolError
 from protocol.keys import partition_key, status_key
@@ -26,6 +28,7 @@ from protocol.partition import Partition
 __all__ = [
     "QueryError",
     "Replies",
+    "Trust",
     "aggregate_status",
     "get_one",
     "get_partition",
@@ -50,23 +53,22 @@ def get_replies(
     timeout_s: float,
     *,
     fan_out: bool = False,
-    trusted: Iterable[str] = (),
+    trusted: Trust | Iterable[str] = (),
 ) -> Replies:
     """Every reply to `selector` within `timeout_s`. fan_out: ask every matching queryable (all shards)
-    without consolidation; trusted: Zenoh ids of the servers to believe (empty: any)."""
+    without consolidation; trusted: whom to believe (a `Trust`, or Zenoh ids; empty: anyone)."""
     kw: dict[str, Any] = {"timeout": timeout_s}
     if fan_out:
         kw.update(target=zenoh.QueryTarget.ALL, consolidation=zenoh.ConsolidationMode.NONE)
-    trust = set(trusted)
+    map_id = selector.split("?", 1)[0].split("/")[1] if selector.count("/") >= 2 else ""
+    ids = trusted_ids(session, map_id, Trust.of(trusted), timeout_s)
     out = Replies()
     for reply in session.get(selector, **kw):
-        if trust:
-            rid = reply.replier_id
-            zid = str(rid.zid) if rid is not None else None
-            if zid not in trust:
-                out.errors.append(f"ignored a reply from {zid}, not a trusted map server")
-                log.warning("ignored a reply from %s: not one of the trusted servers %s", zid, sorted(trust))
-                continue
+        rid = reply.replier_id
+        zid = str(rid.zid) if rid is not None else None
+        if not believe(zid, ids, f"a reply on {selector.split('?', 1)[0]!r}"):
+            out.errors.append(f"ignored a reply from {zid}, not a trusted map server")
+            continue
         if reply.ok is not None:
             out.ok.append(reply.ok.payload.to_bytes())
         else:
@@ -77,9 +79,11 @@ def get_replies(
     return out
 
 
-def get_one(session: zenoh.Session, selector: str, timeout_s: float) -> bytes:
+def get_one(
+    session: zenoh.Session, selector: str, timeout_s: float, trusted: Trust | Iterable[str] = ()
+) -> bytes:
     """The first good reply to `selector`; QueryError when none came or the servers refused."""
-    replies = get_replies(session, selector, timeout_s)
+    replies = get_replies(session, selector, timeout_s, trusted=trusted)
     if replies.ok:
         return replies.ok[0]
     if replies.errors:
@@ -88,10 +92,10 @@ def get_one(session: zenoh.Session, selector: str, timeout_s: float) -> bytes:
 
 
 def get_statuses(
-    session: zenoh.Session, map_id: str, timeout_s: float = 2.0, trusted: Iterable[str] = ()
+    session: zenoh.Session, map_id: str, timeout_s: float = 2.0, trusted: Trust | Iterable[str] = ()
 ) -> list[Status]:
     """Every server's (every shard's) status of `map_id`, fanned out; undecodable replies are skipped;
-    trusted: Zenoh ids of the servers to believe (empty: any)."""
+    trusted: whom to believe (a `Trust`, or Zenoh ids; empty: anyone)."""
     out = []
     for payload in get_replies(session, status_key(map_id), timeout_s, fan_out=True, trusted=trusted).ok:
         try:
@@ -164,13 +168,15 @@ def _union_bounds(boxes: Iterable[tuple[int, int, int, int] | None]) -> tuple[in
     return (min(b[0] for b in got), min(b[1] for b in got), max(b[2] for b in got), max(b[3] for b in got))
 
 
-def get_partition(session: zenoh.Session, map_id: str, timeout_s: float = 2.0) -> Partition | None:
+def get_partition(
+    session: zenoh.Session, map_id: str, timeout_s: float = 2.0, trusted: Trust | Iterable[str] = ()
+) -> Partition | None:
     """The map's partition as its servers publish it (`psr/<map>/partition`); None when none answered.
     Raises QueryError when servers disagree (a misconfigured deployment must not be guessed around)."""
     import msgpack
 
     found: set[Partition] = set()
-    for payload in get_replies(session, partition_key(map_id), timeout_s, fan_out=True).ok:
+    for payload in get_replies(session, partition_key(map_id), timeout_s, fan_out=True, trusted=trusted).ok:
         try:
             found.add(Partition.from_dict(msgpack.unpackb(payload, raw=False)))
         except (ProtocolError, ValueError) as exc:
@@ -182,10 +188,12 @@ def get_partition(session: zenoh.Session, map_id: str, timeout_s: float = 2.0) -
     return found.pop() if found else None
 
 
-def get_status(session: zenoh.Session, map_id: str, timeout_s: float = 2.0) -> Status | None:
+def get_status(
+    session: zenoh.Session, map_id: str, timeout_s: float = 2.0, trusted: Trust | Iterable[str] = ()
+) -> Status | None:
     """The map's status — aggregated over its shards when it is sharded (`aggregate_status`) — or None when
     no server answered (or no answer was a valid status)."""
-    parts = get_statuses(session, map_id, timeout_s)
+    parts = get_statuses(session, map_id, timeout_s, trusted)
     return aggregate_status(parts) if parts else None
 
 

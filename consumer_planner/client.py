@@ -14,7 +14,7 @@ import logging
 import threading
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -23,6 +23,7 @@ import zenoh
 from common.errors import QueryError
 from common.query import get_replies, get_statuses, map_extent
 from common.session import zenoh_config
+from common.trust import Trust, TrustedIds, load_trust
 from consumer_planner.errors import PlannerError
 from mapcore import LayerGrid, MapCoreError, stitch
 from protocol.codec import INDEX_LIMIT, decode
@@ -38,7 +39,6 @@ __all__ = [
     "RegionFollower",
     "RegionWatch",
     "query_region",
-    "trusted_servers",
 ]
 
 log = logging.getLogger(__name__)
@@ -53,23 +53,17 @@ class ClientConfig:
     x0: float = 0.0  # map origin [m]
     y0: float = 0.0
     zenoh_config: str | None = None  # Zenoh config file with the planner's credentials
-    trusted_servers: tuple[str, ...] = ()  # Zenoh ids of the map servers to believe (empty: any)
+    trusted_servers: tuple[str, ...] = ()  # Zenoh ids of map servers to believe outright
+    trust: Trust | None = None  # whom to believe; None: the servers.json beside zenoh_config, if any
 
-
-def trusted_servers(path: str | None, required: bool = False) -> tuple[str, ...]:
-    """Server Zenoh ids from a `servers.json` written by `psrmap secure init` ({name: zid}); () without one."""
-    import json
-    from pathlib import Path
-
-    if path is None or not Path(path).is_file():
-        if required:
-            raise ValueError(f"--trust-servers {path}: no such file (psrmap secure init writes servers.json)")
-        return ()
-    try:
-        ids = json.loads(Path(path).read_text())
-        return tuple(str(v) for v in ids.values())
-    except (ValueError, AttributeError) as exc:
-        raise ValueError(f"{path}: not a servers.json ({{name: zenoh id}}): {exc}") from None
+    def believed(self) -> Trust:
+        """The trust the client applies (common.trust): `trust`, else what the files beside the Zenoh config ask
+        for, and the `trusted_servers` ids; PlannerError for an unreadable servers.json."""
+        try:
+            base = self.trust if self.trust is not None else load_trust(None, self.zenoh_config)
+        except ValueError as exc:
+            raise PlannerError(str(exc)) from None
+        return replace(base, zids=base.zids + self.trusted_servers) if self.trusted_servers else base
 
 
 Box = tuple[float, float, float, float]
@@ -90,7 +84,7 @@ def query_region(
     key = map_key(map_id)
     regions: list[MapRegion] = []
     replies = get_replies(
-        session, f"{key}?{q.to_parameters()}", config.timeout_s, fan_out=True, trusted=config.trusted_servers
+        session, f"{key}?{q.to_parameters()}", config.timeout_s, fan_out=True, trusted=config.believed()
     )
     errors = replies.errors
     for payload in replies.ok:
@@ -154,7 +148,7 @@ class MapClient:
         """The box [m] holding every cell of the map with data, from every (trusted) server's status."""
         if self._session is None:
             raise RuntimeError("MapClient used outside its `with` block")
-        statuses = get_statuses(self._session, map_id, self.config.timeout_s, self.config.trusted_servers)
+        statuses = get_statuses(self._session, map_id, self.config.timeout_s, self.config.believed())
         try:
             return map_extent(statuses, map_id)
         except QueryError as exc:
@@ -165,7 +159,7 @@ class MapClient:
         where the recording logs a plan made now), None when no server answers."""
         if self._session is None:
             raise RuntimeError("MapClient used outside its `with` block")
-        parts = get_statuses(self._session, map_id, self.config.timeout_s, self.config.trusted_servers)
+        parts = get_statuses(self._session, map_id, self.config.timeout_s, self.config.believed())
         return max((st.t for st in parts), default=None)
 
 
@@ -185,9 +179,19 @@ class RegionChange:
 
 class RegionWatch:
     """`with RegionWatch(session, map_id, res, (x0, y0, x1, y1)) as w: ... w.changed(timeout)`; box None: the
-    whole map (every change)."""
+    whole map (every change).
 
-    def __init__(self, session: zenoh.Session, map_id: str, res: float, box: Box | None):
+    trust: whose notices to act on (common.trust; a notice names its sender in its source info); others are
+    ignored with a log line and counted in `ignored`."""
+
+    def __init__(
+        self,
+        session: zenoh.Session,
+        map_id: str,
+        res: float,
+        box: Box | None,
+        trust: Trust | Sequence[str] = (),
+    ):
         if box is None:
             self.cells = (-INDEX_LIMIT, -INDEX_LIMIT, INDEX_LIMIT, INDEX_LIMIT)
         else:
@@ -200,10 +204,16 @@ class RegionWatch:
         ] = {}  # newest version seen per shard (any change, in the box or not)
         self._pending: list[RegionChange] = []
         self._cond = threading.Condition()
-        self.ignored = 0  # undecodable notifications
+        self.ignored = 0  # undecodable notifications, and notices from senders not trusted
+        self._trusted = TrustedIds(session, map_id, Trust.of(trust))
         self._sub = session.declare_subscriber(changes_pattern(map_id), self._on)
 
     def _on(self, sample: zenoh.Sample) -> None:
+        info = sample.source_info
+        zid = str(info.source_id.zid) if info is not None else None
+        if not self._trusted.believe(zid, f"a tile-change notice on {sample.key_expr}"):
+            self.ignored += 1
+            return
         try:
             msg = decode(sample.payload.to_bytes(), expected_type="tile_changes")
         except ProtocolError as exc:
@@ -230,6 +240,7 @@ class RegionWatch:
 
     def close(self) -> None:
         self._sub.undeclare()
+        self._trusted.close()
 
     def __enter__(self) -> RegionWatch:
         return self
@@ -260,12 +271,12 @@ class RegionFollower:
         box: Box | None,
         resync_s: float = 10.0,
         timeout_s: float = 2.0,
-        trusted: Sequence[str] = (),
+        trusted: Trust | Sequence[str] = (),
     ) -> None:
         if not resync_s > 0:
             raise ValueError(f"resync_s={resync_s}: need a period > 0 seconds")
         self._session, self.map_id, self.box = session, map_id, box
-        self.resync_s, self.timeout_s, self.trusted = resync_s, timeout_s, tuple(trusted)
+        self.resync_s, self.timeout_s, self.trusted = resync_s, timeout_s, Trust.of(trusted)
         self.watch: RegionWatch | None = None
         self.seen: dict[int | None, int] = {}  # each shard's version the last query reflects
         self.last_changes: list[RegionChange] = []  # the notices behind the current `due`
@@ -284,7 +295,7 @@ class RegionFollower:
             statuses = self.statuses()
             self._next_resync = now + self.resync_s
             if statuses and self.watch is None:  # the map's res is known now: watch the box from here on
-                self.watch = RegionWatch(self._session, self.map_id, statuses[0].res, self.box)
+                self.watch = RegionWatch(self._session, self.map_id, statuses[0].res, self.box, self.trusted)
             elif self.watch is not None and any(
                 st.version > max(self.seen.get(st.shard, -1), self.watch.versions.get(st.shard, -1))
                 for st in statuses

@@ -12,7 +12,6 @@ import math
 import threading
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -131,17 +130,15 @@ def _box(source: MapSource, points: list[Point]) -> tuple[float, float, float, f
 
 
 def _client_config(source: MapSource) -> Any:
-    from consumer_planner.client import ClientConfig, trusted_servers
+    from common.trust import load_trust
+    from consumer_planner.client import ClientConfig
 
-    trust = source.trust_servers or (
-        str(Path(source.zenoh_config).with_name("servers.json")) if source.zenoh_config else None
-    )
     try:
-        ids = trusted_servers(trust, required=bool(source.trust_servers))
+        trust = load_trust(source.trust_servers, source.zenoh_config)
     except ValueError as exc:
         raise PlannerError(str(exc)) from None
     return ClientConfig(connect=source.connect, timeout_s=source.timeout_s, zenoh_config=source.zenoh_config,
-                        trusted_servers=ids)  # fmt: skip
+                        trust=trust)  # fmt: skip
 
 
 def _log(
@@ -217,7 +214,7 @@ def watch_plan(
     with MapClient(_client_config(source)) as client:
         assert client.session is not None
         with RegionFollower(client.session, source.map_id, box, resync_s, source.timeout_s,
-                            client.config.trusted_servers) as follow:  # fmt: skip
+                            client.config.believed()) as follow:  # fmt: skip
             while not stop.is_set() and time.monotonic() < end:
                 if follow.due():
                     changes = list(follow.last_changes)

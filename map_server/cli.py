@@ -202,12 +202,23 @@ def cmd_server(args: argparse.Namespace) -> int:
     return summary.exit_code
 
 
+def _trust(args: argparse.Namespace) -> Any:
+    """Whose replies to believe (common.trust): the servers.json beside --zenoh-config, if there is one."""
+    from common.trust import load_trust
+
+    try:
+        return load_trust(None, getattr(args, "zenoh_config", None))
+    except ValueError as exc:
+        args.parser.error(str(exc))
+
+
 def _get_all(args: argparse.Namespace, selector: str) -> list[bytes]:
     """Every server's (every shard's) good reply (`common.query`, fanned out), or exit 1 saying why none."""
     from common.query import get_replies
 
+    trust = _trust(args)
     with _open(_conf(args, _client_endpoints(args)), args) as s:
-        replies = get_replies(s, selector, args.timeout, fan_out=True)
+        replies = get_replies(s, selector, args.timeout, fan_out=True, trusted=trust)
     if replies.ok:
         return replies.ok
     why = "; ".join(replies.errors) or f"no reply within {args.timeout:g} s (is a server for this map up?)"
@@ -219,8 +230,9 @@ def cmd_status(args: argparse.Namespace) -> int:
     """The map's status; for a sharded map the aggregate over its shards, each shard's own under `shards`."""
     from common.query import aggregate_status, get_statuses
 
+    trust = _trust(args)
     with _open(_conf(args, _client_endpoints(args)), args) as s:
-        parts = get_statuses(s, args.map, args.timeout)
+        parts = get_statuses(s, args.map, args.timeout, trust)
     if not parts:
         print(f"error: no server of map {args.map!r} answered within {args.timeout:g} s", file=sys.stderr)
         return 1
@@ -285,9 +297,10 @@ def cmd_query(args: argparse.Namespace) -> int:
         from common.errors import QueryError
         from common.query import get_statuses, map_extent
 
+        trust = _trust(args)
         with _open(_conf(args, _endpoints(args.connect)), args) as s:
             try:
-                x0, y0, x1, y1 = map_extent(get_statuses(s, args.map, args.timeout), args.map)
+                x0, y0, x1, y1 = map_extent(get_statuses(s, args.map, args.timeout, trust), args.map)
             except QueryError as exc:
                 print(f"error: {exc}", file=sys.stderr)
                 return 1

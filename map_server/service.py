@@ -39,6 +39,7 @@ from protocol.keys import (
     map_key,
     parse_alive_key,
     partition_key,
+    server_id_key,
     server_who,
     status_key,
 )
@@ -238,6 +239,8 @@ class MapService:
         conf.insert_json5("transport/link/rx/max_message_size", str(c.limits.max_message_bytes + (1 << 20)))
         self._session = open_session(conf)  # SessionError (a ConnectionError) when it cannot
         s = self._session
+        # first: clients believe this session's replies and notices only once its id is attested (common.trust)
+        self._entities.append(s.liveliness().declare_token(server_id_key(c.map_id, str(s.info.zid()))))
         self._sub = s.declare_subscriber(
             delta_pattern(c.map_id, c.shard_id), zenoh.handlers.FifoChannel(c.channel_capacity)
         )
@@ -458,7 +461,8 @@ class MapService:
         c = self.config
         msg = TileChanges(c.map_id, c.shard_id, version, self.map.res, self.map.tile, tiles)
         try:
-            self._changes_pub.put(encode(msg))
+            # the sender's id travels with the notice: watchers ignore notices from ids that are not servers
+            self._changes_pub.put(encode(msg), source_info=zenoh.SourceInfo(self._changes_pub.id, version))
         except zenoh.ZError as exc:  # a notification is advisory: never let it stop the merge worker
             log.warning("could not publish tile changes: %s", exc)
 

@@ -17,6 +17,8 @@ __all__ = [
     "changes_key",
     "changes_pattern",
     "partition_key",
+    "server_id_key",
+    "server_id_pattern",
     "server_who",
     "delta_key",
     "delta_pattern",
@@ -99,6 +101,18 @@ def changes_key(map_id: str, shard: int | None = None) -> str:
 
 def changes_pattern(map_id: str) -> str:
     return f"{PREFIX}/{validate_id(map_id, 'map')}/changes/*"
+
+
+def server_id_key(map_id: str, zid: str) -> str:
+    """The liveliness token a map server holds to say "Zenoh id `zid` is a server of this map": the router's ACL
+    lets only server credentials declare it, so clients believe replies from the ids these tokens name."""
+    if not re.fullmatch(r"[0-9a-f]{1,32}", str(zid)):
+        raise ProtocolError("bad_id", f"zenoh id {zid!r}: valid is 1-32 lowercase hex digits")
+    return f"{PREFIX}/{validate_id(map_id, 'map')}/serverid/{zid}"
+
+
+def server_id_pattern(map_id: str) -> str:
+    return f"{PREFIX}/{validate_id(map_id, 'map')}/serverid/*"
 
 
 def map_key(map_id: str) -> str:

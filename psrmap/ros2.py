@@ -84,7 +84,7 @@ def run_bridge(cfg: BridgeConfig, stop: threading.Event | None = None, log=print
         log(f"[ros2] node {cfg.node} on domain {cfg.domain}: " + ", ".join(p.topic for p in pubs.values()))
         last_version = None
         client = ClientConfig(connect=cfg.connect, zenoh_config=cfg.zenoh_config)
-        follow = RegionFollower(session, cfg.map_id, cfg.box, cfg.resync_s)
+        follow = RegionFollower(session, cfg.map_id, cfg.box, cfg.resync_s, trusted=client.believed())
         last_error = ""
         try:
             while not stop.is_set() and time.monotonic() < t_end:

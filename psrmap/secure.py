@@ -1,20 +1,26 @@
 """`psrmap secure init`: per-agent Zenoh credentials and the router's access control list, with Zenoh's own
 machinery (`transport/auth/usrpwd`, `access_control`; mutual TLS as an option).
 
-What each identity may do (everything else is denied by the router):
-- a scout `S`: put on `psr/<map>/delta/S` (a sharded map: `psr/<map>/shard/<i>/delta/S`), declare the liveliness
-  token `psr/<map>/alive/S`, receive acks on `psr/<map>/ack/S` (`psr/<map>/shard/<i>/ack/S`), see the servers'
-  liveliness tokens, ask the map's partition (`psr/<map>/partition`);
-- a server: receive every delta, put acks, declare the `map` and `status` queryables and reply to queries,
-  declare its token and watch the scouts' tokens;
-- a planner: query `psr/<map>/map`, `psr/<map>/status` and `psr/<map>/partition` and receive the replies, and
-  subscribe to the tile change notifications `psr/<map>/changes/**` — nothing else.
-The files: `credentials.txt` (the router's `user:password` dictionary), `router.json5`, one `<agent>.json5` per
-agent holding its user name and password, and `servers.json` ({server: Zenoh id}; each server's config pins its
-Zenoh id) from which planners learn whose replies to believe. With `--tls` the router listens on a `tls/`
+Roles (`GRANTS`, the README's roles table; everything else is denied by the router, per message kind and direction):
+- a server: subscribes to and receives every delta, puts acks and tile-change notices, declares the `map`,
+  `status` and `partition` queryables and replies on them, holds `alive/server*` tokens and the token
+  `psr/<map>/serverid/<its Zenoh id>`, watches the scouts' tokens;
+- a scout `S`: puts only `psr/<map>/delta/S` (sharded: `psr/<map>/shard/<i>/delta/S`), holds only the token
+  `psr/<map>/alive/S`, receives its own acks, asks the partition, sees the servers' tokens;
+- a reader (a planner or a bridge): queries `map`, `status`, `partition` and receives the replies, subscribes to
+  tile changes, sees the tokens — nothing else.
+Whose replies to believe: each server start takes a fresh random Zenoh id and declares it in a `serverid` token,
+which only server credentials may; clients (`common.trust`) believe replies and notices only from the ids so
+declared. No id is pinned, so none can be squatted while its server is down: Zenoh's ACL can match a session's
+id (`zids` subjects) but cannot refuse a session, so a pinned id held by an impostor would lock the real server
+out (its session is refused as a duplicate). The files: `credentials.txt` (the router's `user:password`
+dictionary), `router.json5`, one `<agent>.json5` per agent holding its user name and password, and
+`servers.json` ({"map", "servers": names, "trust": "attested"}) whose presence beside an agent's file tells its
+clients to believe attested servers only. With `--tls` the router listens on a `tls/`
 endpoint and requires mutual TLS as well: `tls/ca.pem` signs the router's certificate (valid for `localhost`,
 127.0.0.1 and the endpoint's host) and one client certificate per agent (common name = the agent id), ECDSA P-256,
-valid `--days`; a client without a certificate from that CA cannot connect, whatever its password. Rotation: run
+valid `--days`; a client without a certificate from that CA cannot connect, whatever its password, and the ACL
+matches the certificate's common name and the user name together. Rotation: run
 `init` again into a new folder (fresh passwords), restart the router with its new file, then each agent with
 its own; an agent is revoked by removing its line from `credentials.txt` and restarting the router.
 """
@@ -31,105 +37,90 @@ from typing import Any
 from common.session import endpoint_arg
 from protocol.keys import validate_id
 
-__all__ = ["SecureLayout", "acl", "register", "secure_init"]
+__all__ = ["GRANTS", "Grant", "SecureLayout", "acl", "register", "roles_table", "secure_init"]
 
-_BOTH = ["ingress", "egress"]
+# Every message kind Zenoh's access control tells apart; a rule allows some of them in one direction. `in`
+# (ingress at the router) is what an agent sends, `out` (egress) what the router passes on to it.
+_DECLARE = ["declare_subscriber", "declare_queryable", "liveliness_token", "declare_liveliness_subscriber"]
 
 
-def _rule(rid: str, messages: list[str], keys: list[str]) -> dict[str, Any]:
-    return {"id": rid, "messages": messages, "flows": _BOTH, "permission": "allow", "key_exprs": keys}
+@dataclass(frozen=True)
+class Grant:
+    """One line of the roles table: `role` may `messages` in direction `flow` on `keys` (`<map>` and `<id>` are
+    filled in per map and agent)."""
+
+    role: str  # server | scout | reader (planners, bridges)
+    flow: str  # "ingress" (the agent sends) or "egress" (the router passes it to the agent)
+    messages: tuple[str, ...]
+    keys: tuple[str, ...]
+    why: str
+
+
+# The roles table (README "Security and limits" shows it): everything not listed is denied by the router.
+GRANTS: tuple[Grant, ...] = (
+    Grant("server", "ingress", ("declare_subscriber",), ("delta/**", "shard/*/delta/**"), "subscribe to deltas"),
+    Grant("server", "egress", ("put",), ("delta/**", "shard/*/delta/**"), "receive the deltas"),
+    Grant("server", "ingress", ("put",), ("ack/**", "shard/*/ack/**", "changes/**"),
+          "acks and tile-change notices"),
+    Grant("server", "ingress", ("declare_queryable", "reply"), ("map", "status", "partition"),
+          "serve map, status, partition"),
+    Grant("server", "egress", ("query",), ("map", "status", "partition"), "receive the queries"),
+    Grant("server", "ingress", ("liveliness_token",), ("alive/server", "alive/server-$*", "serverid/*"),
+          "server tokens; its Zenoh id"),
+    Grant("server", "ingress", ("declare_liveliness_subscriber", "liveliness_query"), ("alive/*",),
+          "watch the scouts"),
+    Grant("scout", "ingress", ("put",), ("delta/<id>", "shard/*/delta/<id>"), "its own deltas only"),
+    Grant("scout", "ingress", ("liveliness_token",), ("alive/<id>",), "its own token only"),
+    Grant("scout", "ingress", ("declare_subscriber",), ("ack/<id>", "shard/*/ack/<id>"), "its own acks"),
+    Grant("scout", "egress", ("put",), ("ack/<id>", "shard/*/ack/<id>"), "receive its acks"),
+    Grant("scout", "ingress", ("query",), ("partition",), "discover the shards"),
+    Grant("scout", "egress", ("reply",), ("partition",), "the servers' answers"),
+    Grant("scout", "ingress", ("declare_liveliness_subscriber", "liveliness_query"),
+          ("alive/server", "alive/server-$*", "serverid/*"), "see the servers"),
+    Grant("reader", "ingress", ("query",), ("map", "status", "partition"), "ask the map"),
+    Grant("reader", "egress", ("reply",), ("map", "status", "partition"), "the servers' answers"),
+    Grant("reader", "ingress", ("declare_subscriber",), ("changes/**",), "watch tile changes"),
+    Grant("reader", "egress", ("put",), ("changes/**",), "receive tile changes"),
+    Grant("reader", "ingress", ("declare_liveliness_subscriber", "liveliness_query"), ("alive/*", "serverid/*"),
+          "see servers and scouts"),
+    *(Grant(r, "egress", tuple(_DECLARE), ("**",), "learn who subscribes, serves, is alive")
+      for r in ("server", "scout", "reader")),
+    *(Grant(r, "egress", ("reply",), ("alive/*", "serverid/*"), "liveliness answers")
+      for r in ("server", "scout", "reader")),
+)  # fmt: skip
 
 
 def acl(
-    map_id: str, scouts: Sequence[str], planners: Sequence[str], servers: Sequence[str]
+    map_id: str,
+    scouts: Sequence[str],
+    planners: Sequence[str],
+    servers: Sequence[str],
+    tls: bool = False,
 ) -> dict[str, Any]:
-    """The router's `access_control` section for one map."""
+    """The router's `access_control` section for one map: each agent gets its role's `GRANTS` (its own id in
+    `<id>`), matched on its user name — and, with `tls`, on its certificate's common name as well (Zenoh ANDs a
+    subject's fields: one agent's certificate with another's password matches no subject, so it may do nothing).
+    Planners and bridges are `reader`s."""
     base = f"psr/{map_id}"
     rules, subjects, policies = [], [], []
-    for s in scouts:
-        rid = f"scout_{s}"
-        rules.append(_rule(f"{rid}_writes", ["put"], [f"{base}/delta/{s}", f"{base}/shard/*/delta/{s}"]))
-        # the router must tell the scout that the server subscribes to the deltas (egress only: the scout may
-        # not subscribe itself), or Zenoh's write filter stops sending after the first put
-        rules.append(
-            {
-                **_rule(
-                    f"{rid}_server_listens",
-                    ["declare_subscriber"],
-                    [f"{base}/delta/**", f"{base}/shard/*/delta/**"],
-                ),
-                "flows": ["egress"],
-            }
-        )
-        rules.append(_rule(f"{rid}_token", ["liveliness_token"], [f"{base}/alive/{s}"]))
-        rules.append(
-            _rule(
-                f"{rid}_acks", ["declare_subscriber", "put"], [f"{base}/ack/{s}", f"{base}/shard/*/ack/{s}"]
-            )
-        )
-        rules.append(
-            _rule(
-                f"{rid}_server_up",
-                ["declare_liveliness_subscriber", "liveliness_token", "liveliness_query"],
-                [f"{base}/alive/server", f"{base}/alive/server-$*"],
-            )
-        )
-        rules.append(
-            _rule(f"{rid}_partition", ["query", "reply", "declare_queryable"], [f"{base}/partition"])
-        )
-        subjects.append({"id": rid, "usernames": [s]})
-        policies.append(
-            {
-                "rules": [
-                    f"{rid}_writes",
-                    f"{rid}_server_listens",
-                    f"{rid}_token",
-                    f"{rid}_acks",
-                    f"{rid}_server_up",
-                    f"{rid}_partition",
-                ],
-                "subjects": [rid],
-            }
-        )
-    for s in servers:
-        rid = f"server_{s}"
-        rules.append(
-            _rule(
-                rid,
-                [
-                    "put",
-                    "declare_subscriber",
-                    "declare_queryable",
-                    "query",
-                    "reply",
-                    "liveliness_token",
-                    "liveliness_query",
-                    "declare_liveliness_subscriber",
-                ],
-                [f"{base}/**"],
-            )
-        )
-        subjects.append({"id": rid, "usernames": [s]})
-        policies.append({"rules": [rid], "subjects": [rid]})
-    for p in planners:
-        rid = f"planner_{p}"
-        rules.append(
-            _rule(
-                rid,
-                ["query", "reply", "declare_queryable"],
-                [f"{base}/map", f"{base}/status", f"{base}/partition"],
-            )
-        )
-        rules.append(
-            _rule(
-                f"{rid}_server_up",
-                ["declare_liveliness_subscriber", "liveliness_token", "liveliness_query"],
-                [f"{base}/alive/server", f"{base}/alive/server-$*"],
-            )
-        )
-        rules.append(_rule(f"{rid}_changes", ["declare_subscriber", "put"], [f"{base}/changes/**"]))
-        subjects.append({"id": rid, "usernames": [p]})
-        policies.append({"rules": [rid, f"{rid}_server_up", f"{rid}_changes"], "subjects": [rid]})
+    for role, names in (("server", servers), ("scout", scouts), ("reader", planners)):
+        for n in names:
+            rid = f"{role}_{n}"
+            ids = []
+            for i, g in enumerate(x for x in GRANTS if x.role == role):
+                ids.append(f"{rid}_{i}")
+                rules.append({
+                    "id": ids[-1],
+                    "messages": list(g.messages),
+                    "flows": [g.flow],
+                    "permission": "allow",
+                    "key_exprs": [f"{base}/{k.replace('<id>', n)}" for k in g.keys],
+                })  # fmt: skip
+            subject: dict[str, Any] = {"id": rid, "usernames": [n]}
+            if tls:
+                subject["cert_common_names"] = [n]
+            subjects.append(subject)
+            policies.append({"rules": ids, "subjects": [rid]})
     return {
         "enabled": True,
         "default_permission": "deny",
@@ -137,6 +128,17 @@ def acl(
         "subjects": subjects,
         "policies": policies,
     }
+
+
+def roles_table() -> str:
+    """GRANTS as a Markdown table (README "Security and limits")."""
+    lines = ["| role | sends (in) / receives (out) | message kinds | keys under `psr/<map>/` | for |",
+             "| --- | --- | --- | --- | --- |"]  # fmt: skip
+    for g in GRANTS:
+        flow = "sends" if g.flow == "ingress" else "receives"
+        keys = ", ".join(f"`{k}`" for k in g.keys)
+        lines.append(f"| {g.role} | {flow} | {', '.join(g.messages)} | {keys} | {g.why} |")
+    return "\n".join(lines)
 
 
 @dataclass(frozen=True)
@@ -147,7 +149,7 @@ class SecureLayout:
     router: Path
     agents: dict[str, Path]  # agent id -> its Zenoh config
     credentials: Path
-    servers: Path  # servers.json: server name -> its pinned Zenoh id
+    servers: Path  # servers.json: the map's server names; clients believe only attested servers
 
 
 def _agent_config(user: str, password: str, mode: str, endpoint: str) -> dict[str, Any]:
@@ -270,7 +272,7 @@ def secure_init(
                 }
             }
         },
-        "access_control": acl(map_id, scouts, planners, servers),
+        "access_control": acl(map_id, scouts, planners, servers, tls),
     }
     if tls:
         router_conf["transport"]["link"] = {
@@ -284,7 +286,6 @@ def secure_init(
     files = {"router": out / "router.json5"}
     files["router"].write_text(json.dumps(router_conf, indent=2))
     agents = {}
-    zids = {s: _zid() for s in servers}
     for n in names:
         agents[n] = out / f"{n}.json5"
         conf = _agent_config(n, passwords[n], "client", endpoint)
@@ -297,11 +298,9 @@ def secure_init(
                     "connect_private_key": str(certs[n][1].resolve()),
                 }
             }
-        if n in zids:
-            conf["id"] = zids[n]
         agents[n].write_text(json.dumps(conf, indent=2))
     trust = out / "servers.json"
-    trust.write_text(json.dumps(zids, indent=2))
+    trust.write_text(json.dumps({"map": map_id, "servers": list(servers), "trust": "attested"}, indent=2))
     for p in [cred, *files.values(), *agents.values()]:
         p.chmod(0o600)
     return SecureLayout(out, files["router"], agents, cred, trust)

@@ -23,6 +23,7 @@ import zenoh
 from common.errors import QueryError
 from common.query import get_partition
 from common.session import zenoh_config
+from common.trust import load_trust
 from protocol.codec import decode
 from protocol.errors import ProtocolError
 from protocol.keys import ack_key, alive_key, server_who
@@ -97,8 +98,9 @@ class ScoutPublisher:
             ) from None
         if partition is None:
             try:
-                partition = get_partition(self._session, map_id, discover_timeout_s)
-            except QueryError as exc:
+                trust = load_trust(None, zenoh_config_file)  # only the map's servers say how it is split
+                partition = get_partition(self._session, map_id, discover_timeout_s, trust)
+            except (QueryError, ValueError) as exc:
                 self._session.close()
                 raise ScoutLinkError(str(exc)) from None
             if partition is None:

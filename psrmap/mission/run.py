@@ -33,19 +33,19 @@ from psrmap.progress import progress as progress_bar
 __all__ = ["run_mission"]
 
 
-def _status(session: Any, map_id: str, timeout: float = 2.0) -> Any | None:
+def _status(session: Any, map_id: str, timeout: float = 2.0, trust: Any = ()) -> Any | None:
     from common.query import get_status
 
-    return get_status(session, map_id, timeout)
+    return get_status(session, map_id, timeout, trust)
 
 
 def _wait_for_server(
-    session: Any, map_id: str, procs: Sequence[Proc], deadline: float, shards: int = 1
+    session: Any, map_id: str, procs: Sequence[Proc], deadline: float, shards: int = 1, trust: Any = ()
 ) -> Any:
     from common.query import aggregate_status, get_statuses
 
     while time.monotonic() < deadline:
-        parts = get_statuses(session, map_id, timeout_s=1.0)
+        parts = get_statuses(session, map_id, 1.0, trust)
         if len({p.shard for p in parts}) >= shards:  # every shard answers
             return aggregate_status(parts)
         for p in procs:
@@ -101,6 +101,11 @@ def run_mission(cfg: MissionConfig, run_dir: Path | None = None, progress: bool 
         )
         creds = {name: str(path) for name, path in lay.agents.items()}
         router_file = lay.router
+    from common.trust import load_trust
+
+    trust = load_trust(
+        None, router_file
+    )  # with credentials: believe only the attested servers (common.trust)
     with zenoh.open(zenoh_config(listen=[endpoint], mode="router", config_file=router_file)) as session:
         say(
             f"[mission] router listening on {endpoint}"
@@ -122,7 +127,9 @@ def run_mission(cfg: MissionConfig, run_dir: Path | None = None, progress: bool 
                     shard=i if sharded else None,
                 )
                 servers.append(spawn(ctx, name, run_server, server_cfg, run_dir, env))
-            _wait_for_server(session, cfg.map, servers, min(deadline, time.monotonic() + 60), cfg.shards)
+            _wait_for_server(
+                session, cfg.map, servers, min(deadline, time.monotonic() + 60), cfg.shards, trust
+            )
             where = (
                 f"{cfg.shards} shards, db map.shard<i>.db" if cfg.shards > 1 else f"db {run_dir / 'map.db'}"
             )
@@ -141,7 +148,7 @@ def run_mission(cfg: MissionConfig, run_dir: Path | None = None, progress: bool 
             while any(p.proc.is_alive() for p in procs):
                 if time.monotonic() > deadline:
                     raise MissionRunError(f"mission timed out after {cfg.timeout_s:g} s")
-                st = _status(session, cfg.map, timeout=1.0)
+                st = _status(session, cfg.map, 1.0, trust)
                 if st is not None:
                     walked = sum(
                         min((v.last_seq + 1) / cfg.rate_hz, cfg.sim_seconds) for v in st.scouts.values()
@@ -172,7 +179,7 @@ def run_mission(cfg: MissionConfig, run_dir: Path | None = None, progress: bool 
             summary["elevation_agreement"] = elevation_agreement(
                 {s.id: run_dir / f"{s.id}_local.npz" for s in cfg.scouts}
             )
-            summary["status"] = _status_json(_await_totals(session, cfg, scouts))
+            summary["status"] = _status_json(_await_totals(session, cfg, scouts, trust))
             say(
                 f"[mission] scouts done; server merged {summary['status']['merged']} deltas into {summary['status']['cells']} cells"
             )
@@ -207,12 +214,14 @@ def run_mission(cfg: MissionConfig, run_dir: Path | None = None, progress: bool 
     return summary
 
 
-def _await_totals(session: Any, cfg: MissionConfig, scouts: dict[str, Any], wait_s: float = 15.0) -> Any:
+def _await_totals(
+    session: Any, cfg: MissionConfig, scouts: dict[str, Any], trust: Any = (), wait_s: float = 15.0
+) -> Any:
     """The server's status once every scout's last delta is merged (scouts wait for acks before exiting)."""
     end = time.monotonic() + wait_s
     st = None
     while time.monotonic() < end:
-        st = _status(session, cfg.map)
+        st = _status(session, cfg.map, 2.0, trust)
         if st is not None:
             done = all(
                 sid in st.scouts and st.scouts[sid].last_seq + 1 >= deltas_sent(info)

@@ -13,7 +13,8 @@ import pytest
 import zenoh
 
 from common.session import zenoh_config
-from consumer_planner.client import ClientConfig, query_region, trusted_servers
+from common.trust import Trust, load_trust
+from consumer_planner.client import ClientConfig, query_region
 from consumer_planner.errors import PlannerError
 from map_server.service import MapService, ServerConfig, free_endpoint, wait_for_server
 from protocol import encode
@@ -135,16 +136,16 @@ def test_a_planner_believes_only_its_trusted_servers(tmp_path):
                 )
 
 
-def test_secure_init_pins_server_ids_for_planners(tmp_path):
+def test_secure_init_asks_clients_to_believe_attested_servers(tmp_path):
     lay = secure_init(tmp_path / "s", MAP, ["s1"], ["p1"])
-    ids = trusted_servers(str(lay.servers))
-    assert len(ids) == 1 and json.loads(lay.agents["server"].read_text())["id"] == ids[0]
-    from psrmap.secure import _zid
-
-    assert not any(_zid().startswith("0") for _ in range(200))  # Zenoh refuses ids with a leading 0
+    assert load_trust(str(lay.servers)) == Trust(attested=True, source=str(lay.servers))
+    assert load_trust(None, lay.agents["p1"]).attested  # found beside the agent's file
+    assert "id" not in json.loads(lay.agents["server"].read_text())  # nothing pinned: nothing to squat
     assert (lay.credentials.stat().st_mode & 0o077) == 0  # owner-only
     with pytest.raises(ValueError, match="distinct"):
         secure_init(tmp_path / "t", MAP, ["s1"], ["s1"])
+    with pytest.raises(ValueError, match="no such file"):
+        load_trust(str(tmp_path / "nope.json"))
 
 
 def test_listening_beyond_loopback_needs_credentials_or_insecure():

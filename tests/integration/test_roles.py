@@ -1,0 +1,359 @@
+"""Issue 25: only the server speaks for the map. Each attack of the hostile run, twice:
+- refused by the router: a deployment from `psrmap secure init` (role ACL per message kind and direction), seen
+  from a session that applies no trust of its own;
+- ignored by the clients: an open router (no ACL, so the attack goes through on the wire) and clients whose
+  `servers.json` asks them to believe attested servers only (common.trust), each saying what it ignored.
+Real router, loopback, free ports."""
+
+from __future__ import annotations
+
+import json
+import logging
+import subprocess
+import sys
+import threading
+
+import msgpack
+import numpy as np
+import pytest
+import zenoh
+
+from common.query import get_partition, get_replies, get_statuses
+from common.session import zenoh_config
+from common.trust import Trust
+from consumer_planner.client import ClientConfig, RegionWatch, query_region
+from map_server.service import MapService, ServerConfig, free_endpoint, wait_for_server
+from protocol import encode
+from protocol.keys import (
+    alive_key,
+    alive_pattern,
+    changes_key,
+    delta_key,
+    map_key,
+    partition_key,
+    server_id_key,
+    server_id_pattern,
+    status_key,
+)
+from protocol.messages import RegionQuery, Status, TileChanges
+from protocol.partition import Partition
+from protocol.testing import MAP, RES, make_delta
+from psrmap.secure import secure_init
+from scout_agent.publisher import ScoutPublisher
+
+FAKE_VERSION = 10**12
+ATTESTED = Trust(attested=True)
+
+
+def _wait(pred, timeout_s: float = 10.0) -> bool:
+    ev = threading.Event()
+    for _ in range(int(timeout_s / 0.05)):
+        if pred():
+            return True
+        ev.wait(0.05)
+    return pred()
+
+
+@pytest.fixture
+def secured(tmp_path):
+    """A router with the role ACL and a map server logged in as `server`; agents s1, s2 (scouts), p1, p2."""
+    ep = free_endpoint()
+    lay = secure_init(tmp_path / "sec", MAP, ["s1", "s2"], ["p1", "p2"], endpoint=ep)
+    with zenoh.open(zenoh_config(config_file=lay.router)):
+        cfg = ServerConfig(map_id=MAP, res=RES, db=str(tmp_path / "m.db"), connect=(ep,),
+                           zenoh_config=str(lay.agents["server"]))  # fmt: skip
+        with MapService(cfg) as service:
+            yield ep, lay, service
+
+
+@pytest.fixture
+def open_router(tmp_path):
+    """A router without ACL, a map server, and a client config folder whose servers.json asks for attested
+    servers (what `psrmap secure init` writes beside every agent's file)."""
+    ep = free_endpoint()
+    with zenoh.open(zenoh_config(listen=[ep], mode="router")):
+        with MapService(ServerConfig(map_id=MAP, res=RES, connect=(ep,))) as service:
+            conf = tmp_path / "client.json5"
+            conf.write_text(json.dumps({"mode": "client", "connect": {"endpoints": [ep]}}))
+            (tmp_path / "servers.json").write_text(json.dumps({"map": MAP, "servers": ["server"],
+                                                               "trust": "attested"}))  # fmt: skip
+            yield ep, conf, service
+
+
+def _open(lay, who: str):
+    return zenoh.open(zenoh_config(config_file=lay.agents[who]))
+
+
+def _plain(ep: str):
+    return zenoh.open(zenoh_config(connect=[ep], mode="client"))
+
+
+def _fake_status() -> bytes:
+    return encode(Status(MAP, RES, FAKE_VERSION, 5, 10**9, 0, {}, {}, {"worker": "ok"}))
+
+
+def _impostor_queryables(session, region) -> list:
+    def status(q):
+        with q:
+            q.reply(status_key(MAP), _fake_status())
+
+    def region_reply(q):
+        with q:
+            q.reply(map_key(MAP), encode(region))
+
+    return [
+        session.declare_queryable(status_key(MAP), status),
+        session.declare_queryable(map_key(MAP), region_reply),
+    ]
+
+
+def _fake_region(service):
+    fake = service.region(RegionQuery(0, 0, 0.3, 0.3, ("slip",), ("all",)))
+    fake.layers["slip"]["n"][:] = 1e9  # every cell of the box known, slip 0.777
+    fake.layers["slip"]["events"][:] = 0.777e9
+    return fake
+
+
+def _feed(service, ep, lay=None) -> None:
+    """One real delta merged (cell 0,0), so a real map reply exists."""
+    file = str(lay.agents["s1"]) if lay is not None else None
+    with ScoutPublisher(MAP, "s1", RES, [ep], outbox=None, zenoh_config_file=file) as pub:
+        assert pub.link.server_up.wait(10)
+        d = make_delta(seq=0, scout="s1", layers=("slip",), cells=((0, 0),))
+        pub.send(d.layers, d.t)
+        assert pub.wait_acked(10)
+    assert service.status().merged == 1
+
+
+# ---------------------------------------------------------------------------------------- impostor queryable
+
+
+def test_router_refuses_map_and_status_queryables_of_a_planner(secured):
+    ep, lay, service = secured
+    _feed(service, ep, lay)
+    with _open(lay, "p1") as imp, _open(lay, "p2") as p2:
+        ents = _impostor_queryables(imp, _fake_region(service))
+        # no trust of its own: whatever comes back is what the router let through
+        sts = get_statuses(p2, MAP, 3.0)
+        assert [s.version for s in sts] == [service.status().version]
+        replies = get_replies(p2, f"{map_key(MAP)}?x0=0;y0=0;x1=0.3;y1=0.3;stats=all", 3.0, fan_out=True)
+        assert len(replies.ok) == 1
+        for e in ents:
+            e.undeclare()
+
+
+def test_clients_ignore_an_impostor_queryable_and_say_so(open_router, caplog):
+    ep, conf, service = open_router
+    _feed(service, ep)
+    with _plain(ep) as imp, _plain(ep) as p2:
+        held = _impostor_queryables(imp, _fake_region(service))
+        assert FAKE_VERSION in [s.version for s in get_statuses(p2, MAP, 3.0)]  # without trust: fooled
+        with caplog.at_level(logging.WARNING, logger="common.trust"):
+            sts = get_statuses(p2, MAP, 3.0, ATTESTED)
+        assert [s.version for s in sts] == [service.status().version]
+        assert f"ignored a reply on {status_key(MAP)!r} from Zenoh id {imp.info.zid()}" in caplog.text
+        grid = query_region(p2, MAP, (0, 0, 0.3, 0.3), ClientConfig(zenoh_config=str(conf)), layers=("slip",))
+        assert float(np.nanmax(grid.layers["slip"]["n"])) < 1e9
+        base = [sys.executable, "-m", "psrmap"]
+        args = ["--map", MAP, "--connect", ep, "--zenoh-config", str(conf), "--timeout", "3"]
+        st = subprocess.run([*base, "status", *args], capture_output=True, text=True, timeout=60, check=False)
+        assert st.returncode == 0, st.stderr
+        assert json.loads(st.stdout)["version"] == service.status().version
+        assert f"ignored a reply on {status_key(MAP)!r} from Zenoh id {imp.info.zid()}" in st.stderr
+        q = subprocess.run([*base, "query", *args, "--box", "0,0,0.3,0.3", "--layers", "slip",
+                            "--stats", "value,n"], capture_output=True, text=True, timeout=60, check=False)  # fmt: skip
+        assert q.returncode == 0, q.stderr
+        assert (
+            json.loads(q.stdout)["layers"]["slip"]["cells_with_data"] == 1
+        )  # the real cell, not 0.777 in all
+        assert f"from Zenoh id {imp.info.zid()}" in q.stderr
+        assert held
+
+
+# ---------------------------------------------------------------------------------------- partition reply
+
+
+def _lie_partition(session) -> object:
+    def lie(q):
+        with q:
+            q.reply(partition_key(MAP), msgpack.packb(Partition(3, 8).to_dict()))
+
+    return session.declare_queryable(partition_key(MAP), lie)
+
+
+def test_router_refuses_partition_replies_of_scouts_and_planners(secured):
+    ep, lay, service = secured
+    with _open(lay, "s2") as s2, _open(lay, "p1") as p1, _open(lay, "p2") as p2:
+        ents = [_lie_partition(s2), _lie_partition(p1)]
+        assert get_partition(p2, MAP, 3.0) == Partition()  # servers disagreeing would raise
+        with ScoutPublisher(
+            MAP, "s1", RES, [ep], outbox=None, zenoh_config_file=str(lay.agents["s1"])
+        ) as pub:
+            assert pub.partition == Partition()
+        for e in ents:
+            e.undeclare()
+
+
+def test_a_scout_ignores_partition_replies_of_others(open_router, caplog):
+    ep, conf, service = open_router
+    with _plain(ep) as imp, _plain(ep) as c:
+        held = _lie_partition(imp)
+        with pytest.raises(Exception, match="different partitions"):  # without trust: the fleet cannot start
+            get_partition(c, MAP, 3.0)
+        with caplog.at_level(logging.WARNING, logger="common.trust"):
+            with ScoutPublisher(MAP, "s1", RES, [ep], outbox=None, zenoh_config_file=str(conf)) as pub:
+                assert pub.partition == Partition()
+        assert f"ignored a reply on {partition_key(MAP)!r} from Zenoh id {imp.info.zid()}" in caplog.text
+        assert held
+
+
+# ---------------------------------------------------------------------------------------- server tokens
+
+
+def test_router_refuses_server_tokens_of_scouts_and_planners(tmp_path):
+    ep = free_endpoint()
+    lay = secure_init(tmp_path / "sec", MAP, ["s1"], ["p1", "p2"], endpoint=ep)
+    with zenoh.open(zenoh_config(config_file=lay.router)):
+        with _open(lay, "s1") as s1, _open(lay, "p1") as p1, _open(lay, "p2") as p2:
+            held = []  # a token lives as long as its object
+            for s in (s1, p1):
+                for who in ("server", "server-0"):
+                    held.append(s.liveliness().declare_token(alive_key(MAP, who)))
+                held.append(s.liveliness().declare_token(server_id_key(MAP, str(s.info.zid()))))
+            held.append(s1.liveliness().declare_token(alive_key(MAP, "s1")))  # its own: allowed
+
+            def tokens() -> list[str]:
+                return [str(r.ok.key_expr) for k in (alive_pattern(MAP), server_id_pattern(MAP))
+                        for r in p2.liveliness().get(k, timeout=2) if r.ok is not None]  # fmt: skip
+
+            assert _wait(lambda: len(tokens()) == 1)
+            assert tokens() == [alive_key(MAP, "s1")]
+            assert not wait_for_server(p2, MAP, 1.0) and not wait_for_server(p2, MAP, 1.0, shard=0)
+            assert get_statuses(p2, MAP, 1.0, ATTESTED) == []  # and nobody is attested as a server
+
+
+# ---------------------------------------------------------------------------------------- tile-change notices
+
+
+def _fake_notice() -> bytes:
+    return encode(TileChanges(MAP, None, FAKE_VERSION, RES, 64, np.array([[0, 0]], np.int32)))
+
+
+def test_router_refuses_tile_change_notices_of_a_planner(secured):
+    ep, lay, service = secured
+    with _open(lay, "p1") as p1, _open(lay, "p2") as p2, RegionWatch(p2, MAP, RES, (0, 0, 1, 1)) as watch:
+        p1.put(changes_key(MAP), _fake_notice())
+        p1.declare_publisher(changes_key(MAP)).put(_fake_notice())
+        _feed(service, ep, lay)  # a real notice follows
+        assert _wait(lambda: bool(watch.versions))
+        changes = watch.changed(1.0)
+        assert changes and all(c.version < FAKE_VERSION for c in changes)
+        assert watch.versions[None] < FAKE_VERSION
+
+
+def test_a_watch_ignores_notices_from_others(open_router, caplog):
+    ep, conf, service = open_router
+    with _plain(ep) as imp, _plain(ep) as c, RegionWatch(c, MAP, RES, (0, 0, 1, 1), ATTESTED) as watch:
+        pub = imp.declare_publisher(changes_key(MAP))
+        with caplog.at_level(logging.WARNING, logger="common.trust"):
+            imp.put(changes_key(MAP), _fake_notice())  # no sender id
+            pub.put(_fake_notice(), source_info=zenoh.SourceInfo(pub.id, 1))  # its own id
+            assert _wait(lambda: watch.ignored == 2)
+        assert "it carries no sender id" in caplog.text and f"from Zenoh id {imp.info.zid()}" in caplog.text
+        _feed(service, ep)
+        assert _wait(lambda: bool(watch.versions))
+        changes = watch.changed(1.0)
+        assert changes and all(c.version < FAKE_VERSION for c in changes)
+
+
+# ---------------------------------------------------------------------------------------- id takeover
+
+
+def test_a_server_id_cannot_be_taken_over_while_the_server_is_down(tmp_path):
+    """The impostor opens a session with the stopped server's Zenoh id and serves a fake map: the real server
+    still starts (with a fresh id), the router refuses the impostor's queryables, and clients believe the
+    restarted server only."""
+    ep = free_endpoint()
+    lay = secure_init(tmp_path / "sec", MAP, ["s1"], ["p1", "p2"], endpoint=ep)
+    cfg = ServerConfig(map_id=MAP, res=RES, db=str(tmp_path / "m.db"), connect=(ep,),
+                       zenoh_config=str(lay.agents["server"]))  # fmt: skip
+    with zenoh.open(zenoh_config(config_file=lay.router)), _open(lay, "p2") as p2:
+        with MapService(cfg) as service:
+            _feed(service, ep, lay)
+            old = str(service._session.info.zid())
+            version = service.status().version
+        conf = zenoh_config(config_file=lay.agents["p1"])
+        conf.insert_json5("id", json.dumps(old))
+        with zenoh.open(conf) as imp:
+            assert str(imp.info.zid()) == old
+            fake = MapService(
+                ServerConfig(map_id=MAP, res=RES, connect=(ep,), zenoh_config=str(lay.agents["server"]))
+            )
+            with fake:  # an honest-looking map to copy a reply shape from (its own fresh id, server creds)
+                region = _fake_region(fake)
+            held = _impostor_queryables(imp, region)
+            with MapService(cfg) as service:  # the real server starts while the impostor holds the old id
+                new = str(service._session.info.zid())
+                assert new != old
+                sts = get_statuses(p2, MAP, 3.0)  # the router alone: only the real server answers
+                assert [(s.version, s.merged) for s in sts] == [(version, 1)]
+                client = ClientConfig(connect=(ep,), zenoh_config=str(lay.agents["p2"]))
+                assert client.believed().attested
+                grid = query_region(p2, MAP, (0, 0, 0.3, 0.3), client, layers=("slip",))
+                assert float(np.nanmax(grid.layers["slip"]["n"])) < 1e9
+            assert held
+
+
+def test_clients_do_not_believe_a_stopped_servers_id(tmp_path, caplog):
+    """Open router: the impostor holds the old id and answers, the restarted server has a new, attested id."""
+    ep = free_endpoint()
+    with zenoh.open(zenoh_config(listen=[ep], mode="router")), _plain(ep) as c:
+        with MapService(ServerConfig(map_id=MAP, res=RES, connect=(ep,))) as service:
+            old = str(service._session.info.zid())
+        conf = zenoh_config(connect=[ep], mode="client")
+        conf.insert_json5("id", json.dumps(old))
+        with zenoh.open(conf) as imp, MapService(ServerConfig(map_id=MAP, res=RES, connect=(ep,))) as service:
+
+            def status(q):
+                with q:
+                    q.reply(status_key(MAP), _fake_status())
+
+            held = imp.declare_queryable(status_key(MAP), status)
+            assert FAKE_VERSION in [
+                s.version for s in get_statuses(c, MAP, 3.0, (old,))
+            ]  # a pinned id: fooled
+            with caplog.at_level(logging.WARNING, logger="common.trust"):
+                sts = get_statuses(c, MAP, 3.0, ATTESTED)
+            assert [s.version for s in sts] == [service.status().version]
+            assert f"from Zenoh id {old}" in caplog.text
+            held.undeclare()
+
+
+# ---------------------------------------------------------------------------------------- mTLS identity
+
+
+def test_a_planners_certificate_cannot_carry_a_scouts_password(tmp_path):
+    ep = free_endpoint().replace("tcp/127.0.0.1", "tcp/localhost")
+    lay = secure_init(tmp_path / "sec", MAP, ["s1"], ["p1"], endpoint=ep, tls=True)
+    tls_ep = json.loads(lay.agents["s1"].read_text())["connect"]["endpoints"][0]
+    with zenoh.open(zenoh_config(config_file=lay.router)):
+        cfg = ServerConfig(map_id=MAP, res=RES, connect=(tls_ep,), zenoh_config=str(lay.agents["server"]))
+        with MapService(cfg) as service:
+            mixed = zenoh_config(config_file=lay.agents["s1"])  # s1's user and password ...
+            p1_tls = json.loads(lay.agents["p1"].read_text())["transport"]["link"]["tls"]
+            for k in ("connect_certificate", "connect_private_key"):  # ... with p1's certificate
+                mixed.insert_json5(f"transport/link/tls/{k}", json.dumps(p1_tls[k]))
+            with zenoh.open(mixed) as m:
+                m.put(delta_key(MAP, "s1"), encode(make_delta(seq=0, scout="s1", layers=("slip",))))
+                token = m.liveliness().declare_token(alive_key(MAP, "s1"))
+                assert not _wait(lambda: service.alive.get("s1", False), 1.0)
+                token.undeclare()
+            # the matching pair still works, and its delta is the only one merged
+            with ScoutPublisher(MAP, "s1", RES, [tls_ep], outbox=None,
+                                zenoh_config_file=str(lay.agents["s1"])) as pub:  # fmt: skip
+                assert pub.link.server_up.wait(10)
+                d = make_delta(seq=0, scout="s1", layers=("slip",), cells=((5, 5),))
+                pub.send(d.layers, d.t)
+                assert pub.wait_acked(10)
+            st = service.status()
+            assert st.merged == 1 and service.map.cells == 1
