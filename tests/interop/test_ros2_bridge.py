@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import xxhash
 import zenoh
-from test_rmw_zenoh_wire import read_rmw_zenoh_attachment
+from test_rmw_zenoh_wire import parse_qos_field, read_rmw_zenoh_attachment
 
 from consumer_planner.client import ClientConfig, query_region
 from consumer_planner.costs import build_costs
@@ -140,6 +140,9 @@ def test_bridge_publishes_grid_map_cost_and_path_as_rmw_zenoh_does(router, serve
             token.startswith("@ros2_lv/0/")
             and f"/{pkg}::msg::dds_::{name}_/{store.hash_rihs01(typename)}/" in token
         )
+        # its QoS field as rmw_zenoh parses it: reliable, transient local, keep last 1 (depth 42 is the default)
+        assert parse_qos_field(token.rsplit("/", 1)[1]) == {"reliability": 1, "durability": 1, "history": 1,
+                                                             "depth": 1}  # fmt: skip
         h = xxhash.xxh3_128_intdigest(token.encode())
         assert gid == (h & (2**64 - 1)).to_bytes(8, "little") + (h >> 64).to_bytes(8, "little")
     assert any("/NN/%/%/psrmap_bridge" in tok for tok in tokens)
