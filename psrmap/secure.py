@@ -131,13 +131,22 @@ def acl(
 
 
 def roles_table() -> str:
-    """GRANTS as a Markdown table (README "Security and limits")."""
-    lines = ["| role | sends (in) / receives (out) | message kinds | keys under `psr/<map>/` | for |",
-             "| --- | --- | --- | --- | --- |"]  # fmt: skip
-    for g in GRANTS:
-        flow = "sends" if g.flow == "ingress" else "receives"
-        keys = ", ".join(f"`{k}`" for k in g.keys)
-        lines.append(f"| {g.role} | {flow} | {', '.join(g.messages)} | {keys} | {g.why} |")
+    """GRANTS as the README's roles table (README "Security and limits"; a test keeps the two equal): per role,
+    what it may send (checked as it enters the router) and receive (as it leaves the router)."""
+
+    def cell(role: str, flow: str) -> str:
+        return "<br>".join(
+            f"{', '.join(g.messages)}: {', '.join(f'`{k}`' for k in g.keys)}"
+            for g in GRANTS
+            if g.role == role and g.flow == flow
+        )
+
+    who = {"server": "server (`--servers`)", "scout": "scout `<id>` (`--scouts`)",
+           "reader": "planner, bridge (`--planners`)"}  # fmt: skip
+    lines = ["| role | may send (keys under `psr/<map>/`) | may receive |", "|---|---|---|"]
+    lines += [
+        f"| {who[r]} | {cell(r, 'ingress')} | {cell(r, 'egress')} |" for r in ("server", "scout", "reader")
+    ]
     return "\n".join(lines)
 
 

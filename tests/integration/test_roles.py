@@ -358,3 +358,26 @@ def test_a_planners_certificate_cannot_carry_a_scouts_password(tmp_path):
                 assert pub.wait_acked(10)
             st = service.status()
             assert st.merged == 1 and service.map.cells == 1
+
+
+# ---------------------------------------------------------------------------------------- the roles table
+
+
+def test_the_acl_grants_each_role_only_its_table_and_the_readme_shows_it(tmp_path):
+    from pathlib import Path
+
+    from psrmap.secure import acl, roles_table
+
+    a = acl(MAP, ["s1"], ["p1"], ["m0"], tls=True)
+    rules = {r["id"]: r for r in a["rules"]}
+    by_subject = {p["subjects"][0]: [rules[i] for i in p["rules"]] for p in a["policies"]}
+    sent = {s: {(m, k) for r in rs if r["flows"] == ["ingress"] for m in r["messages"] for k in r["key_exprs"]}
+            for s, rs in by_subject.items()}  # fmt: skip
+    speak = {"declare_queryable", "reply", "put", "liveliness_token"}
+    assert not {m for m, _ in sent["reader_p1"]} & speak  # a reader only asks and listens
+    assert {k for m, k in sent["scout_s1"] if m in speak} == {
+        f"psr/{MAP}/delta/s1", f"psr/{MAP}/shard/*/delta/s1", f"psr/{MAP}/alive/s1"}  # fmt: skip
+    assert ("declare_queryable", f"psr/{MAP}/partition") in sent["server_m0"]
+    assert all(s["cert_common_names"] == s["usernames"] for s in a["subjects"])  # certificate = user
+    readme = Path(__file__).resolve().parents[2] / "README.md"
+    assert roles_table() in readme.read_text()
