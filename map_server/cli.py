@@ -16,7 +16,7 @@ from common.cli_parser import Parser
 from common.defaults import DEFAULT_RES_M
 from common.session import endpoint_arg
 from map_server.limits import Limits
-from mapcore.dense import MAX_CLIENT_CELLS
+from protocol.errors import MAX_CLIENT_CELLS
 from protocol.keys import id_arg
 
 __all__ = ["main", "register"]
@@ -157,6 +157,7 @@ def server_config(args: argparse.Namespace) -> Any:
         shard=args.shard,
         tile_budget_mib=args.tile_budget_mib,
         bbox_m=args.bbox,
+        keep_deltas=not args.discard_deltas,
         max_queries_in_flight=args.max_queries,
         linger_s=args.linger_ms / 1000.0,
         limits=Limits(**{f.name: getattr(args, f"limit_{f.name}") for f in dataclasses.fields(Limits)}),
@@ -362,8 +363,33 @@ def cmd_query(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_remove(args: argparse.Namespace) -> int:
+    """Remove one scout's (or epoch's) contributions from a stopped server's database, exactly."""
+    from map_server.removal import RemovalError, remove_contributions
+
+    if args.scout is None and args.epoch is None:
+        args.parser.error("give --scout ID and/or --epoch E: whose contributions to remove")
+    try:
+        summary = remove_contributions(args.db, args.scout, args.epoch)
+    except RemovalError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    print(json.dumps(summary.to_json(), indent=2))
+    return 0
+
+
+def _epoch(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        v = -1
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"{text!r}: need an integer >= 0")
+    return v
+
+
 def register(subparsers: Any) -> None:
-    """Add `router`, `server`, `status`, `query` to the `psrmap` CLI."""
+    """Add `router`, `server`, `remove`, `status`, `query` to the `psrmap` CLI."""
     p = subparsers.add_parser("router", help="run an embedded Zenoh router")
     p.add_argument(
         "--listen", type=endpoint_arg, action="append", default=None, help="endpoint, e.g. tcp/127.0.0.1:7447"
@@ -420,6 +446,11 @@ def register(subparsers: Any) -> None:
         help="mission area [m], map frame: deltas with a cell outside are rejected (outside_bbox)",
     )
     p.add_argument(
+        "--discard-deltas",
+        action="store_true",
+        help="delete logged deltas once a snapshot covers them (less disk; `psrmap remove` is then impossible)",
+    )
+    p.add_argument(
         "--max-queries",
         type=_positive_int,
         default=64,
@@ -446,6 +477,20 @@ def register(subparsers: Any) -> None:
         )
     p.add_argument("-v", "--verbose", action="store_true")
     p.set_defaults(func=cmd_server, parser=p)
+
+    p = subparsers.add_parser(
+        "remove",
+        help="remove one scout's (or epoch's) contributions from a stopped server's --db, exactly",
+        description="Recompute every tile the removed deltas touched from the remaining ones (min/max included) "
+        "and record the removal in the database's `removals` table. The server must be stopped (it holds "
+        "DB.lock); a sharded map: run it on each shard's database.",
+    )
+    p.add_argument("--db", required=True, help="the map server's SQLite file")
+    p.add_argument("--scout", type=id_arg("scout"), default=None, help="the scout whose deltas to remove")
+    p.add_argument(
+        "--epoch", type=_epoch, default=None, help="only this epoch (without --scout: of every scout)"
+    )
+    p.set_defaults(func=cmd_remove, parser=p)
 
     for name, fn, helptext in (
         ("status", cmd_status, "print a map server's status"),

@@ -13,7 +13,7 @@ import sqlite3
 import threading
 import time
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import IO, Any
 
 import msgpack
 import numpy as np
@@ -25,6 +25,7 @@ from map_server.errors import MapServerConfigError
 from map_server.limits import Limits, default_tile_budget_mib, tile_bytes
 from map_server.merge import Merger
 from map_server.paging import TilePager
+from map_server.removal import RemovalError, hold_lock
 from map_server.store import MapStore
 from mapcore import TiledMap
 from protocol.codec import INDEX_LIMIT, encode
@@ -99,6 +100,9 @@ class ServerConfig:
     # the mission area, map frame [m] (x0, y0, x1, y1): a delta with a cell outside is rejected (`outside_bbox`)
     bbox_m: tuple[float, float, float, float] | None = None
     max_queries_in_flight: int = 64  # queries queued or being answered; more get a `busy` reply at once
+    # keep every accepted delta in the store (a snapshot only moves the replay cut): `psrmap remove` recomputes
+    # a scout's removal from them; False (--discard-deltas): the log is deleted as snapshots cover it
+    keep_deltas: bool = True
 
     def __post_init__(self) -> None:
         part = Partition(self.shards, self.tile)  # ProtocolError naming what is valid
@@ -178,8 +182,21 @@ class MapService:
             shard=config.shard_id,
             bbox=config.bbox_cells,
         )
+        self._db_lock: IO[str] | None = None
+        if config.db and config.db != ":memory:":
+            try:
+                self._db_lock = hold_lock(config.db)  # `psrmap remove` refuses while a server holds it
+            except RemovalError as exc:
+                raise MapServerConfigError(str(exc)) from None
         self.store = (
-            MapStore(config.db, config.map_id, config.res, config.tile, auto_checkpoint=False)
+            MapStore(
+                config.db,
+                config.map_id,
+                config.res,
+                config.tile,
+                auto_checkpoint=False,
+                keep_deltas=config.keep_deltas,
+            )
             if config.db
             else None
         )
@@ -297,6 +314,9 @@ class MapService:
             if self.pager is not None:
                 self.pager.close()
             self.store.close()
+        if self._db_lock is not None:
+            self._db_lock.close()
+            self._db_lock = None
         if self._viz is not None:
             self._viz.log_tiles(self.map, set(), self.lock, self.merger.book.version, force=True)
             self._viz.close()

@@ -41,7 +41,12 @@ CREATE TABLE IF NOT EXISTS seqs (scout TEXT, epoch INTEGER, hw INTEGER, above TE
 CREATE TABLE IF NOT EXISTS tiles (layer TEXT, tx INTEGER, ty INTEGER, data BLOB NOT NULL,
                                   upto INTEGER NOT NULL DEFAULT 0, PRIMARY KEY (layer, tx, ty));
 CREATE TABLE IF NOT EXISTS digest_log (scout TEXT, epoch INTEGER, seq INTEGER, digest INTEGER NOT NULL);
+CREATE TABLE IF NOT EXISTS removals (at_unix REAL NOT NULL, scout TEXT NOT NULL, epoch INTEGER, deltas INTEGER NOT NULL,
+                                     tiles INTEGER NOT NULL, by_user TEXT NOT NULL);
 """
+# meta.log_cut: every delta with id <= log_cut is in every stored tile (a snapshot round completed); load replays
+# only the log above it. meta.log_truncated: the largest id ever deleted by a snapshot round (0: the log holds
+# every accepted delta since the map began, so a scout's contributions can be removed exactly).
 # digest_log is append-only (rowid order; no index): a batch's digests land on the table's last page. Keyed by
 # (scout, epoch, seq) as before (`digests`, a WITHOUT ROWID B-tree) every delta of a batch from many scouts
 # rewrote its own leaf page: one 16 KiB WAL frame per delta. Loading reads it in order; a later row wins.
@@ -69,9 +74,20 @@ class MapStore:
     """One map's database. `path` may be ":memory:" (tests)."""
 
     def __init__(
-        self, path: str | Path, map_id: str, res: float, tile: int, *, auto_checkpoint: bool = True
+        self,
+        path: str | Path,
+        map_id: str,
+        res: float,
+        tile: int,
+        *,
+        auto_checkpoint: bool = True,
+        keep_deltas: bool = True,
     ) -> None:
+        """keep_deltas: a completed snapshot round only moves the replay cut (`meta.log_cut`) and every accepted
+        delta stays in `deltas` (what `map_server.removal` recomputes a scout's removal from; disk grows by each
+        delta's payload); False: the round deletes the log it covers (the log is then incomplete for good)."""
         self.path = str(path)
+        self.keep_deltas = keep_deltas
         self.db = sqlite3.connect(self.path, check_same_thread=False, isolation_level=None)
         # a new database only (ignored once it exists): a delta's payload (~5 KiB) fits in one page,
         # so deleting the log needs no walk of overflow chains, and a tile spans 4x fewer pages
@@ -109,6 +125,7 @@ class MapStore:
             self.db.execute("ALTER TABLE tiles ADD COLUMN upto INTEGER NOT NULL DEFAULT 0")
         max_id = self.db.execute("SELECT COALESCE(MAX(id), 0) FROM deltas").fetchone()[0]
         self.last_id = max(int(self._meta("last_id", "0")), int(max_id))
+        self.log_cut = int(self._meta("log_cut", "0"))
         self.since_snapshot = 0
         self.last_commit_unix: float | None = None
         self.last_error: str | None = (
@@ -157,7 +174,7 @@ class MapStore:
         book.duplicates = int(self._meta("duplicates", "0"))
         book.rejected = Counter(json.loads(self._meta("rejected", "{}")))
         book.scout_tiles = Counter(json.loads(self._meta("scout_tiles", "{}")))
-        cur = self.db.execute("SELECT id, payload FROM deltas ORDER BY id")
+        cur = self.db.execute("SELECT id, payload FROM deltas WHERE id > ? ORDER BY id", (self.log_cut,))
         n = merger.replay(((int(i), p) for i, p in cur), upto)
         self.since_snapshot = n
         return n
@@ -249,18 +266,25 @@ class MapStore:
         batches (after a commit), from the thread that merges. Returns True when the round is complete."""
         db = self.db
         if not self._pending:  # tiles done: every delta up to the cut is in every tile it touched
-            lo = db.execute("SELECT MIN(id) FROM deltas").fetchone()[0]
-            if lo is not None and lo <= self._cut:
-                hi = self._cut if max_bytes is None else min(self._cut, lo - 1 + DELETE_SLICE)
-                db.execute("BEGIN")
-                try:
-                    db.execute("DELETE FROM deltas WHERE id <= ?", (hi,))
-                    db.execute("COMMIT")
-                except BaseException:
-                    db.execute("ROLLBACK")
-                    raise
-                if hi < self._cut:
-                    return False
+            if self.keep_deltas:
+                self._set_meta("log_cut", self._cut)
+                self.log_cut = self._cut
+            else:
+                lo = db.execute("SELECT MIN(id) FROM deltas").fetchone()[0]
+                if lo is not None and lo <= self._cut:
+                    hi = self._cut if max_bytes is None else min(self._cut, lo - 1 + DELETE_SLICE)
+                    db.execute("BEGIN")
+                    try:
+                        db.execute("DELETE FROM deltas WHERE id <= ?", (hi,))
+                        db.execute("INSERT OR REPLACE INTO meta VALUES ('log_truncated', ?)", (str(hi),))
+                        db.execute("COMMIT")
+                    except BaseException:
+                        db.execute("ROLLBACK")
+                        raise
+                    if hi < self._cut:
+                        return False
+                self._set_meta("log_cut", self._cut)
+                self.log_cut = self._cut
             self.since_snapshot = self.last_id - self._cut
             self._cut = 0
             return True
@@ -319,7 +343,17 @@ class MapStore:
         return int(frames), int(done)
 
     def log_size(self) -> int:
-        return int(self.db.execute("SELECT COUNT(*) FROM deltas").fetchone()[0])
+        """Deltas a reopen would replay (those above the cut)."""
+        return int(self.db.execute("SELECT COUNT(*) FROM deltas WHERE id > ?", (self.log_cut,)).fetchone()[0])
+
+    def _set_meta(self, key: str, value: object) -> None:
+        self.db.execute("BEGIN")
+        try:
+            self.db.execute("INSERT OR REPLACE INTO meta VALUES (?, ?)", (key, str(value)))
+            self.db.execute("COMMIT")
+        except BaseException:
+            self.db.execute("ROLLBACK")
+            raise
 
     def close(self) -> None:
         if self._ckpt is not None:

@@ -14,14 +14,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from mapcore.errors import MapCoreError
+from protocol.errors import MAX_CLIENT_CELLS
 from protocol.layers import LAYERS, cell_index, elevation_slope_deg, empty_value, layer_value
 from protocol.messages import MapRegion
 
 __all__ = ["MAX_CLIENT_CELLS", "LayerGrid", "Layers", "check_replies", "stitch"]
 
-MAX_CLIENT_CELLS = (
-    1 << 24
-)  # cells a client allocates for one stitched reply at most (16 Mi: 128 MiB an array)
 
 Layers = dict[str, dict[str, np.ndarray]]
 

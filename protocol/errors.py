@@ -6,6 +6,7 @@ __all__ = ["REASONS", "ProtocolError"]
 
 # Every reason a message can be rejected for; the server counts rejections by these keys in `status`.
 DEFAULT_MAX_BYTES = 8 * 1024 * 1024  # a message larger than this is rejected (`oversize`) before decoding
+MAX_CLIENT_CELLS = 1 << 24  # cells a client allocates for one (stitched) map reply at most: 128 MiB an array
 
 REASONS: tuple[str, ...] = (
     "decode",  # not msgpack, or not a map with string keys

@@ -25,6 +25,10 @@ from psrmap.errors import exit_code_for
 COMMANDS: dict[str, tuple[str, str]] = {
     "router": ("map_server.cli", "run an embedded Zenoh router"),
     "server": ("map_server.cli", "run the map server of one map"),
+    "remove": (
+        "map_server.cli",
+        "remove one scout's (or epoch's) contributions from a stopped server's --db, exactly",
+    ),
     "status": ("map_server.cli", "print a map server's status"),
     "query": ("map_server.cli", "query a box of the map"),
     "scout": ("scout_agent.cli", "walk a simulated Aliengo (ramps or lunar terrain)"),

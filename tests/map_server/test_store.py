@@ -12,8 +12,8 @@ from protocol.keys import delta_key
 from protocol.testing import MAP, RES, SCOUT, broken, make_delta
 
 
-def open_map(path):
-    store = MapStore(path, MAP, RES, 8)
+def open_map(path, keep_deltas=True):
+    store = MapStore(path, MAP, RES, 8, keep_deltas=keep_deltas)
     m = Merger(TiledMap(RES, tile=8), MAP)
     store.load(m)
     return store, m
@@ -96,15 +96,18 @@ def test_snapshot_in_slices_survives_a_crash_at_every_step(tmp_path):
     s3.close()
 
 
-def test_log_ids_only_grow_across_truncation(tmp_path):
+@pytest.mark.parametrize("keep", [True, False])
+def test_log_ids_only_grow_across_truncation(tmp_path, keep):
+    """A snapshot round moves the replay cut; with keep_deltas=False it deletes the log it covers as well."""
     db = tmp_path / "map.db"
-    store, m = open_map(db)
+    store, m = open_map(db, keep)
     feed(store, m, range(3))
     store.snapshot(m.map)
     feed(store, m, [3])
-    assert store.db.execute("SELECT MIN(id) FROM deltas").fetchone()[0] == 4
+    assert store.db.execute("SELECT MIN(id) FROM deltas").fetchone()[0] == (1 if keep else 4)
+    assert store.log_size() == 1 and store.log_cut == 3
     store.close()
-    store2, m2 = open_map(db)
+    store2, m2 = open_map(db, keep)
     assert store2.last_id == 4 and m2.map.equals(m.map)
     store2.close()
 
