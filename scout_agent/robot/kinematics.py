@@ -55,6 +55,24 @@ def leg_kinematics(q: np.ndarray, feet: np.ndarray, J: np.ndarray) -> None:
 
 
 @njit(cache=True, nogil=True)
+def leg_motion(
+    q: np.ndarray, dq: np.ndarray, feet: np.ndarray, vel: np.ndarray, omega: np.ndarray, J: np.ndarray
+) -> None:
+    """`leg_kinematics` plus each foot's velocity J·q̇ into `vel` (4, 3) and the foot's (calf's) angular
+    velocity into `omega` (4, 3), all relative to the base, base frame, from joint angles and rates (12,).
+    The hip turns about x, thigh and calf about the hip-rotated y axis: ω = (q̇_hip, (q̇_thigh + q̇_calf)
+    cos a, (q̇_thigh + q̇_calf) sin a)."""
+    leg_kinematics(q, feet, J)
+    for i in range(4):
+        for j in range(3):
+            vel[i, j] = J[i, j, 0] * dq[3 * i] + J[i, j, 1] * dq[3 * i + 1] + J[i, j, 2] * dq[3 * i + 2]
+        a, w = q[3 * i], dq[3 * i + 1] + dq[3 * i + 2]
+        omega[i, 0] = dq[3 * i]
+        omega[i, 1] = w * np.cos(a)
+        omega[i, 2] = w * np.sin(a)
+
+
+@njit(cache=True, nogil=True)
 def leg_ik(p: np.ndarray, q: np.ndarray) -> None:
     """Joint angles into `q` (12,) placing the feet at `p` (4, 3), base frame; knees backwards (calf < 0).
     Unreachable targets are pulled onto the workspace boundary instead of raising."""

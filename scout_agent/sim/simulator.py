@@ -27,10 +27,10 @@ from scout_agent.robot import kinematics as K
 from scout_agent.sensors import SensorConfig, SensorSuite
 from scout_agent.sensors.suite import TrueBlock
 from scout_agent.signals import BaseState, GroundTruth, ProprioSample
-from scout_agent.sim.contacts import foot_contacts
 from scout_agent.sim.friction import FrictionMap
 from scout_agent.sim.scene import TERRAIN_GEOM, PhysicsConfig, build_scene
 from scout_agent.sim.terrain import Terrain
+from scout_agent.sim.truth import foot_contacts, pose_and_feet, quat_to_mat, stance_displacement
 from scout_agent.state_estimation import EstimatorConfig, LaunchPose, StateEstimator
 
 STATE_SOURCES = ("estimate", "exact")
@@ -65,14 +65,9 @@ def _ids_slice(ids: np.ndarray) -> slice:
 
 
 def _quat_to_mat(q: np.ndarray) -> np.ndarray:
-    w, x, y, z = q
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-        ]
-    )
+    R = np.empty((3, 3))
+    quat_to_mat(np.ascontiguousarray(q, dtype=float), R)
+    return R
 
 
 class ScoutSim:
@@ -265,9 +260,10 @@ class ScoutSim:
         tick = self.sensors.read(
             TrueBlock(self.dt, self._blk_acc, self._blk_gyro, self._blk_q, self._blk_tau, fn)
         )
-        pos = d.qpos[0:3].copy()
-        quat = d.qpos[3:7].copy()
-        R = _quat_to_mat(quat)
+        qpos = d.qpos.copy()
+        pos, quat, q = qpos[0:3], qpos[3:7], qpos[7:]
+        R, feet_w = np.empty((3, 3)), np.empty((4, 3))
+        pose_and_feet(qpos, R, feet_w)
         truth_base = BaseState(pos, quat, d.qvel[0:3].copy(), d.qvel[3:6].copy())
         if cfg.state_source == "exact":
             st = self.exact_state()
@@ -279,20 +275,13 @@ class ScoutSim:
                 self.t, est.pos, est.R, est.vel, est.omega, tick.q, tick.dq, tick.contact
             )
             base = BaseState(est.pos, est.quat, est.vel, est.omega)
-        q = d.qpos[7:].copy()
-        feet_w = pos + K.fk(q) @ R.T
         xy = np.empty((2, 5))
         xy[:, :4] = feet_w[:, :2].T
         xy[:, 4] = pos[:2]
         ground = self.terrain.height(xy[0], xy[1])  # feet, base
         # stance displacement of the contact point since the stance's first contact
-        for i in range(4):
-            if not out.stance_planned[i]:
-                self._swung[i] = True
-            if true_contact[i] and self._swung[i]:
-                self._cp0[i] = points[i]
-                self._swung[i] = False
-        disp = np.where(true_contact, np.linalg.norm(points - self._cp0, axis=1), np.nan)
+        disp = np.empty(4)
+        stance_displacement(out.stance_planned, true_contact, points, self._cp0, self._swung, disp)
         sample = ProprioSample(
             t=self.t,
             q=tick.q,
@@ -324,7 +313,7 @@ class ScoutSim:
             q=q,
             dq=d.qvel[6:].copy(),
         )
-        tilt = np.degrees(np.arccos(np.clip(R[2, 2], -1.0, 1.0)))
+        tilt = np.degrees(np.arccos(min(max(R[2, 2], -1.0), 1.0)))
         clearance = pos[2] - float(ground[4])
         if not self.fell and (tilt > cfg.fall_tilt_deg or clearance < cfg.fall_min_height_m or trunk_touch):
             self.fell = True

@@ -67,6 +67,27 @@ def test_closed_form_matches_pinocchio_and_inverts(lk):
         )
 
 
+def test_closed_form_foot_motion_matches_pinocchio_frame_velocities(lk):
+    """The estimators' per-tick feet (compiled closed form) against Pinocchio's foot frames (base fixed)."""
+    import pinocchio as pin
+
+    m, d = lk.model, lk.model.createData()
+    rng = np.random.default_rng(2)
+    feet, vel, omega, J = np.empty((4, 3)), np.empty((4, 3)), np.empty((4, 3)), np.empty((4, 3, 3))
+    for _ in range(20):
+        q, dq = _random_q(rng), rng.normal(size=12)
+        K.leg_motion(q, dq, feet, vel, omega, J)
+        qf, vf = pin.neutral(m), np.zeros(m.nv)
+        qf[7:], vf[6:] = q, dq
+        pin.forwardKinematics(m, d, qf, vf)
+        for i, name in enumerate(C.FOOT_BODIES):
+            f = m.getFrameId(name)
+            v = pin.getFrameVelocity(m, d, f, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
+            np.testing.assert_allclose(feet[i], pin.updateFramePlacement(m, d, f).translation, atol=1e-12)
+            np.testing.assert_allclose(vel[i], v.linear, atol=1e-12)
+            np.testing.assert_allclose(omega[i], v.angular, atol=1e-12)
+
+
 def test_home_posture_stands_about_034_m():
     feet = K.fk(C.HOME_Q)
     assert -feet[:, 2].mean() + C.FOOT_RADIUS == pytest.approx(0.337, abs=0.005)
