@@ -84,8 +84,8 @@ def _common(p: argparse.ArgumentParser) -> None:
     src.add_argument(
         "--trust-servers",
         metavar="FILE",
-        help="servers.json from `psrmap secure init`: accept map replies only from those server ids "
-        "(default: the servers.json beside --zenoh-config, if there is one)",
+        help="servers.json from `psrmap secure init`: accept replies and tile-change notices only from the "
+        "attested map servers (default: the servers.json beside --zenoh-config, if there is one)",
     )
     src.add_argument(
         "--margin", type=float, default=10.0, help="metres of map fetched around the points (default 10)"
