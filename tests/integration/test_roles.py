@@ -267,6 +267,55 @@ def test_a_watch_ignores_notices_from_others(open_router, caplog):
         assert changes and all(c.version < FAKE_VERSION for c in changes)
 
 
+def test_a_watching_planner_does_not_replan_on_notices_from_others(open_router):
+    """`psrmap plan --watch` with a servers.json: an impostor's notices inside the corridor cost no replan; the
+    server's own notice for a real change triggers exactly one."""
+    from consumer_planner.component import MapSource, PlanConfig, watch_plan
+    from protocol.messages import CellDelta
+    from protocol.testing import layer_cells
+
+    ep, conf, service = open_router
+
+    def delta(seq: int, cells: list[tuple[int, int]]) -> CellDelta:  # plausible values: costs >= 0
+        ix, iy = np.array([c[0] for c in cells]), np.array([c[1] for c in cells])
+        one, rng = np.ones(ix.size), np.random.default_rng(seq)
+        layers = {
+            "slip": {"ix": ix, "iy": iy, "n": 10 * one, "events": np.zeros(ix.size)},
+            "cot": layer_cells("cot", ix, iy, rng, scale=1.0)
+            | {"work": rng.uniform(1, 3, ix.size), "dist": one},
+        }
+        return CellDelta(MAP, "s1", 7, seq, 1.0 + seq, RES, layers)  # fmt: skip
+
+    cfg = PlanConfig(MapSource(map_id=MAP, connect=(ep,), zenoh_config=str(conf), margin_m=0.4), (0.0, 0.0),
+                     (3.0, 0.8))  # fmt: skip
+    plans: list = []
+    stop = threading.Event()
+    with ScoutPublisher(MAP, "s1", RES, [ep], outbox=None) as pub, _plain(ep) as imp:
+        first = delta(0, [(2, 1), (3, 1)])
+        assert pub.send(first.layers, first.t) and pub.wait_acked(10)
+        out: list = []
+        t = threading.Thread(target=lambda: out.append(watch_plan(cfg, lambda *a: plans.append(a), stop,
+                                                                  resync_s=60.0, period_s=0.05)), daemon=True)  # fmt: skip
+        t.start()
+        try:
+            assert _wait(lambda: len(plans) == 1)
+            fake = imp.declare_publisher(changes_key(MAP))
+            for k in range(5):  # the corridor's tile, a version far ahead, its own id and none
+                fake.put(_fake_notice(), source_info=zenoh.SourceInfo(fake.id, k))
+                imp.put(changes_key(MAP), _fake_notice())
+            threading.Event().wait(1.0)  # 20 periods of the watch
+            n_after_fake = len(plans)
+            near = delta(1, [(5, 2)])
+            assert pub.send(near.layers, near.t) and pub.wait_acked(10)
+            assert _wait(lambda: len(plans) == 2, 5.0)
+        finally:
+            stop.set()
+            t.join(timeout=20)
+    assert n_after_fake == 1
+    assert plans[1][0] is not None and all(c.version < FAKE_VERSION for c in plans[1][2])
+    assert out[0].plans == 2 and out[0].resyncs == 0
+
+
 # ---------------------------------------------------------------------------------------- id takeover
 
 
