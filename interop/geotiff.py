@@ -8,12 +8,12 @@ Georeferencing:
   `IAU_2015:30135` (Moon south polar stereographic, sphere R = 1737.4 km, the CRS of the LOLA south-pole
   DEMs): the affine transform carries the map's heading as a rotation and the projection's scale at that
   latitude, so every pixel lands where the map cell lies. GeoTIFF keys can name only EPSG codes, so the
-  file's keys hold the projection itself (a user-defined polar stereographic, which PROJ matches to
-  IAU_2015:30135 at 25 % only: the keys turn its variant A into variant B), and a GDAL side-car
-  `<file>.aux.xml` holds the CRS as WKT2 with its identifier `ID["IAU",30135,2015]`: GDAL reads the side-car
-  first, so GDAL, QGIS and PROJ identify the file as IAU_2015:30135 (rasterio 1.4 reads a dataset's CRS
-  through WKT1, which drops the identifier's version: `crs.to_authority()` finds it under
-  `rasterio.Env(OSR_WKT_FORMAT="WKT2_2019")`);
+  keys hold the projection itself (user-defined: GDAL reads it back as IAU_2015:30135's polar stereographic,
+  variant A, which PROJ identifies at 100 %), and a GDAL side-car `<file>.aux.xml` holds the CRS as WKT2 with
+  its identifier `ID["IAU",30135,2015]` (GDAL reads the side-car first: `gdalinfo` prints the ID).
+  rasterio 1.4 takes a dataset's CRS through WKT1 (`GDALGetProjectionRef`), which turns variant A into B and
+  drops the identifier's version, so its `crs.to_authority()` is None for any IAU CRS (even an in-memory
+  dataset made from `IAU_2015:30135`) unless GDAL exports WKT2: `rasterio.Env(OSR_WKT_FORMAT="WKT2_2019")`;
 - without one, a local engineering CRS (`LOCAL_CS`, metres, x east, y north of the launch site), and the
   file's `PSRMAP_CRS` tag says that it is not georeferenced.
 """

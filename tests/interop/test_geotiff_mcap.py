@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -223,10 +224,11 @@ def test_mcap_read_by_foxglove_mcap_ros2_support(npz: Path, tmp_path: Path, caps
 def test_the_moon_geotiff_is_identified_as_iau_2015_30135_and_its_bands_have_unit_types(
     npz: Path, tmp_path: Path, capsys
 ) -> None:
-    """GDAL's view of the file (rasterio on GDAL, exporting the dataset's CRS as WKT2 so the identifier keeps
-    its version): PROJ identifies the CRS as IAU_2015:30135 at full confidence and it projects like that CRS;
-    each band has a unit type (what `gdalinfo` prints as "Unit Type"). The GeoTIFF keys alone still carry the
-    same projection for readers that ignore GDAL's side-car."""
+    """GDAL's view of the file (rasterio on GDAL, exporting the dataset's CRS as WKT2: rasterio 1.4's default
+    WKT1 loses variant A and the identifier's version for every IAU CRS): the side-car's CRS carries the ID
+    IAU_2015:30135 and `to_authority()` finds it; the GeoTIFF keys alone (the .tif copied without its
+    side-car) are identified as IAU_2015:30135 too; both project like that CRS. Each band has a unit type
+    (what `gdalinfo` prints as "Unit Type")."""
     import rasterio
     from rasterio.crs import CRS
     from rasterio.warp import transform
@@ -246,8 +248,13 @@ def test_the_moon_geotiff_is_identified_as_iau_2015_30135_and_its_bands_have_uni
         assert 'ID["IAU",30135,2015]' in ds.crs.to_wkt(version="WKT2_2019")
         assert ds.units == ("m", "observations", "1", "observations")  # elevation [m], counts, slip [1]
         crs = ds.crs
-    with rasterio.Env(GDAL_GEOREF_SOURCES="INTERNAL"), rasterio.open(out) as ds:  # the GeoTIFF keys only
+    alone = tmp_path / "alone.tif"
+    shutil.copyfile(out, alone)
+    with rasterio.Env(OSR_WKT_FORMAT="WKT2_2019"), rasterio.open(alone) as ds:  # the GeoTIFF keys only
         keys_crs = ds.crs
+        assert ds.crs.to_authority() == ("IAU_2015", "30135") and 'ID["IAU",30135,2015]' not in ds.crs.to_wkt(
+            version="WKT2_2019"
+        )
     for c in (crs, keys_crs):
         (e,), (n,) = transform(geo, c, [222.7], [-89.45])
         (e1,), (n1,) = transform(geo, iau, [222.7], [-89.45])
