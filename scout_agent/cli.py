@@ -24,12 +24,13 @@ from scout_agent.errors import ScoutConfigError, ScoutLinkError
 from scout_agent.evaluate import register_evaluate
 from scout_agent.mapping import add_mapping_arguments, link_from_args
 from scout_agent.run import SCENES, ScoutRunConfig, build_world
-from scout_agent.sensors import IMU_PRESETS
+from scout_agent.sensors import IMU_PRESETS, SENSOR_PROFILES, SensorConfig
 from scout_agent.sensors.foot_pressure import CONTACT_SOURCES
 from scout_agent.sim.dem import DemWindow
 from scout_agent.sim.friction import Patch
 from scout_agent.sim.simulator import STATE_SOURCES, SimConfig
 from scout_agent.sim.terrain import LUNAR_ROUTES, PAPER_FIELD_M, RampConfig
+from scout_agent.state_estimation.launch import LAUNCH_MODES, LaunchSurvey
 
 
 def _floats(n_min: int, n_max: int, what: str):
@@ -151,15 +152,49 @@ def add_scout_arguments(p: argparse.ArgumentParser) -> None:
         default="pressure",
         help="foot contact from the 1-D foot pressure sensors (default) or from joint torques",
     )
+    p.add_argument(
+        "--sensors",
+        choices=SENSOR_PROFILES,
+        default="realistic",
+        help="sensor errors: what a real robot has (default: IMU temperature drift, scale, misalignment, "
+        "lever arm, lost packets, joint offsets, link lengths, foot-sensor drift) or the ideal models",
+    )
+    p.add_argument(
+        "--launch",
+        choices=LAUNCH_MODES,
+        default="survey",
+        help="the start the scout is given: a lander survey with stated error and no simulator height "
+        "(default) or the exact pose and ground height (comparison only)",
+    )
+    p.add_argument(
+        "--launch-sigma",
+        type=_floats(2, 2, "launch survey σ xy [m], yaw [deg]"),
+        metavar="XY_M,YAW_DEG",
+        help="launch survey σ: horizontal per axis [m] and heading [deg] (default 0.15,1)",
+    )
     p.add_argument("--scout-id", default="scout1", type=id_arg("scout"), help="scout id ([A-Za-z0-9_-]+)")
 
 
-def _sim_config(state: str, contact: str, imu: str = "bmi088") -> SimConfig:
+def _sim_config(
+    state: str,
+    contact: str,
+    imu: str = "bmi088",
+    sensors: str = "realistic",
+    launch: LaunchSurvey | None = None,
+) -> SimConfig:
     base = SimConfig()
-    sensors = replace(
-        base.sensors, contact=replace(base.sensors.contact, source=contact), imu=IMU_PRESETS[imu]
-    )
-    return replace(base, state_source=state, sensors=sensors)
+    prof = SensorConfig.named(sensors)
+    prof = replace(prof, contact=replace(prof.contact, source=contact), imu=IMU_PRESETS[imu])
+    return replace(base, state_source=state, sensors=prof, launch=launch or LaunchSurvey())
+
+
+def _launch(args: argparse.Namespace, parser: argparse.ArgumentParser) -> LaunchSurvey:
+    if args.launch_sigma is None:
+        return LaunchSurvey(mode=args.launch)
+    xy, yaw = args.launch_sigma
+    if not (0.0 <= xy <= 100.0 and 0.0 <= yaw <= 180.0):
+        parser.error(f"--launch-sigma {xy},{yaw}: need 0 ≤ xy ≤ 100 m and 0 ≤ yaw ≤ 180 deg")
+    return LaunchSurvey(mode=args.launch, sigma_xy_m=xy, sigma_yaw_deg=yaw)
 
 
 def config_from_args(args: argparse.Namespace, parser: argparse.ArgumentParser) -> ScoutRunConfig:
@@ -209,7 +244,7 @@ def config_from_args(args: argparse.Namespace, parser: argparse.ArgumentParser) 
         holdable_patches=args.holdable_patches,
         patches=tuple(args.patch),
         scout_id=args.scout_id,
-        sim=_sim_config(args.state, args.contact, args.imu),
+        sim=_sim_config(args.state, args.contact, args.imu, args.sensors, _launch(args, parser)),
         dem=_dem(args, parser),
     )
     try:

@@ -7,7 +7,10 @@ The map under test is what the scout itself builds (`scout_agent.mapping.Mapper`
 *honest* base state: the scout's own state estimate from its sensor models, unless `--state exact`). Beside it,
 on the same run, the same estimators and map fed the simulator's exact base state (`*_exact`, e.g.
 `elevation_rmse_exact_m`, `slip_precision_exact`) and the paper-form slip detector (`slip_paper_*`); the state
-estimate's drift at the end (`drift_xy_pct`, `drift_z_m`, `drift_yaw_deg`), and `cot_whole_run_truth` (the
+estimate's drift at the end (`drift_xy_pct`, `drift_z_m`, `drift_yaw_deg`), its error over the whole run and
+whether its covariance contains it (`pos_error_max_m`, `pos_error_final_m`, `yaw_error_max_deg`, `nees_pos_mean`,
+`inside_3sigma_frac`: `scout_agent/state_estimation/consistency.py`), the sensor profile (`sensors`:
+realistic/ideal), `localization` ("off" until a localizer runs), the start it was given (`launch`), and `cot_whole_run_truth` (the
 simulator's exact joint energy at every physics step over the true horizontal path) beside `cot_whole_run`.
 
 Ground truth and scoring:
@@ -53,6 +56,14 @@ from scout_agent.sim.friction import unholdable
 
 __all__ = ["Evaluator", "cmd_evaluate", "register_evaluate"]
 
+# the state estimate against the truth over the whole run (state_estimation/consistency.py)
+ERROR_KEYS = (
+    "pos_error_max_m",
+    "pos_error_final_m",
+    "yaw_error_max_deg",
+    "nees_pos_mean",
+    "inside_3sigma_frac",
+)
 GT_SLIP_M = 0.02  # ground-truth slip: contact point moved more than this within one stance [m]
 SEGMENTS = {"up": "up", "flat": "platform", "down": "down"}
 
@@ -253,6 +264,11 @@ class Evaluator:
             z_fit, gx, gy = plane_from_moments(elev)
             out["elevation_cells"] = int(len(cx))
             out["elevation_rmse_m"] = _r(float(np.sqrt(np.nanmean((value - h_true) ** 2))), 5)
+            # the map's height datum is the launch's (declared 0 without a DEM or map): its offset, and the
+            # RMSE of the relief once that one offset is removed
+            bias = float(np.nanmean(value - h_true))
+            out["elevation_bias_m"] = _r(bias, 5)
+            out["elevation_rmse_relative_m"] = _r(float(np.sqrt(np.nanmean((value - h_true - bias) ** 2))), 5)
             out["elevation_rmse_mean_only_m"] = _r(float(np.sqrt(np.mean((mean - h_true) ** 2))), 5)
             out["elevation_rmse_plane_m"] = _r(float(np.sqrt(np.nanmean((z_fit - h_true) ** 2))), 5)
             s_true = _cell_slope_deg(terrain, cx, cy, res)
@@ -360,6 +376,9 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         "slippery_patches": cfg.slippery_patches,
         "holdable_patches": cfg.holdable_patches,
         "state_source": summary["state_source"],
+        "sensors": summary["sensors"],
+        "localization": summary["localization"],
+        "launch": summary["launch"],
         "contact_source": cfg.sim.sensors.contact.source,
         "fell": summary["fell"],
         "fall_xy": summary["fall_xy"],
@@ -371,7 +390,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         "gia_source": "imu (accelerometer, estimated orientation)",
         **{
             k: summary[k]
-            for k in ("drift_xy_m", "drift_xy_pct", "drift_z_m", "drift_yaw_deg")
+            for k in ("drift_xy_m", "drift_xy_pct", "drift_z_m", "drift_yaw_deg", *ERROR_KEYS)
             if k in summary
         },
     }

@@ -37,6 +37,7 @@ from scout_agent.sim.terrain import (
     make_ramps,
     route_slope_stats,
 )
+from scout_agent.state_estimation.consistency import ConsistencyTracker
 
 SCENES = ("ramps", "lunar")
 OnTick = Callable[[ProprioSample, GroundTruth, ScoutSim], object]
@@ -171,6 +172,8 @@ def run_scout(
     sample = truth = None
     path_estimate: list[list[float]] = []  # [t, x, y, z] of the robot's own estimate, every PATH_EVERY_S
     next_path_t = 0.0
+    errors = ConsistencyTracker()  # the estimate against the truth, every tick (evaluation only)
+    on_estimate = sim.config.state_source == "estimate"
     for k in range(n_ticks):
         st = sim.robot_state()  # the robot's own estimate (exact only with state_source "exact")
         yaw = float(np.arctan2(st.R[1, 0], st.R[0, 0]))
@@ -189,6 +192,13 @@ def run_scout(
             next_path_t += PATH_EVERY_S
             path_estimate.append([round(sim.t, 3), *(round(float(v), 3) for v in sample.base.pos)])
         nonfoot_ticks += truth.nonfoot_contacts > 0
+        errors.add(
+            truth.base.pos,
+            truth.base.quat,
+            sample.base.pos,
+            sample.base.quat,
+            sim.estimator.position_covariance()[:2, :2] if on_estimate else None,
+        )
         speed_path += float(np.hypot(truth.base.vel[0], truth.base.vel[1])) * sim.control_dt
         if on_tick is not None:
             on_tick(sample, truth, sim)
@@ -227,7 +237,19 @@ def run_scout(
         "nonfoot_contact_ticks": int(nonfoot_ticks),
         "friction": world.friction.to_dict(),
         "state_source": sim.config.state_source,
+        "sensors": sim.config.sensors.profile,
+        "localization": "off",
+        "launch": {
+            "mode": sim.config.launch.mode,
+            "datum": sim.launch.datum,
+            "sigma_xy_m": sim.launch.sigma_xy_m,
+            "sigma_yaw_deg": round(math.degrees(sim.launch.sigma_yaw_rad), 4),
+            "sigma_z_m": sim.launch.sigma_z_m,
+            "error_xy_m": _r4(math.hypot(sim.launch.x - world.start[0], sim.launch.y - world.start[1])),
+            "error_yaw_deg": _r4(math.degrees(sim.launch.yaw - world.start[2])),
+        },
         **drift(sample, truth, distance),
+        **errors.summary(),
         "energy_truth_j": round(sim.energy_true_j, 3),
         "cot_whole_run_truth": _r4(sim.energy_true_j / (C.TOTAL_MASS * C.LUNAR_G * speed_path))
         if speed_path > 0.05

@@ -31,7 +31,20 @@ __all__ = [
 ]
 
 
-DRIFT_KEYS = ("drift_xy_m", "drift_xy_pct", "drift_z_m", "drift_yaw_deg", "state_source")
+DRIFT_KEYS = (
+    "drift_xy_m",
+    "drift_xy_pct",
+    "drift_z_m",
+    "drift_yaw_deg",
+    "state_source",
+    "sensors",
+    "localization",
+    "pos_error_max_m",
+    "pos_error_final_m",
+    "yaw_error_max_deg",
+    "nees_pos_mean",
+    "inside_3sigma_frac",
+)
 
 
 SCENES = ("lunar", "ramps")

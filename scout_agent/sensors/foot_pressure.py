@@ -5,7 +5,10 @@ An Aliengo has one pressure value per foot (Unitree low-level state `footForce`)
 The model reports the normal ground force on the foot sphere scaled by a per-foot gain error, plus an offset and
 white noise, as an uncalibrated resistive/piezo sensor in a rubber foot would: defaults are a ± 10 % gain spread
 (σ `gain_error`), a 0.5 N offset spread and 1.0 N noise per reading (assumed values for such sensors; Unitree
-publishes none). Contact turns on above `on_n` and off below `off_n` (hysteresis keeps noise from flickering).
+publishes none). Realistic profile: the offset also drifts (a random walk of `offset_walk_n` N/√s: rubber
+creep and temperature; assumed 0.03 N/√s, ≈ 0.4 N after 3 min) and the reading saturates at `saturation_n`
+(Aliengo `footForce` is a raw int16 of an uncalibrated sensor; 120 N assumed as the sensor's linear range: a
+trotting Aliengo's foot carries 8–16 N at lunar g, impacts a few times that). Contact turns on above `on_n` and off below `off_n` (hysteresis keeps noise from flickering).
 
 Contact from joint torques (`source="torques"`): the ground force on each stance foot is estimated as
 f = −J⁻ᵀ (τ − τ_g) (`leg_forces_from_torques`), and its component along the base's −z axis is thresholded with
@@ -15,6 +18,7 @@ a few newtons of phantom force.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -32,6 +36,8 @@ class ContactConfig:
     noise_n: float = 1.0  # σ of the reading's noise [N]
     on_n: float = 5.0  # contact turns on above this reading [N]
     off_n: float = 2.5  # ... and off below this one [N]
+    offset_walk_n: float = 0.0  # offset drift [N/√s] (realistic: 0.03)
+    saturation_n: float = math.inf  # readings clip here [N] (realistic: 120)
 
     def __post_init__(self) -> None:
         if self.source not in CONTACT_SOURCES:
@@ -62,9 +68,13 @@ class FootContactSensors:
         self.offset = rng.normal(0.0, c.offset_n, 4)
         self.contact = np.zeros(4, bool)
 
-    def reading(self, normal_force_n: np.ndarray) -> np.ndarray:
+    def reading(self, normal_force_n: np.ndarray, dt: float = 0.0) -> np.ndarray:
+        """Readings [N] for the true normal forces; `dt` [s] since the last reading drives the offset drift."""
         c = self.config
-        return self.gain * np.maximum(normal_force_n, 0.0) + self.offset + self.rng.normal(0.0, c.noise_n, 4)
+        if c.offset_walk_n and dt > 0:
+            self.offset = self.offset + self.rng.normal(0.0, c.offset_walk_n * math.sqrt(dt), 4)
+        r = self.gain * np.maximum(normal_force_n, 0.0) + self.offset + self.rng.normal(0.0, c.noise_n, 4)
+        return np.minimum(r, c.saturation_n)
 
     def flags(self, force_n: np.ndarray) -> np.ndarray:
         c = self.config

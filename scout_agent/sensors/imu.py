@@ -19,16 +19,39 @@ part (Analog Devices ADIS16495 datasheet, rev. B: angle random walk 0.09 °/√h
 0.8 °/h, velocity random walk 0.008 m/s/√h, accelerometer bias stability 3.2 µg; residual accelerometer bias
 after calibration taken as 0.1 mg) for comparison: `psrmap scout|evaluate --imu adis16495`.
 Discrete white noise at sample period dt has σ = density / √dt. The model reads the simulator's exact specific
-force and angular velocity at the IMU site (MuJoCo `accelerometer` / `gyro` sensors), base frame.
+force and angular velocity at the IMU site (MuJoCo `accelerometer` / `gyro` sensors), trunk frame.
+
+`ImuErrors` (on by default in the scout, `--sensors realistic`; `ImuErrors.none()` is the ideal model above) adds
+what a real part on a real robot also does, each drawn once per run from the run seed:
+- **bias that drifts with temperature**: the power-on calibration removes the offset at the power-on
+  temperature; the board then warms (`ImuTemperature`: a first-order warm-up plus a slow change) and each
+  axis's offset moves by its temperature coefficient (TCO), drawn N(0, datasheet TCO²) per axis (Bosch gives
+  typical values as 1σ). BMI088 datasheet: gyro TCO ±0.015 °/s/K, accelerometer TCO < 0.2 mg/K;
+- **scale factor** and **cross-axis sensitivity** (off-diagonal terms): gyro 1 % each (BMI088 sensitivity
+  tolerance ±1 %; REFERENCE.md "≈ 1 % class"; a rate table is needed to calibrate them, so they stay);
+  accelerometer 0.1 % each, the residual of the same six-position bench calibration that leaves its 1 mg bias
+  (assumed: that calibration fits scale and cross-axis along with the offset);
+- **mounting misalignment** of the sensor frame on the trunk: σ 0.1° about roll and pitch (the residual of a
+  level-stand calibration, gravity against the leg kinematics; assumed) and 0.3° about yaw (not calibrated that
+  way: PCB and board mounting tolerance; assumed); the estimator does not know it;
+- **g-sensitivity** of the gyro: BMI088 0.1 °/s/g, per matrix element N(0, that²), on the specific force's
+  change since the power-on calibration (which absorbed the standing value);
+- **quantisation**: 16-bit outputs, gyro range ±1000 °/s (0.0305 °/s per LSB), accelerometer ±3 g
+  (0.092 mg per LSB) (BMI088 register map: signed 16-bit, range set in GYRO_RANGE / ACC_RANGE);
+- **dropped samples**: each 500 Hz sample is lost with probability 0.2 % (assumed: FIFO/SPI read misses on a
+  busy board); the tick's mean is over the samples that arrived;
+- the on-chip **thermometer** (BMI088: 11-bit, 0.125 K per LSB) is read, so the robot knows the temperature
+  change, not the coefficients: the state estimator widens its bias uncertainty by TCO × ΔT (estimator.py).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 _G0 = 9.80665  # [m/s²] per g (datasheet units)
+_DEG = np.pi / 180.0
 
 
 @dataclass(frozen=True)
@@ -54,14 +77,109 @@ IMU_PRESETS: dict[str, ImuConfig] = {
 }
 
 
-class ImuModel:
-    """`sample(acc_true, gyro_true, dt)` for a block of k physics steps ((k, 3) each) → noisy (k, 3) pair."""
+@dataclass(frozen=True)
+class ImuTemperature:
+    """The IMU's temperature change since power-on: a warm-up of `warmup_k` with time constant `warmup_tau_s`,
+    plus a slow change of `rate_k_per_h` (assumed values: the IMU sits on the main board beside the motor
+    drivers and computer, which warm it by several kelvin over the first tens of minutes; the robot then moves
+    between sunlit and shadowed ground). Time from power-on [s]."""
 
-    def __init__(self, config: ImuConfig, rng: np.random.Generator) -> None:
+    warmup_k: float = 8.0  # [K]
+    warmup_tau_s: float = 600.0  # [s]
+    rate_k_per_h: float = 2.0  # [K/h]
+
+    def delta_k(self, t_s: np.ndarray | float) -> np.ndarray:
+        t = np.asarray(t_s, dtype=float)
+        return self.warmup_k * (1.0 - np.exp(-t / self.warmup_tau_s)) + self.rate_k_per_h * t / 3600.0
+
+
+@dataclass(frozen=True)
+class ImuErrors:
+    """Errors a real IMU on a real robot has beyond noise and bias walk (module docstring: sources)."""
+
+    gyro_tempco: float = 0.015 * _DEG  # σ per axis of the zero-rate offset's TCO [rad/s/K] (BMI088)
+    acc_tempco: float = 0.2e-3 * _G0  # σ per axis of the zero-g offset's TCO [m/s²/K] (BMI088)
+    temperature: ImuTemperature = field(default_factory=ImuTemperature)
+    temp_lsb_k: float = 0.125  # on-chip thermometer resolution [K] (BMI088)
+    start_temp_c: float = 20.0  # board temperature at power-on [°C]
+    gyro_scale: float = 0.01  # σ of the sensitivity error per axis (BMI088 ±1 %)
+    acc_scale: float = 0.001  # σ after the six-position calibration (assumed)
+    gyro_cross_axis: float = 0.01  # σ of each off-diagonal coupling
+    acc_cross_axis: float = 0.001
+    misalignment_rad: tuple[float, float, float] = (0.1 * _DEG, 0.1 * _DEG, 0.3 * _DEG)  # σ roll, pitch, yaw
+    gyro_g_sensitivity: float = 0.1 * _DEG / _G0  # σ per element [rad/s per m/s²] (BMI088 0.1 °/s/g)
+    gyro_lsb: float = 1000.0 * _DEG / 32768.0  # [rad/s] (±1000 °/s, 16 bit)
+    acc_lsb: float = 3.0 * _G0 / 32768.0  # [m/s²] (±3 g, 16 bit)
+    sample_drop: float = 0.002  # probability one 500 Hz sample is lost (assumed)
+
+    @classmethod
+    def none(cls) -> ImuErrors:
+        """The ideal model: none of these errors (`--sensors ideal`)."""
+        return cls(
+            gyro_tempco=0.0,
+            acc_tempco=0.0,
+            temperature=ImuTemperature(0.0, 600.0, 0.0),
+            temp_lsb_k=0.0,
+            gyro_scale=0.0,
+            acc_scale=0.0,
+            gyro_cross_axis=0.0,
+            acc_cross_axis=0.0,
+            misalignment_rad=(0.0, 0.0, 0.0),
+            gyro_g_sensitivity=0.0,
+            gyro_lsb=0.0,
+            acc_lsb=0.0,
+            sample_drop=0.0,
+        )
+
+
+def _rotation(rv: np.ndarray) -> np.ndarray:
+    th = float(np.linalg.norm(rv))
+    if th < 1e-12:
+        return np.eye(3)
+    k = rv / th
+    K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    return np.eye(3) + np.sin(th) * K + (1.0 - np.cos(th)) * (K @ K)
+
+
+def _gain_matrix(rng: np.random.Generator, scale: float, cross: float) -> np.ndarray:
+    m = np.eye(3) + np.diag(rng.normal(0.0, scale, 3)) if scale else np.eye(3)
+    if cross:
+        off = rng.normal(0.0, cross, (3, 3))
+        np.fill_diagonal(off, 0.0)
+        m = m + off
+    return m
+
+
+def _quantise(x: np.ndarray, lsb: float) -> np.ndarray:
+    return np.floor(x / lsb + 0.5) * lsb if lsb > 0 else x
+
+
+class ImuModel:
+    """`sample(acc_true, gyro_true, dt)` for a block of k physics steps ((k, 3) each) → noisy (k', 3) pair
+    (k' ≤ k: the samples that arrived); `temperature_c()` the on-chip thermometer's reading."""
+
+    def __init__(self, config: ImuConfig, rng: np.random.Generator, errors: ImuErrors | None = None) -> None:
         self.config = c = config
+        self.errors = e = errors if errors is not None else ImuErrors.none()
         self.rng = rng
         self.acc_bias = rng.normal(0.0, c.acc_turn_on_bias, 3)
         self.gyro_bias = rng.normal(0.0, c.gyro_turn_on_bias, 3)
+        # drawn once per part / per mounting (fixed order of draws: reproducible from the seed)
+        self.gyro_tc = rng.normal(0.0, e.gyro_tempco, 3) if e.gyro_tempco else np.zeros(3)
+        self.acc_tc = rng.normal(0.0, e.acc_tempco, 3) if e.acc_tempco else np.zeros(3)
+        mis_std = np.asarray(e.misalignment_rad, dtype=float)
+        mis = _rotation(rng.normal(0.0, 1.0, 3) * mis_std if mis_std.any() else np.zeros(3))
+        self.gyro_M = _gain_matrix(rng, e.gyro_scale, e.gyro_cross_axis) @ mis.T  # trunk → sensor reading
+        self.acc_M = _gain_matrix(rng, e.acc_scale, e.acc_cross_axis) @ mis.T
+        self.gyro_G = rng.normal(0.0, e.gyro_g_sensitivity, (3, 3)) if e.gyro_g_sensitivity else None
+        self._f_cal: np.ndarray | None = None  # specific force at the power-on calibration
+        self.t = 0.0  # time since power-on [s]
+        self._ideal = errors is None or errors == ImuErrors.none()
+
+    def temperature_c(self) -> float:
+        e = self.errors
+        temp = e.start_temp_c + float(e.temperature.delta_k(self.t))
+        return float(_quantise(np.array(temp), e.temp_lsb_k))
 
     def sample(self, acc_true: np.ndarray, gyro_true: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
         c, k = self.config, len(acc_true)
@@ -71,6 +189,23 @@ class ImuModel:
         acc_b = self.acc_bias + np.cumsum(n[0] * (c.acc_bias_walk * sq), axis=0)
         gyro_b = self.gyro_bias + np.cumsum(n[1] * (c.gyro_bias_walk * sq), axis=0)
         self.acc_bias, self.gyro_bias = acc_b[-1].copy(), gyro_b[-1].copy()
-        acc = acc_true + acc_b + n[2] * (c.acc_noise_density / sq)
-        gyro = gyro_true + gyro_b + n[3] * (c.gyro_noise_density / sq)
+        if self._ideal:
+            self.t += k * dt
+            acc = acc_true + acc_b + n[2] * (c.acc_noise_density / sq)
+            gyro = gyro_true + gyro_b + n[3] * (c.gyro_noise_density / sq)
+            return acc, gyro
+        e = self.errors
+        dtemp = e.temperature.delta_k(self.t + dt * np.arange(1, k + 1))[:, None]  # (k, 1) since calibration
+        self.t += k * dt
+        if self._f_cal is None:
+            self._f_cal = acc_true[0].copy()
+        acc = acc_true @ self.acc_M.T + acc_b + self.acc_tc * dtemp + n[2] * (c.acc_noise_density / sq)
+        gyro = gyro_true @ self.gyro_M.T + gyro_b + self.gyro_tc * dtemp + n[3] * (c.gyro_noise_density / sq)
+        if self.gyro_G is not None:
+            gyro = gyro + (acc_true - self._f_cal) @ self.gyro_G.T
+        acc, gyro = _quantise(acc, e.acc_lsb), _quantise(gyro, e.gyro_lsb)
+        if e.sample_drop > 0:
+            kept = self.rng.random(k) >= e.sample_drop
+            kept[-1] |= not kept.any()  # a tick with every sample lost keeps its last one (p ≈ 3e-14)
+            acc, gyro = acc[kept], gyro[kept]
         return acc, gyro

@@ -11,6 +11,10 @@ Defaults (`JointSensorConfig`), and where they come from:
 - Torque: τ = k_t · i · N from the measured motor current. The torque constant varies part to part (± 5 % is a
   typical tolerance for BLDC motors), so each joint gets a gain error drawn once (σ `torque_gain_error`), plus
   current-sense noise `torque_noise_nm` per sample.
+- Joint zero offsets (`zero_offset_rad`, realistic profile only): a calibrated robot's encoders read each joint's
+  angle with the residual error of its zero calibration (Unitree robots are zeroed by placing the legs in a
+  calibration posture / fixture); σ 0.3° per joint is assumed (a fixture seats the calf to a few tenths of a
+  degree; Unitree publishes no figure). Drawn once per run; the robot's software does not know it.
 - Energy: the driver samples current and velocity at every physics step; the joint work Σ_i |τ_i · θ̇_i| dt is
   integrated there from the *measured* values (not once per control tick, which missed ≈ 17 % of the work).
 """
@@ -29,6 +33,7 @@ class JointSensorConfig:
     velocity_cutoff_hz: float = 100.0  # driver's low-pass on the differentiated encoder [Hz]
     torque_gain_error: float = 0.03  # σ of the per-joint torque-constant error (fraction)
     torque_noise_nm: float = 0.1  # σ of current-sense noise per sample [N·m]
+    zero_offset_rad: float = 0.0  # σ of each joint's zero-calibration residual [rad] (realistic: 0.3°)
 
 
 class JointSensors:
@@ -39,7 +44,8 @@ class JointSensors:
         self.config = c = config
         self.rng = rng
         self.gain = 1.0 + rng.normal(0.0, c.torque_gain_error, 12)
-        self._q_prev = self.quantise(np.asarray(q0, dtype=float))
+        self.zero_offset = rng.normal(0.0, c.zero_offset_rad, 12) if c.zero_offset_rad else np.zeros(12)
+        self._q_prev = self.quantise(np.asarray(q0, dtype=float) + self.zero_offset)
         self._dq = np.zeros(12)
 
     def quantise(self, q: np.ndarray) -> np.ndarray:
@@ -50,7 +56,7 @@ class JointSensors:
         self, q_true: np.ndarray, tau_true: np.ndarray, dt: float
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
         c, k = self.config, len(q_true)
-        q = self.quantise(q_true)
+        q = self.quantise(q_true + self.zero_offset)
         alpha = 1.0 - math.exp(-2 * math.pi * c.velocity_cutoff_hz * dt)
         dq = np.empty((k, 12))
         prev, filt = self._q_prev, self._dq

@@ -15,7 +15,8 @@ exact base state instead (sensor readings stay modelled). `GroundTruth` is for e
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
 
 import mujoco
 import numpy as np
@@ -25,13 +26,14 @@ from scout_agent.errors import ScoutConfigError
 from scout_agent.robot import constants as C
 from scout_agent.robot import kinematics as K
 from scout_agent.sensors import SensorConfig, SensorSuite
-from scout_agent.sensors.suite import TrueBlock
-from scout_agent.signals import BaseState, GroundTruth, ProprioSample
+from scout_agent.sensors.suite import TrueBlock, link_length_errors
+from scout_agent.signals import LEG_NAMES, BaseState, GroundTruth, ProprioSample
 from scout_agent.sim.friction import FrictionMap
 from scout_agent.sim.scene import TERRAIN_GEOM, PhysicsConfig, build_scene
 from scout_agent.sim.terrain import Terrain
 from scout_agent.sim.truth import foot_contacts, pose_and_feet, quat_to_mat, stance_displacement
-from scout_agent.state_estimation import EstimatorConfig, LaunchPose, StateEstimator
+from scout_agent.state_estimation import EstimatorConfig, StateEstimator
+from scout_agent.state_estimation.launch import HeightDatum, LaunchSurvey, initial_pose
 
 STATE_SOURCES = ("estimate", "exact")
 
@@ -43,6 +45,7 @@ class SimConfig:
     sensors: SensorConfig = field(default_factory=SensorConfig)
     estimator: EstimatorConfig = field(default_factory=EstimatorConfig)
     state_source: str = "estimate"  # one of STATE_SOURCES; "exact" is an evaluation option
+    launch: LaunchSurvey = field(default_factory=LaunchSurvey)  # the start the scout is given (launch.py)
     decimation: int = 5  # physics steps per control tick (100 Hz control; PD servos at 500 Hz)
     contact_threshold_n: float = 1.0  # [N]
     fall_tilt_deg: float = 60.0  # trunk tilt from vertical that counts as a fall
@@ -79,8 +82,11 @@ class ScoutSim:
         friction: FrictionMap | None = None,
         config: SimConfig = SimConfig(),
         start: tuple[float, float, float] | None = None,
+        datum_sources: Sequence[tuple[str, HeightDatum]] = (),
     ) -> None:
+        """`datum_sources`: where the scout may take its launch ground height (launch.py), tried in order."""
         self.terrain = terrain
+        self.datum_sources = tuple(datum_sources)
         self.friction = friction or FrictionMap()
         self.config = config
         self.model = build_scene(terrain, config.physics)
@@ -95,6 +101,13 @@ class ScoutSim:
         self._trunk_geom = m.geom("trunk").id
         self._leg_of_geom = np.full(m.ngeom, -1)
         self._leg_of_geom[self._foot_geoms] = np.arange(4)
+        # the simulated robot as built, not as designed (sensors/suite.py): IMU where it is mounted, and
+        # thigh/calf lengths off the nominal ones the robot's software uses
+        m.site_pos[m.site(C.IMU_SITE).id] = config.sensors.imu_offset_m
+        dl = link_length_errors(config.sensors)
+        for i, leg in enumerate(LEG_NAMES):
+            m.body_pos[m.body(f"{leg}_calf").id, 2] -= dl[i, 0]
+            m.body_pos[m.body(f"{leg}_foot").id, 2] -= dl[i, 1]
         acc_adr = m.sensor_adr[m.sensor("imu_acc").id]
         gyro_adr = m.sensor_adr[m.sensor("imu_gyro").id]
         self._touching = np.zeros(m.ngeom, bool)  # non-foot geoms on the ground (contacts.foot_contacts)
@@ -147,10 +160,7 @@ class ScoutSim:
         self.last_output: ControlOutput | None = None
         self.fell = False
         self.fall_xy: tuple[float, float] | None = None
-        self.sensors = SensorSuite(self.config.sensors, C.HOME_Q)
-        # the mission's launch pose: x, y, heading and the surveyed ground height under the start
-        self.launch = LaunchPose(float(x), float(y), float(yaw), ground)
-        self.estimator = StateEstimator(self.launch, C.HOME_Q, self.config.estimator)
+        self._start_robot_software(float(x), float(y), float(yaw), ground)
         self.energy_true_j = 0.0  # exact joint work since start, every physics step [J]
         self._state = RobotState(
             0.0,
@@ -167,6 +177,22 @@ class ScoutSim:
         self._cp0 = np.full((4, 3), np.nan)
         self._swung = np.ones(4, bool)
         self._apply_friction()
+
+    def _start_robot_software(self, x: float, y: float, yaw: float, ground_z: float) -> None:
+        """Power on the robot's side where the lander put it (x, y, yaw; `ground_z` the exact ground height
+        there): its sensors, and its state estimator from the start it is given. That start is a survey of
+        (x, y, heading) with its error and a height datum that is never the simulator's, unless the comparison
+        mode "exact" asks for it (state_estimation/launch.py)."""
+        self.sensors = SensorSuite(self.config.sensors, C.HOME_Q)
+        self.launch = initial_pose(
+            (x, y, yaw),
+            self.config.launch,
+            np.random.default_rng([self.config.sensors.seed, 0x1A7C]),
+            self.datum_sources,
+            exact_ground_z=lambda: ground_z,
+        )
+        est_cfg = replace(self.config.estimator, imu_offset_m=self.config.sensors.imu_offset_m)
+        self.estimator = StateEstimator(self.launch, C.HOME_Q, est_cfg)
 
     def _apply_friction(self) -> None:
         d = self.data

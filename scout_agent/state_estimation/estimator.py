@@ -34,6 +34,7 @@ straight (a 1 mg bias is a 0.35° tilt error under lunar gravity). `psrmap evalu
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
@@ -42,9 +43,11 @@ import numpy as np
 from scout_agent.estimators.elevation import terrain_normal
 from scout_agent.estimators.feet import PinocchioFeet
 from scout_agent.robot import constants as C
+from scout_agent.robot.vectors import cross
 from scout_agent.sensors import SensorTick
 
 from .ekf import ErrorStateEKF, NoiseConfig
+from .launch import LaunchPose
 from .leg_odometry import stance_velocity_measurements
 
 _EZ = np.array([0.0, 0.0, 1.0])
@@ -62,16 +65,13 @@ class EstimatorConfig:
     odometry_stance: tuple[float, float] = (0.3, 0.8)
     gravity_mps2: float = C.LUNAR_G
     foot_radius_m: float = C.FOOT_RADIUS
-
-
-@dataclass(frozen=True)
-class LaunchPose:
-    """Where the mission launches the scout, in the map frame."""
-
-    x: float  # [m]
-    y: float  # [m]
-    yaw: float  # heading [rad]
-    ground_z: float  # surveyed ground height under the launch point [m]
+    imu_offset_m: tuple[float, float, float] = (0.0, 0.0, 0.0)  # IMU position on the trunk (CAD) [m]
+    # what the filter knows of the IMU's temperature behaviour: the datasheet's TCO as a σ (sensors/imu.py)
+    gyro_tempco_std: float = float(np.radians(0.015))  # [rad/s/K]
+    acc_tempco_std: float = 0.2e-3 * 9.80665  # [m/s²/K]
+    gyro_scale_std: float = 0.014  # heading error per radian turned: scale ⊕ cross-axis (1 % each)
+    odometry_scale_std: float = 0.01  # leg odometry's along-track error per metre walked (1–2 % class)
+    slip_pos_std_m: float = 0.005  # horizontal position σ added per foot update the gate rejected [m]
 
 
 class StateEstimate(NamedTuple):
@@ -124,6 +124,20 @@ class StateEstimator:
             np.array([0.0, 0.0, -c.gravity_mps2]),
             c.noise,
         )
+        # the start's stated uncertainty (launch.py): survey σ on x, y, heading; the height's σ is the datum's
+        P = self.ekf.P
+        P[6, 6] = P[7, 7] = c.noise.init_pos**2 + launch.sigma_xy_m**2
+        P[2, 2] = c.noise.init_yaw**2 + launch.sigma_yaw_rad**2
+        P[8, 8] = c.noise.init_pos**2 + launch.sigma_z_m**2
+        self._r_imu = np.asarray(c.imu_offset_m, dtype=float)
+        self._lever = bool(np.any(self._r_imu))
+        self._w_prev = np.zeros(3)
+        self._stamp_prev = 0.0
+        self._held_s = 0.0  # time propagated on lost packets since the last fresh reading [s]
+        self._temp0 = math.nan  # IMU temperature at the first reading (the power-on calibration's) [°C]
+        self._dtemp_prev = 0.0
+        self.walked_m = 0.0  # horizontal distance by the estimate [m]
+        self.turned_rad = 0.0  # heading turned by the estimate [rad]
         self._contact_since = np.full(4, np.inf)
         self._footholds = fb @ R0.T + self.ekf.p  # (4, 3) each foot's latest stance position, world [m]
         self._was_contact = np.zeros(4, bool)
@@ -133,6 +147,51 @@ class StateEstimator:
         self.launch = launch
         self.anchored = False  # the height has been anchored to the launch ground once all feet stood on it
         self.estimate = self._estimate(np.zeros(3))
+
+    def _specific_force(self, tick: SensorTick, dt: float) -> np.ndarray:
+        """The specific force at the base origin: the IMU's, less its lever arm (ω̇ × r + ω × (ω × r))."""
+        if not self._lever:
+            return tick.imu_acc
+        w = tick.imu_gyro - self.ekf.bg
+        wdot = (w - self._w_prev) / dt
+        self._w_prev = w
+        r = self._r_imu
+        return tick.imu_acc - cross(wdot, r) - cross(w, cross(w, r))
+
+    def _inflate(self, tick: SensorTick, dt: float, n_rejected: int) -> None:
+        """Process noise the 15-state model has no state for (module docstring, "Consistency")."""
+        c, P = self.config, self.ekf.P
+        temp = tick.imu_temp_c
+        if temp == temp:  # bias change with temperature: TCO² × d(ΔT²)
+            if self._temp0 != self._temp0:
+                self._temp0 = temp
+            dtemp = temp - self._temp0
+            d2 = abs(dtemp * dtemp - self._dtemp_prev * self._dtemp_prev)
+            self._dtemp_prev = dtemp
+            if d2:
+                for i in range(3):
+                    P[9 + i, 9 + i] += c.gyro_tempco_std**2 * d2
+                    P[12 + i, 12 + i] += c.acc_tempco_std**2 * d2
+        v = self.ekf.v
+        speed = math.hypot(v[0], v[1])
+        if speed > 1e-3:  # along-track odometry scale: σ = k·distance (d σ² = 2 k² d·|v| dt)
+            q = 2.0 * c.odometry_scale_std**2 * self.walked_m * speed * dt
+            ux, uy = v[0] / speed, v[1] / speed
+            P[6, 6] += q * ux * ux
+            P[7, 7] += q * uy * uy
+            P[6, 7] += q * ux * uy
+            P[7, 6] += q * ux * uy
+            self.walked_m += speed * dt
+        wz = abs(float(tick.imu_gyro[2] - self.ekf.bg[2]))
+        P[2, 2] += 2.0 * c.gyro_scale_std**2 * self.turned_rad * wz * dt  # heading from scale/cross-axis
+        self.turned_rad += wz * dt
+        if n_rejected:  # the gate refused a foot: the others may be sliding too, undetected
+            P[6, 6] += n_rejected * c.slip_pos_std_m**2
+            P[7, 7] += n_rejected * c.slip_pos_std_m**2
+
+    def position_covariance(self) -> np.ndarray:
+        """(3, 3) covariance of the base position, world frame [m²]."""
+        return self.ekf.P[6:9, 6:9].copy()
 
     def _estimate(self, omega: np.ndarray) -> StateEstimate:
         e = self.ekf
@@ -145,7 +204,17 @@ class StateEstimator:
         (the robot's own controller knows its schedule); odometry then uses only those feet."""
         c, e = self.config, self.ekf
         self.t = t
-        e.propagate(tick.imu_gyro, tick.imu_acc, dt)
+        if not tick.fresh:  # a lost packet: hold the last reading, no measurement
+            e.propagate(tick.imu_gyro, self._specific_force(tick, dt), dt)
+            self._held_s += dt
+            self._inflate(tick, dt, 0)
+            self.estimate = self._estimate(tick.imu_gyro - e.bg)
+            return self.estimate
+        if tick.stamp_s == tick.stamp_s:  # integrate over the stamped interval (less what was held)
+            dt = min(max(tick.stamp_s - self._stamp_prev - self._held_s, 0.2 * dt), 3.0 * dt)
+            self._stamp_prev = tick.stamp_s
+        self._held_s = 0.0
+        e.propagate(tick.imu_gyro, self._specific_force(tick, dt), dt)
         contact = tick.contact
         self._contact_since = np.where(contact, np.minimum(self._contact_since, t), np.inf)
         use = contact & (t - self._contact_since >= c.stance_settle_s)
@@ -163,12 +232,16 @@ class StateEstimator:
                 (z[use] - h).reshape(-1), H, np.full(H.shape[0], c.leg_vel_std**2), gate_chi2=c.gate_chi2
             )
             self.rejected += int((~keep).sum())
+            self._inflate(tick, dt, int((~keep).sum()))
+        else:
+            self._inflate(tick, dt, 0)
         settled = contact & (t - self._contact_since >= c.stance_settle_s)
         if not self.anchored and settled.sum() >= 2:
             # settled feet stand on the launch ground: the one height the mission knows (its survey)
             feet_z = float(np.mean((fb[settled] @ e.R.T)[:, 2]))
             z_meas = self.launch.ground_z + c.foot_radius_m - feet_z
-            e.update(np.array([z_meas - e.p[2]]), e.position_z_rows(), np.array([c.anchor_std_m**2]))
+            var = c.anchor_std_m**2 + self.launch.sigma_z_m**2  # the datum's own σ (launch.py)
+            e.update(np.array([z_meas - e.p[2]]), e.position_z_rows(), np.array([var]))
             self.anchored = True
         if contact.any():
             self._footholds[contact] = fb[contact] @ e.R.T + e.p

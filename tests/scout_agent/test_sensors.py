@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -133,3 +134,101 @@ def _quat_to_mat(q: np.ndarray) -> np.ndarray:
     from scout_agent.estimators.pipeline import quat_to_matrix
 
     return quat_to_matrix(q)
+
+
+def test_realistic_imu_bias_follows_the_temperature_by_its_drawn_coefficients():
+    from scout_agent.sensors import ImuErrors, ImuTemperature
+
+    # no white noise, no bias walk, no quantiser: the drift is the temperature's alone
+    cfg = ImuConfig(acc_bias_walk=0.0, gyro_bias_walk=0.0, gyro_noise_density=0.0)
+    errs = ImuErrors(
+        temperature=ImuTemperature(warmup_k=8.0, warmup_tau_s=60.0, rate_k_per_h=0.0), gyro_lsb=0.0
+    )
+    imu = ImuModel(cfg, np.random.default_rng(4), errs)
+    still = np.tile([0.0, 0.0, 1.62], (500, 1))
+    first, _ = imu.sample(still, np.zeros((500, 3)), DT)
+
+    def window() -> np.ndarray:  # 10 s of samples: the white noise averages out
+        return np.concatenate([imu.sample(still, np.zeros((500, 3)), DT)[1] for _ in range(10)]).mean(axis=0)
+
+    g0 = window()  # 1–11 s
+    for _ in range(279):
+        imu.sample(still, np.zeros((500, 3)), DT)
+    g1 = window()  # 290–300 s
+    t = np.linspace(0.0, 10.0, 101)
+    dT = float(np.mean(errs.temperature.delta_k(290.0 + t)) - np.mean(errs.temperature.delta_k(1.0 + t)))
+    np.testing.assert_allclose(g1 - g0, imu.gyro_tc * dT, rtol=1e-3)
+    assert np.abs(imu.gyro_tc).max() > 1e-5  # drawn, not zero
+    assert imu.temperature_c() == pytest.approx(20.0 + 8.0, abs=0.2)
+    # quantised to the 16-bit LSB, and some samples were lost
+    assert np.allclose(first / errs.acc_lsb, np.round(first / errs.acc_lsb), atol=1e-6)
+
+
+def test_ideal_imu_errors_leave_the_datasheet_model_unchanged():
+    from scout_agent.sensors import ImuErrors
+
+    a = ImuModel(ImuConfig(), np.random.default_rng(9))
+    b = ImuModel(ImuConfig(), np.random.default_rng(9), ImuErrors.none())
+    acc = np.tile([0.1, 0.2, 1.62], (50, 1))
+    for x, y in zip(a.sample(acc, acc, DT), b.sample(acc, acc, DT), strict=True):
+        np.testing.assert_array_equal(x, y)
+
+
+def test_realistic_scale_and_misalignment_show_under_a_known_rate():
+    from scout_agent.sensors import ImuErrors
+
+    errs = replace(ImuErrors.none(), gyro_scale=0.01, misalignment_rad=(0.0, 0.0, 0.01))
+    imu = ImuModel(
+        ImuConfig(gyro_noise_density=0.0, gyro_turn_on_bias=0.0, gyro_bias_walk=0.0),
+        np.random.default_rng(2),
+        errs,
+    )
+    _, g = imu.sample(np.zeros((10, 3)), np.tile([1.0, 0.0, 0.0], (10, 1)), DT)
+    sx = imu.gyro_M[0, 0] - 1.0
+    assert g[0, 0] == pytest.approx(1.0 + sx, abs=1e-4) and abs(sx) > 1e-4
+    assert abs(g[0, 1]) > 1e-3  # a rotation about x leaks into y through the yaw misalignment
+
+
+def test_joint_zero_offsets_and_foot_sensor_drift_and_saturation():
+    js = JointSensors(JointSensorConfig(zero_offset_rad=0.005), np.random.default_rng(0), np.zeros(12))
+    q, _, _, _ = js.sample(np.zeros((3, 12)), np.zeros((3, 12)), DT)
+    np.testing.assert_allclose(q[-1], js.zero_offset, atol=JointSensorConfig().encoder_resolution_rad)
+    assert np.abs(js.zero_offset).max() > 1e-3
+    feet = FootContactSensors(
+        ContactConfig(noise_n=0.0, offset_n=0.0, gain_error=0.0, offset_walk_n=0.1, saturation_n=50.0),
+        np.random.default_rng(1),
+    )
+    r0 = feet.reading(np.full(4, 10.0), 0.0)
+    drift = [feet.reading(np.full(4, 10.0), 1.0) - r0 for _ in range(100)]
+    assert np.std(drift[-1]) > 0.3  # 100 s at 0.1 N/√s ≈ 1 N
+    assert feet.reading(np.full(4, 500.0), 0.0).max() == 50.0
+
+
+def test_lost_packets_repeat_the_last_reading_and_keep_the_energy():
+    from scout_agent.sensors import LinkTiming, SensorConfig, SensorSuite
+    from scout_agent.sensors.suite import TrueBlock
+
+    suite = SensorSuite(SensorConfig(timing=LinkTiming(jitter_s=1e-4, packet_drop=0.3)), HOME_Q)
+    k = 5
+    total, ticks = 0.0, []
+    for i in range(200):
+        blk = TrueBlock(
+            DT,
+            np.tile([0, 0, 1.62], (k, 1)),
+            np.zeros((k, 3)),
+            np.tile(HOME_Q + 1e-3 * i, (k, 1)),
+            np.ones((k, 12)),
+            np.full(4, 10.0),
+        )
+        tick = suite.read(blk)
+        ticks.append(tick)
+        total += tick.joint_energy_j
+    stale = [t for t in ticks if not t.fresh]
+    assert 30 < len(stale) < 90 and suite.dropped == len(stale)
+    for prev, t in zip(ticks, ticks[1:], strict=False):
+        if not t.fresh:
+            np.testing.assert_array_equal(t.q, prev.q)
+    fresh = [t.stamp_s for t in ticks if t.fresh]
+    assert np.all(np.diff(fresh) > 0) and np.std(np.diff(fresh)) > 1e-5
+    # the energy of lost packets arrives with the next one: nothing is lost but the tail after the last fresh
+    assert total > 0.9 * sum(abs(1.0 * t.dq).sum() * DT * k for t in ticks if t.fresh) * 0.5

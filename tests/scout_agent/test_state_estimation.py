@@ -14,11 +14,12 @@ from scout_agent.mapping import Mapper, MapperConfig
 from scout_agent.run import ScoutRunConfig, run_scout
 from scout_agent.signals import BaseState, GroundTruth
 from scout_agent.sim import simulator
-from scout_agent.sim.simulator import ScoutSim
+from scout_agent.sim.simulator import ScoutSim, SimConfig
 from scout_agent.sim.terrain import RampConfig, make_ramps
 from scout_agent.state_estimation import ErrorStateEKF, NoiseConfig
 from scout_agent.state_estimation.ekf import so3_exp
 from scout_agent.state_estimation.estimator import matrix_to_quat
+from scout_agent.state_estimation.launch import LaunchSurvey
 
 
 def test_ekf_propagation_integrates_a_constant_acceleration_exactly():
@@ -81,7 +82,11 @@ def test_matrix_to_quat_round_trips():
 
 @pytest.fixture(scope="module")
 def ramp_walk():
-    sim = ScoutSim(make_ramps(RampConfig(slope_deg=15.0)))
+    # realistic sensors; the exact launch, so that the error measured here is the estimator's drift alone (the
+    # survey's start error is covered by test_the_start_error_is_inside_the_stated_covariance)
+    sim = ScoutSim(
+        make_ramps(RampConfig(slope_deg=15.0)), config=SimConfig(launch=LaunchSurvey(mode="exact"))
+    )
     rec = []
     for _ in range(int(25.0 / sim.control_dt)):
         s, g = sim.step(0.2, 0.0)
@@ -163,6 +168,17 @@ def test_nothing_on_the_estimation_or_control_path_reads_the_simulator_state(mon
         np.zeros(4, bool),
     )
     monkeypatch.setattr(ScoutSim, "exact_state", lambda self: nan_state)
+    # and the start: the robot's software powers on with the exact ground height NaN, and from then on every
+    # terrain query (the simulator's truth records, fall check) answers NaN; the survey draws its own error
+    start_software = ScoutSim._start_robot_software
+    launches = []
+
+    def poisoned_start(self, x, y, yaw, ground_z):
+        start_software(self, x, y, yaw, math.nan)
+        monkeypatch.setattr(type(self.terrain), "height", lambda self, x, y: np.full(np.shape(x), np.nan))
+        launches.append(self.launch)
+
+    monkeypatch.setattr(ScoutSim, "_start_robot_software", poisoned_start)
     summary, trace, poisoned_map = _walk_and_map(cfg)
     assert len(trace) == len(ref_trace) and not summary["fell"]
     np.testing.assert_array_equal(np.array(trace), np.array(ref_trace))  # walked identically
@@ -172,6 +188,30 @@ def test_nothing_on_the_estimation_or_control_path_reads_the_simulator_state(mon
             np.testing.assert_array_equal(values, poisoned_map[layer][stat], err_msg=f"{layer}.{stat}")
     assert len(ref_map["elevation"]["ix"]) > 5
     assert math.isnan(summary["drift_z_m"])  # the poison did reach evaluation: only evaluation reads truth
+    # the start it walked from is the survey's, with its stated σ, not the spawn pose; the height is declared
+    (launch,) = launches
+    spawn = make_ramps(RampConfig(slope_deg=10.0)).spawn
+    assert launch.datum == "declared" and launch.ground_z == 0.0 and launch.sigma_z_m >= 1.0
+    assert 0.0 < math.hypot(launch.x - spawn[0], launch.y - spawn[1]) < 4 * launch.sigma_xy_m
+    assert launch.sigma_xy_m == 0.15 and math.degrees(launch.sigma_yaw_rad) == pytest.approx(1.0)
+
+
+def test_the_start_error_is_inside_the_stated_covariance():
+    """Over many seeds the survey's start error is distributed as its stated σ, and the estimator starts from
+    exactly that covariance (NEES of the launch ≈ 2, 3σ containment ≈ 99 %)."""
+    from scout_agent.state_estimation import StateEstimator
+    from scout_agent.state_estimation.launch import initial_pose
+
+    nees = []
+    for seed in range(400):
+        launch = initial_pose((1.0, 2.0, 0.3), LaunchSurvey(), np.random.default_rng(seed))
+        est = StateEstimator(launch, np.array([0.0, 0.9, -1.8] * 4))
+        e = np.array([launch.x - 1.0, launch.y - 2.0])
+        P = est.position_covariance()[:2, :2]
+        nees.append(float(e @ np.linalg.solve(P, e)))
+        assert est.ekf.P[2, 2] >= launch.sigma_yaw_rad**2
+    assert np.mean(nees) == pytest.approx(2.0, rel=0.15)
+    assert np.mean(np.array(nees) <= 9.0) > 0.97
 
 
 def test_exact_state_is_an_evaluation_option_with_zero_drift():
