@@ -32,6 +32,13 @@ REQUIRED = (
     "cot_whole_run",
     "cot_whole_run_truth",
     "elevation_rmse_exact_m",
+    "sensors",
+    "localization",
+    "pos_error_max_m",
+    "pos_error_final_m",
+    "yaw_error_max_deg",
+    "nees_pos_mean",
+    "inside_3sigma_frac",
 )
 
 
@@ -78,6 +85,9 @@ def test_evaluate_prints_one_json_object_with_the_figures(capsys):
     assert res["giim_mean"] > 0 and res["giim_nonpositive_share"] < 0.1
     assert res["slip_events"] == 0  # the patch is on the down-ramp, not reached in 12 s
     assert res["state_source"] == "estimate"
+    assert (res["sensors"], res["localization"], res["launch"]["mode"]) == ("realistic", "off", "survey")
+    assert res["launch"]["datum"] == "declared"  # no DEM, no map: the height is declared, never read
+    assert res["pos_error_final_m"] <= res["pos_error_max_m"] and 0.0 <= res["inside_3sigma_frac"] <= 1.0
     assert 0 < res["drift_xy_pct"] < 5 and abs(res["drift_z_m"]) < 0.05
     assert res["elevation_rmse_exact_m"] <= res["elevation_rmse_m"] + 0.01
     assert res["cot_whole_run"] == pytest.approx(res["cot_whole_run_truth"], rel=0.1)
