@@ -56,7 +56,7 @@ def test_the_dem_relief_is_the_scene_relief(dem: Path) -> None:
 
 
 def test_scout_walks_a_dem_scene_and_evaluate_scores_it(dem: Path, capsys) -> None:
-    argv = ["evaluate", "--scene", "lunar", "--dem", str(dem), f"--dem-window={X0 + 60},{Y0 - 140}",
+    argv = ["evaluate", "--scene", "lunar", "--seed", "0", "--dem", str(dem), f"--dem-window={X0 + 60},{Y0 - 140}",
             "--route", "direct", "--json"]  # fmt: skip
     assert main(argv) == 0
     out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
