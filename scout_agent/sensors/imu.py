@@ -49,6 +49,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from numba import njit
 
 _G0 = 9.80665  # [m/s²] per g (datasheet units)
 _DEG = np.pi / 180.0
@@ -185,27 +186,114 @@ class ImuModel:
         c, k = self.config, len(acc_true)
         sq = np.sqrt(dt)
         n = self.rng.standard_normal((4, k, 3))
-        # biases walk sample by sample; each sample sees the bias at its own instant
-        acc_b = self.acc_bias + np.cumsum(n[0] * (c.acc_bias_walk * sq), axis=0)
-        gyro_b = self.gyro_bias + np.cumsum(n[1] * (c.gyro_bias_walk * sq), axis=0)
-        self.acc_bias, self.gyro_bias = acc_b[-1].copy(), gyro_b[-1].copy()
-        if self._ideal:
-            self.t += k * dt
-            acc = acc_true + acc_b + n[2] * (c.acc_noise_density / sq)
-            gyro = gyro_true + gyro_b + n[3] * (c.gyro_noise_density / sq)
-            return acc, gyro
         e = self.errors
-        dtemp = e.temperature.delta_k(self.t + dt * np.arange(1, k + 1))[:, None]  # (k, 1) since calibration
-        self.t += k * dt
-        if self._f_cal is None:
-            self._f_cal = acc_true[0].copy()
-        acc = acc_true @ self.acc_M.T + acc_b + self.acc_tc * dtemp + n[2] * (c.acc_noise_density / sq)
-        gyro = gyro_true @ self.gyro_M.T + gyro_b + self.gyro_tc * dtemp + n[3] * (c.gyro_noise_density / sq)
-        if self.gyro_G is not None:
-            gyro = gyro + (acc_true - self._f_cal) @ self.gyro_G.T
-        acc, gyro = _quantise(acc, e.acc_lsb), _quantise(gyro, e.gyro_lsb)
-        if e.sample_drop > 0:
-            kept = self.rng.random(k) >= e.sample_drop
+        if self._ideal:
+            dtemp, kept = _NO_TEMP, np.ones(k, bool)
+        else:
+            dtemp = np.asarray(e.temperature.delta_k(self.t + dt * np.arange(1, k + 1)), dtype=float)
+            if self._f_cal is None:
+                self._f_cal = np.array(acc_true[0], dtype=float)
+            kept = self.rng.random(k) >= e.sample_drop if e.sample_drop > 0 else np.ones(k, bool)
             kept[-1] |= not kept.any()  # a tick with every sample lost keeps its last one (p ≈ 3e-14)
-            acc, gyro = acc[kept], gyro[kept]
-        return acc, gyro
+        self.t += k * dt
+        return _imu_block(
+            np.asarray(acc_true, dtype=float),
+            np.asarray(gyro_true, dtype=float),
+            n,
+            self.acc_bias,
+            self.gyro_bias,
+            c.acc_bias_walk * sq,
+            c.gyro_bias_walk * sq,
+            c.acc_noise_density / sq,
+            c.gyro_noise_density / sq,
+            self._ideal,
+            self.acc_M,
+            self.gyro_M,
+            self.acc_tc,
+            self.gyro_tc,
+            dtemp,
+            self.gyro_G if self.gyro_G is not None else _NO_G,
+            self._f_cal if self._f_cal is not None else _NO_F,
+            e.acc_lsb,
+            e.gyro_lsb,
+            kept,
+        )
+
+
+_NO_TEMP = np.zeros(0)
+_NO_G = np.zeros((3, 3))
+_NO_F = np.zeros(3)
+
+
+@njit(cache=True, nogil=True)
+def _imu_block(
+    acc_true: np.ndarray,
+    gyro_true: np.ndarray,
+    n: np.ndarray,
+    acc_bias: np.ndarray,
+    gyro_bias: np.ndarray,
+    acc_walk: float,
+    gyro_walk: float,
+    acc_noise: float,
+    gyro_noise: float,
+    ideal: bool,
+    acc_M: np.ndarray,
+    gyro_M: np.ndarray,
+    acc_tc: np.ndarray,
+    gyro_tc: np.ndarray,
+    dtemp: np.ndarray,
+    gyro_G: np.ndarray,
+    f_cal: np.ndarray,
+    acc_lsb: float,
+    gyro_lsb: float,
+    kept: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """`ImuModel.sample`'s arithmetic, compiled (the scout calls it every control tick): `n` (4, k, 3) the
+    standard normal draws (bias walks, white noise), `kept` (k,) the samples that arrived; the biases walk in
+    place. Ideal: truth + bias + noise; otherwise through the gain/misalignment matrices, temperature offsets
+    (`dtemp` (k,) [K]), g-sensitivity and quantisation (module docstring)."""
+    k = acc_true.shape[0]
+    m = 0
+    for s in range(k):
+        m += kept[s]
+    acc = np.empty((m, 3))
+    gyro = np.empty((m, 3))
+    walk_a = np.zeros(3)
+    walk_g = np.zeros(3)
+    row = 0
+    for s in range(k):
+        for j in range(3):
+            walk_a[j] += n[0, s, j] * acc_walk
+            walk_g[j] += n[1, s, j] * gyro_walk
+        if not kept[s]:
+            continue
+        for j in range(3):
+            ab, gb = acc_bias[j] + walk_a[j], gyro_bias[j] + walk_g[j]
+            if ideal:
+                acc[row, j] = acc_true[s, j] + ab + n[2, s, j] * acc_noise
+                gyro[row, j] = gyro_true[s, j] + gb + n[3, s, j] * gyro_noise
+                continue
+            a = acc_true[s, 0] * acc_M[j, 0] + acc_true[s, 1] * acc_M[j, 1] + acc_true[s, 2] * acc_M[j, 2]
+            g = (
+                gyro_true[s, 0] * gyro_M[j, 0]
+                + gyro_true[s, 1] * gyro_M[j, 1]
+                + gyro_true[s, 2] * gyro_M[j, 2]
+            )
+            a = a + ab + acc_tc[j] * dtemp[s] + n[2, s, j] * acc_noise
+            g = g + gb + gyro_tc[j] * dtemp[s] + n[3, s, j] * gyro_noise
+            g += (
+                (acc_true[s, 0] - f_cal[0]) * gyro_G[j, 0]
+                + (acc_true[s, 1] - f_cal[1]) * gyro_G[j, 1]
+                + (acc_true[s, 2] - f_cal[2]) * gyro_G[j, 2]
+            )
+            if acc_lsb > 0:
+                a = np.floor(a / acc_lsb + 0.5) * acc_lsb
+            if gyro_lsb > 0:
+                g = np.floor(g / gyro_lsb + 0.5) * gyro_lsb
+            acc[row, j] = a
+            gyro[row, j] = g
+        row += 1
+    for j in range(3):
+        acc_bias[j] += walk_a[j]
+        gyro_bias[j] += walk_g[j]
+    return acc, gyro

@@ -25,6 +25,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 
 @dataclass(frozen=True)
@@ -56,15 +57,55 @@ class JointSensors:
         self, q_true: np.ndarray, tau_true: np.ndarray, dt: float
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
         c, k = self.config, len(q_true)
-        q = self.quantise(q_true + self.zero_offset)
         alpha = 1.0 - math.exp(-2 * math.pi * c.velocity_cutoff_hz * dt)
-        dq = np.empty((k, 12))
-        prev, filt = self._q_prev, self._dq
-        for j in range(k):
-            filt = filt + alpha * ((q[j] - prev) / dt - filt)
-            dq[j] = filt
-            prev = q[j]
-        self._q_prev, self._dq = prev, filt
-        tau = tau_true * self.gain + self.rng.normal(0.0, c.torque_noise_nm, (k, 12))
-        energy = float(np.abs(tau * dq).sum()) * dt
+        noise = self.rng.normal(0.0, c.torque_noise_nm, (k, 12))
+        q, dq, tau = np.empty((k, 12)), np.empty((k, 12)), np.empty((k, 12))
+        energy = _joint_block(
+            np.asarray(q_true, dtype=float),
+            np.asarray(tau_true, dtype=float),
+            self.zero_offset,
+            c.encoder_resolution_rad,
+            alpha,
+            dt,
+            self.gain,
+            noise,
+            self._q_prev,
+            self._dq,
+            q,
+            dq,
+            tau,
+        )
         return q, dq, tau, energy
+
+
+@njit(cache=True, nogil=True)
+def _joint_block(
+    q_true: np.ndarray,
+    tau_true: np.ndarray,
+    zero_offset: np.ndarray,
+    resolution: float,
+    alpha: float,
+    dt: float,
+    gain: np.ndarray,
+    noise: np.ndarray,
+    q_prev: np.ndarray,
+    dq_filt: np.ndarray,
+    q: np.ndarray,
+    dq: np.ndarray,
+    tau: np.ndarray,
+) -> float:
+    """`JointSensors.sample`'s arithmetic, compiled (every control tick): encoder angles `q`, the driver's
+    filtered velocity `dq` and torque `tau` (k, 12) from the true block, `noise` (k, 12) the current-sense
+    draws; the last angle `q_prev` and filter state `dq_filt` (12,) carry over in place. Returns the block's
+    joint energy Σ|τ·q̇|dt [J] from the measured values."""
+    energy = 0.0
+    for s in range(q_true.shape[0]):
+        for j in range(12):
+            qm = np.floor((q_true[s, j] + zero_offset[j]) / resolution + 0.5) * resolution
+            dq_filt[j] = dq_filt[j] + alpha * ((qm - q_prev[j]) / dt - dq_filt[j])
+            q_prev[j] = qm
+            q[s, j] = qm
+            dq[s, j] = dq_filt[j]
+            tau[s, j] = tau_true[s, j] * gain[j] + noise[s, j]
+            energy += abs(tau[s, j] * dq[s, j])
+    return energy * dt
