@@ -39,7 +39,7 @@ def layers_for(pid: int, k: int, rng: np.random.Generator) -> dict:
     """Delta k of scout `pid`: the scout sweeps its own area in boustrophedon lanes (walk LANE_LEN cells
     along x, step LANE_W cells along y, walk back), the coverage pattern of a mapping fleet; each delta
     is the STEP x LANE_W patch of cells walked since the previous one. Scouts' areas are 4096 rows apart."""
-    from protocol.layers import LAYERS
+    from protocol.testing import layer_cells
 
     per_lane = LANE_LEN // STEP
     lane, pos = divmod(k, per_lane)
@@ -47,13 +47,8 @@ def layers_for(pid: int, k: int, rng: np.random.Generator) -> dict:
     y0 = lane * LANE_W + pid * 4096
     ix = (x0 + np.tile(np.arange(STEP), LANE_W)).astype(np.int32)
     iy = (y0 + np.repeat(np.arange(LANE_W), STEP)).astype(np.int32)
-    out = {}
-    for name in LAYERS5:
-        cells = {"ix": ix, "iy": iy}
-        for s in LAYERS[name].stats:
-            cells[s] = rng.uniform(0.5, 2.0, ix.size)
-        out[name] = cells
-    return out
+    # statistics of real sample sets (the server rejects inconsistent ones: protocol.consistency)
+    return {name: layer_cells(name, ix, iy, rng) for name in LAYERS5}
 
 
 def publisher(pid: int, endpoint: str, rate: float, seconds: float, offset: int, results) -> None:

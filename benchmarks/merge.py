@@ -32,6 +32,7 @@ from mapcore import TiledMap
 from protocol import LAYERS, encode
 from protocol.keys import delta_key
 from protocol.messages import CellDelta
+from protocol.testing import layer_cells
 
 LAYERS5 = ("elevation", "slip", "cot", "giim", "giam")
 RES = 0.4
@@ -47,13 +48,7 @@ def make_varied_deltas(n: int, max_cells: int, rng: np.random.Generator, scouts:
         for name in LAYERS5:
             cells = int(rng.integers(1, max_cells))
             flat = rng.choice(64 * 64, size=cells, replace=False)
-            c: dict[str, np.ndarray] = {
-                "ix": (cx + flat % 64).astype(np.int32),
-                "iy": (cy + flat // 64).astype(np.int32),
-            }
-            for s in LAYERS[name].stats:
-                c[s] = rng.uniform(0.0, 2.0, cells)
-            layers[name] = c
+            layers[name] = layer_cells(name, cx + flat % 64, cy + flat // 64, rng)  # consistent statistics
         out.append(CellDelta("bench", f"s{k % scouts}", 1, k // scouts, 0.0, RES, layers))
     return out
 
@@ -67,10 +62,7 @@ def make_deltas(n: int, cells: int, rng: np.random.Generator) -> list[CellDelta]
         iy = (cy + flat // 64).astype(np.int32)
         layers = {}
         for name in LAYERS5:
-            cellsd: dict[str, np.ndarray] = {"ix": ix, "iy": iy}
-            for s in LAYERS[name].stats:
-                cellsd[s] = rng.uniform(0.0, 2.0, cells)
-            layers[name] = cellsd
+            layers[name] = layer_cells(name, ix, iy, rng)  # consistent statistics
         out.append(CellDelta("bench", "s1", 1, seq, 0.0, RES, layers))
     return out
 

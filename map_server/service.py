@@ -10,6 +10,7 @@ from __future__ import annotations
 import logging
 import queue
 import sqlite3
+import sys
 import threading
 import time
 from dataclasses import dataclass, field, replace
@@ -60,6 +61,9 @@ class _Stopped(Exception):
 _WAKE = "--wake--"  # scout id of the self-addressed sample that wakes the worker at shutdown
 IDLE_STEP_PAUSE_S = 0.002  # pause after a snapshot slice written in an idle gap
 FORCED_STEP_S = 0.1  # a snapshot round writes a slice at least this often, even with no idle gap
+ACK_PRIORITY = zenoh.Priority.INTERACTIVE_HIGH
+QUERY_YIELD_S = 0.2  # a query waits at most this long for a gap between delta batches
+SWITCH_INTERVAL_S = 0.0005  # the GIL passes between threads at least this often (Python's default: 5 ms)
 
 
 @dataclass(frozen=True)
@@ -100,6 +104,7 @@ class ServerConfig:
     # the mission area, map frame [m] (x0, y0, x1, y1): a delta with a cell outside is rejected (`outside_bbox`)
     bbox_m: tuple[float, float, float, float] | None = None
     max_queries_in_flight: int = 64  # queries queued or being answered; more get a `busy` reply at once
+    query_share: float = 0.25  # while deltas flow, the query worker answers at most this share of the time
     # keep every accepted delta in the store (a snapshot only moves the replay cut): `psrmap remove` recomputes
     # a scout's removal from them; False (--discard-deltas): the log is deleted as snapshots cover it
     keep_deltas: bool = True
@@ -122,6 +127,8 @@ class ServerConfig:
                 raise ValueError(
                     f"bbox {self.bbox_m}: need x0 <= x1, y0 <= y1 [m], within ±{INDEX_LIMIT * self.res:.4g} m"
                 )
+        if not 0.0 < self.query_share <= 1.0:
+            raise ValueError(f"query_share={self.query_share}: need a share of time in (0, 1]")
         if self.max_queries_in_flight < 1:
             raise ValueError(f"max_queries_in_flight={self.max_queries_in_flight}: need >= 1")
 
@@ -217,6 +224,10 @@ class MapService:
         # `busy` at once in Zenoh's callback (which never blocks: a blocked callback would hold up deltas)
         self._queries: queue.Queue[Any] = queue.Queue()
         self._query_slots = threading.BoundedSemaphore(config.max_queries_in_flight)
+        # set while the merge worker waits for deltas: the query worker starts a query only then (or after
+        # QUERY_YIELD_S), so queries fill the gaps between batches and never hold the GIL/lock against one
+        self._merge_idle = threading.Event()
+        self._last_batch = 0.0  # monotonic time the merge worker last took a batch
         self.busy_replies = 0
         self._session: Any = None
         self._entities: list[Any] = []
@@ -255,6 +266,8 @@ class MapService:
         # Zenoh itself drops a message far over the delta limit before buffering it (a margin for framing)
         conf.insert_json5("transport/link/rx/max_message_size", str(c.limits.max_message_bytes + (1 << 20)))
         self._session = open_session(conf)  # SessionError (a ConnectionError) when it cannot
+        # a delta waiting for the GIL behind a query's reply encoding waits one switch interval at most
+        sys.setswitchinterval(min(sys.getswitchinterval(), SWITCH_INTERVAL_S))
         s = self._session
         # first: clients believe this session's replies and notices only once its id is attested (common.trust)
         self._entities.append(s.liveliness().declare_token(server_id_key(c.map_id, str(s.info.zid()))))
@@ -341,10 +354,13 @@ class MapService:
                     time.sleep(IDLE_STEP_PAUSE_S)  # leave the GIL to queries between slices
                     continue
             else:
+                self._merge_idle.set()  # queries may run while the worker waits for deltas
                 try:
                     first = sub.recv()
                 except zenoh.ZError:
                     break
+            self._merge_idle.clear()
+            self._last_batch = time.monotonic()
             batch = [first]
             _drain(sub, batch, c.batch_max)
             if c.linger_s > 0 and len(batch) < c.batch_max // 4:
@@ -454,7 +470,11 @@ class MapService:
                 return  # stopping with the batch not durable: no acks, the scouts resend it
         shard = self.config.shard_id
         for ack in res.acks.values():
-            self._session.put(ack_key(ack.map, ack.scout, shard), encode(ack))
+            # above the priority of query replies (a reply has its query's, DATA by default): an ack never queues
+            # behind megabytes of region replies on the server's link (Zenoh keeps a transmission queue per priority)
+            self._session.put(
+                ack_key(ack.map, ack.scout, shard), encode(ack), priority=ACK_PRIORITY, express=True
+            )
         if self._changes_pub is not None and touched:
             self._publish_changes(touched, version)
         store = self.store
@@ -530,10 +550,17 @@ class MapService:
             query = self._queries.get()
             if query is None:
                 break
+            self._merge_idle.wait(QUERY_YIELD_S)
+            t0 = time.monotonic()
             try:
                 self._answer(query)
             finally:
                 self._query_slots.release()
+            # while deltas flow, queries take at most query_share of the time (the router, the network and
+            # this process's CPU are the scouts' first); an idle map answers queries back to back
+            if time.monotonic() - self._last_batch < 1.0:
+                spent = time.monotonic() - t0
+                self._stopping.wait(min(0.1, spent * (1.0 / self.config.query_share - 1.0)))
 
     def _answer(self, query: Any) -> None:
         with query:
