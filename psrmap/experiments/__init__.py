@@ -82,6 +82,16 @@ def _add_common(p: argparse.ArgumentParser) -> None:
         metavar="S",
         help="cap on each run's simulated time (reduced sets; default: the whole path)",
     )
+    p.add_argument(
+        "--sensors",
+        choices=("realistic", "ideal"),
+        help="sensor profile of every walk (default realistic; ideal: the models before issue 23)",
+    )
+    p.add_argument(
+        "--launch",
+        choices=("survey", "exact"),
+        help="start given to every scout: a lander survey (default) or the exact pose (comparison only)",
+    )
     p.add_argument("--fresh", action="store_true", help="walk every run again instead of reading the cache")
     p.add_argument(
         "--cache", metavar="DIR", help="run cache folder (default OUT/runs); share it between --out folders"

@@ -62,6 +62,8 @@ class RunSpec:
     slippery_patches: int = 0  # lunar: seeded patches
     sim_seconds: float | None = None  # cap on simulated time [s]
     res: float = MAP_RES
+    sensors: str = "realistic"  # sensor profile (scout_agent.sensors.SENSOR_PROFILES)
+    launch: str = "survey"  # start given to the scout (state_estimation.launch.LAUNCH_MODES)
     label: str = field(default="", compare=False)
 
     def key(self) -> str:
@@ -87,6 +89,9 @@ def jitter_start(xy: Sequence[float], seed: int, dx: float = 0.05, dy: float = 0
 
 def _run_config(spec: RunSpec):
     from scout_agent.run import ScoutRunConfig
+    from scout_agent.sensors import SensorConfig
+    from scout_agent.sim.simulator import SimConfig
+    from scout_agent.state_estimation.launch import LaunchSurvey
 
     kw: dict[str, Any] = {}
     if spec.waypoints is not None:
@@ -104,6 +109,7 @@ def _run_config(spec: RunSpec):
         holdable_patches=True,  # the paper's experiments: every patch walkable
         sim_seconds=spec.sim_seconds,
         scout_id=spec.label or "scout",
+        sim=SimConfig(sensors=SensorConfig.named(spec.sensors), launch=LaunchSurvey(mode=spec.launch)),
         **kw,
     )
 
@@ -392,6 +398,19 @@ def estimation_summary(runs: list[dict]) -> dict[str, Any]:
         "cot_whole_run_truth": fmean(vals(lambda r: r["summary"].get("cot_whole_run_truth"))),
         "cot_error_pct_mean": fmean(vals(cot_err)),
         "cot_error_pct_max": max((v for v in vals(cot_err) if v is not None), default=None),
+        # the estimate's error over the whole run and whether its covariance held it (consistency.py)
+        "pos_error_max_m_mean": fmean(vals(lambda r: r["summary"].get("pos_error_max_m"))),
+        "pos_error_max_m_max": max(
+            (v for v in vals(lambda r: r["summary"].get("pos_error_max_m")) if v is not None), default=None
+        ),
+        "yaw_error_max_deg_max": max(
+            (v for v in vals(lambda r: r["summary"].get("yaw_error_max_deg")) if v is not None), default=None
+        ),
+        "nees_pos_mean": fmean(vals(lambda r: r["summary"].get("nees_pos_mean"))),
+        "inside_3sigma_frac_min": min(
+            (v for v in vals(lambda r: r["summary"].get("inside_3sigma_frac")) if v is not None), default=None
+        ),
+        "inside_3sigma_frac_mean": fmean(vals(lambda r: r["summary"].get("inside_3sigma_frac"))),
     }
 
 

@@ -84,6 +84,8 @@ def route_specs(
                     start=jitter_start(LUNAR_ROUTES[route][0], noise, 0.1, 0.1),
                     slippery_patches=cfg.slippery_patches,
                     sim_seconds=cfg.sim_seconds,
+                    sensors=cfg.sensors,
+                    launch=cfg.launch,
                     label=f"lunar{seed}-{route}-n{noise}",
                 )
             )

@@ -120,6 +120,8 @@ def run_specs(cfg: ExperimentConfig, angles: tuple[float, ...], slippery: bool) 
                             start=jitter_start(RAMP_SPAWN, noise),
                             slippery_mu=mu,
                             sim_seconds=cfg.sim_seconds,
+                            sensors=cfg.sensors,
+                            launch=cfg.launch,
                             label=f"ramps{a:g}-{tag}-n{noise}",
                         )
                     )

@@ -42,6 +42,10 @@ _EST_HEAD = [
     "elev. RMSE estimate / exact [m]",
     "CoT estimate / truth",
     "CoT error % (mean / max)",
+    "pos. error max [m] (mean / max)",
+    "yaw error max [°]",
+    "NEES xy (2 = consistent)",
+    "inside 3σ (min / mean)",
     "falls / runs",
 ]
 
@@ -54,6 +58,10 @@ def _est_row(e: dict) -> list[str]:
         f"{_f(e.get('elevation_rmse_m'), 4)} / {_f(e.get('elevation_rmse_exact_m'), 4)}",
         f"{_f(e.get('cot_whole_run'), 3)} / {_f(e.get('cot_whole_run_truth'), 3)}",
         f"{_f(e.get('cot_error_pct_mean'), 1)} / {_f(e.get('cot_error_pct_max'), 1)}",
+        f"{_f(e.get('pos_error_max_m_mean'), 3)} / {_f(e.get('pos_error_max_m_max'), 3)}",
+        _f(e.get("yaw_error_max_deg_max"), 2),
+        _f(e.get("nees_pos_mean"), 2),
+        f"{_f(e.get('inside_3sigma_frac_min'), 3)} / {_f(e.get('inside_3sigma_frac_mean'), 3)}",
         f"{e.get('falls')} / {e.get('runs')}",
     ]
 

@@ -206,6 +206,8 @@ def fresh_specs(cfg: ExperimentConfig, seed: int, routes: dict[str, list]) -> li
                     start=jitter_start(wps[0], noise, 0.1, 0.1),
                     slippery_patches=cfg.slippery_patches,
                     sim_seconds=cfg.sim_seconds,
+                    sensors=cfg.sensors,
+                    launch=cfg.launch,
                     label=f"utility{seed}-{name}-n{noise}",
                 )
             )
