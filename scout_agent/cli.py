@@ -330,7 +330,8 @@ def cmd_scout(args: argparse.Namespace) -> int:
             f"{summary['sim_seconds']:.1f} s simulated, {summary['real_time_factor']}× real time; "
             f"state {summary['state_source']}, drift {summary.get('drift_xy_m')} m horizontal "
             f"({summary.get('drift_xy_pct')} % of distance), {summary.get('drift_z_m')} m vertical, "
-            f"{summary.get('drift_yaw_deg')}° yaw"
+            f"{summary.get('drift_yaw_deg')}° yaw; {summary.get('sensors')} sensors, largest position error "
+            f"{summary.get('pos_error_max_m')} m, inside 3σ {summary.get('inside_3sigma_frac')} of the ticks"
         )
     return 1 if result.fell else 0
 

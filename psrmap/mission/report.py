@@ -44,7 +44,9 @@ def print_report(summary: dict[str, Any]) -> None:
             f"  {sid}: {s.get('distance_m', float('nan')):.1f} m in {s.get('sim_seconds', float('nan')):.0f} s, "
             f"fell={s.get('fell')}, reached_goal={s.get('reached_goal')}, deltas={deltas_sent(s)}, "
             f"slip events felt={s.get('map', {}).get('slip_events')}, "
-            f"drift {s.get('drift_xy_pct')} % / z {s.get('drift_z_m')} m / yaw {s.get('drift_yaw_deg')}°"
+            f"drift {s.get('drift_xy_pct')} % / z {s.get('drift_z_m')} m / yaw {s.get('drift_yaw_deg')}°, "
+            f"position error max {s.get('pos_error_max_m')} m, inside 3σ {s.get('inside_3sigma_frac')} "
+            f"({s.get('sensors')} sensors, localization {s.get('localization')})"
         )
     for pair, a in (summary.get("elevation_agreement") or {}).items():
         print(

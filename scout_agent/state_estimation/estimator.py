@@ -5,10 +5,11 @@ Inputs, and where each comes from on a real Aliengo:
 - the joint encoders and driver velocities (`scout_agent.sensors.joints`) through the leg kinematics
   (Pinocchio, the same model the simulator runs),
 - the foot contact flags (`scout_agent.sensors.foot_pressure`),
-- the launch pose the mission gives each scout in the shared map frame (x, y, heading, and the surveyed ground
-  height under it; docs/design.md, "Frames and grid"): the height is anchored once, when two feet first stand
-  settled on that ground (the robot is dropped from a few mm and its feet sink in, so anchoring at power-on left
-  a 1 cm offset in every elevation it mapped).
+- the launch pose the scout is given in the shared map frame (launch.py: a lander's survey of x, y, heading
+  with its σ, and a ground height from a DEM, the shared map, or declared 0 with a large σ; docs/design.md,
+  "Frames and grid"): the filter starts with exactly that covariance; the height is anchored once, when two
+  feet first stand settled on that ground, with the datum's σ (the robot is dropped from a few mm and its feet
+  sink in, so anchoring at power-on left a 1 cm offset in every elevation it mapped).
 Nothing here reads the simulator.
 
 Filter (ekf.py): IMU propagation once per tick with the tick's mean rates; one 3-row base-velocity update per
@@ -30,6 +31,26 @@ Observable: roll, pitch, velocity, gyro bias about horizontal axes. Not observab
 bias about gravity left by the power-on calibration integrates into heading), position (integrated velocity
 error), and the accelerometer's horizontal bias, which the filter cannot tell from a tilt while the robot walks
 straight (a 1 mg bias is a 0.35° tilt error under lunar gravity). `psrmap evaluate` reports the drift.
+
+IMU lever arm: the IMU sits off the trunk origin (`imu_offset_m`, a CAD value; sensors/suite.py); the
+accelerometer there reads ω̇ × r + ω × (ω × r) more than at the origin (≈ 0.2 m/s² in a trot's roll at 7 cm,
+an eighth of lunar g), which the estimator subtracts, with ω̇ from the difference of consecutive ticks' rates.
+Lost packets (`SensorTick.fresh` False): the last reading is held for propagation, no leg update; a fresh reading
+is integrated over its stamped interval less the time held.
+
+Consistency (issue 23: the covariance must contain the true error; `psrmap evaluate` reports NEES and 3σ
+containment). Four error sources have no state in the 15-state filter; each widens the covariance by what it
+can do, from what the robot knows:
+- the IMU's bias drifts with temperature by a coefficient the robot does not know, but the thermometer tells it
+  the temperature change ΔT since the power-on calibration: the bias variances grow by TCO² · d(ΔT²), TCO the
+  datasheet's (BMI088 0.015 °/s/K, 0.2 mg/K), so σ_b = TCO·|ΔT|, what the sensor model draws;
+- leg odometry's along-track error is a fraction of the distance (1–2 % in the literature, REFERENCE.md; foot
+  rolling, compliance, link lengths): the horizontal position variance grows along the velocity by
+  2 k² d·|v| dt, so σ = k·d with k = `odometry_scale_std` (1 %);
+- the gyro's scale and cross-axis error turn heading by a fraction of the angle turned: the heading variance
+  grows the same way with k = `gyro_scale_std` (1.4 %, BMI088 ±1 % each);
+- a foot the χ² gate refused was slipping; its neighbours may slip too, under the gate: each refusal adds
+  `slip_pos_std_m`² (5 mm) to the horizontal position variance.
 """
 
 from __future__ import annotations
