@@ -10,6 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from scout_agent.errors import ScoutConfigError
 from scout_agent.sim.terrain import LUNAR_ROUTES, Terrain
@@ -78,13 +79,20 @@ class FrictionMap:
     default: float = DEFAULT_MU
     patches: tuple[Patch, ...] = ()
 
+    def __post_init__(self) -> None:
+        # the patches as one (n, 5) table x0, y0, x1, y1, μ for the compiled lookup (not a field)
+        table = np.array([[p.x0, p.y0, p.x1, p.y1, p.mu] for p in self.patches], dtype=float).reshape(-1, 5)
+        object.__setattr__(self, "_table", table)
+
     def at(self, x, y) -> np.ndarray:
-        x = np.asarray(x, dtype=float)
-        y = np.asarray(y, dtype=float)
-        mu = np.full(np.broadcast(x, y).shape, self.default)
-        for p in self.patches:
-            inside = (x >= p.x0) & (x <= p.x1) & (y >= p.y0) & (y <= p.y1)
-            mu = np.where(inside, p.mu, mu)
+        """Friction at (x, y) (arrays broadcast)."""
+        xb, yb = np.broadcast_arrays(np.asarray(x, dtype=float), np.asarray(y, dtype=float))
+        return self.at_points(xb.ravel(), yb.ravel()).reshape(xb.shape)
+
+    def at_points(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Friction at the points (x, y), two float arrays (n,): the simulator's per-tick lookup."""
+        mu = np.empty(len(x))
+        _friction_at(self.default, self._table, x, y, mu)  # type: ignore[attr-defined]
         return mu
 
     def grid(self, terrain: Terrain, res: float = 0.1) -> tuple[np.ndarray, tuple[float, float, float]]:
@@ -97,6 +105,17 @@ class FrictionMap:
 
     def to_dict(self) -> dict:
         return {"default": self.default, "patches": [[p.x0, p.y0, p.x1, p.y1, p.mu] for p in self.patches]}
+
+
+@njit(cache=True, nogil=True)
+def _friction_at(default: float, table: np.ndarray, x: np.ndarray, y: np.ndarray, out: np.ndarray) -> None:
+    """`FrictionMap.at` compiled: the last patch of `table` (n, 5) containing each point, else `default`."""
+    for i in range(x.shape[0]):
+        mu = default
+        for k in range(table.shape[0]):
+            if table[k, 0] <= x[i] <= table[k, 2] and table[k, 1] <= y[i] <= table[k, 3]:
+                mu = table[k, 4]
+        out[i] = mu
 
 
 def ramp_slippery_patch(terrain: Terrain, mu: float) -> Patch:

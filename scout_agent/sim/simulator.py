@@ -97,6 +97,7 @@ class ScoutSim:
         self._tau_ids = np.array([m.actuator(n).id for n in C.TAU_ACTUATORS])
         self._pd_ids = np.array([m.actuator(n).id for n in C.PD_ACTUATORS])
         self._foot_geoms = np.array([m.geom(n).id for n in C.FOOT_GEOMS])
+        self._foot_bodies = m.geom_bodyid[self._foot_geoms]
         self._terrain_geom = m.geom(TERRAIN_GEOM).id
         self._trunk_geom = m.geom("trunk").id
         self._leg_of_geom = np.full(m.ngeom, -1)
@@ -196,8 +197,8 @@ class ScoutSim:
 
     def _apply_friction(self) -> None:
         d = self.data
-        feet = d.xpos[self.model.geom_bodyid[self._foot_geoms]]
-        self._mu_feet = self.friction.at(feet[:, 0], feet[:, 1])
+        feet = d.xpos[self._foot_bodies]
+        self._mu_feet = self.friction.at_points(feet[:, 0], feet[:, 1])
         self.model.geom_friction[self._foot_geoms, 0] = self._mu_feet
 
     # ----------------------------------------------------------------------------------------- state
@@ -304,7 +305,7 @@ class ScoutSim:
         xy = np.empty((2, 5))
         xy[:, :4] = feet_w[:, :2].T
         xy[:, 4] = pos[:2]
-        ground = self.terrain.height(xy[0], xy[1])  # feet, base
+        ground = self.terrain.height_at_points(xy[0], xy[1])  # feet, base
         # stance displacement of the contact point since the stance's first contact
         disp = np.empty(4)
         stance_displacement(out.stance_planned, true_contact, points, self._cp0, self._swung, disp)

@@ -87,8 +87,12 @@ class Terrain:
     def height(self, x, y):
         """Exact terrain height [m] at (x, y) (arrays broadcast); clamped to the field's edge outside it."""
         xb, yb = np.broadcast_arrays(np.asarray(x, dtype=float), np.asarray(y, dtype=float))
-        out = np.empty(xb.shape)
-        _heights(self.z, self.x0, self.y0, self.res, xb.ravel(), yb.ravel(), out.reshape(-1))
+        return self.height_at_points(xb.ravel(), yb.ravel()).reshape(xb.shape)
+
+    def height_at_points(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """`height` at the points (x, y), two float arrays (n,): the simulator's per-tick lookup."""
+        out = np.empty(len(x))
+        _heights(self.z, self.x0, self.y0, self.res, x, y, out)
         return out
 
     def gradient(self, x, y):
