@@ -61,11 +61,15 @@ def get_replies(
     if fan_out:
         kw.update(target=zenoh.QueryTarget.ALL, consolidation=zenoh.ConsolidationMode.NONE)
     map_id = selector.split("?", 1)[0].split("/")[1] if selector.count("/") >= 2 else ""
-    ids = trusted_ids(session, map_id, Trust.of(trusted), timeout_s)
+    trust = Trust.of(trusted)
+    ids = trusted_ids(session, map_id, trust, timeout_s)
+    replies = [
+        (str(r.replier_id.zid) if r.replier_id is not None else None, r) for r in session.get(selector, **kw)
+    ]
+    if ids is not None and trust.attested and any(z not in ids for z, _ in replies):
+        ids = trusted_ids(session, map_id, trust, timeout_s)  # a server that came up while we asked
     out = Replies()
-    for reply in session.get(selector, **kw):
-        rid = reply.replier_id
-        zid = str(rid.zid) if rid is not None else None
+    for zid, reply in replies:
         if not believe(zid, ids, f"a reply on {selector.split('?', 1)[0]!r}"):
             out.errors.append(f"ignored a reply from {zid}, not a trusted map server")
             continue

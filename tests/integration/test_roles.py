@@ -88,6 +88,17 @@ def _plain(ep: str):
     return zenoh.open(zenoh_config(connect=[ep], mode="client"))
 
 
+def _heard(session, key: str, zid: str) -> bool:
+    """Wait until a reply from `zid` on `key` comes back (the impostor's queryable reached the router)."""
+    return _wait(lambda: any(str(r.replier_id.zid) == zid for r in session.get(key, timeout=1.0,
+                 target=zenoh.QueryTarget.ALL, consolidation=zenoh.ConsolidationMode.NONE) if r.replier_id))  # fmt: skip
+
+
+def _settle() -> None:
+    """Time for a declaration the router refuses to have reached it (nothing to wait on: it never shows)."""
+    threading.Event().wait(0.5)
+
+
 def _fake_status() -> bytes:
     return encode(Status(MAP, RES, FAKE_VERSION, 5, 10**9, 0, {}, {}, {"worker": "ok"}))
 
@@ -133,6 +144,7 @@ def test_router_refuses_map_and_status_queryables_of_a_planner(secured):
     _feed(service, ep, lay)
     with _open(lay, "p1") as imp, _open(lay, "p2") as p2:
         ents = _impostor_queryables(imp, _fake_region(service))
+        _settle()
         # no trust of its own: whatever comes back is what the router let through
         sts = get_statuses(p2, MAP, 3.0)
         assert [s.version for s in sts] == [service.status().version]
@@ -147,6 +159,9 @@ def test_clients_ignore_an_impostor_queryable_and_say_so(open_router, caplog):
     _feed(service, ep)
     with _plain(ep) as imp, _plain(ep) as p2:
         held = _impostor_queryables(imp, _fake_region(service))
+        assert _heard(p2, status_key(MAP), str(imp.info.zid())) and _heard(
+            p2, map_key(MAP), str(imp.info.zid())
+        )
         assert FAKE_VERSION in [s.version for s in get_statuses(p2, MAP, 3.0)]  # without trust: fooled
         with caplog.at_level(logging.WARNING, logger="common.trust"):
             sts = get_statuses(p2, MAP, 3.0, ATTESTED)
@@ -185,6 +200,7 @@ def test_router_refuses_partition_replies_of_scouts_and_planners(secured):
     ep, lay, service = secured
     with _open(lay, "s2") as s2, _open(lay, "p1") as p1, _open(lay, "p2") as p2:
         ents = [_lie_partition(s2), _lie_partition(p1)]
+        _settle()
         assert get_partition(p2, MAP, 3.0) == Partition()  # servers disagreeing would raise
         with ScoutPublisher(
             MAP, "s1", RES, [ep], outbox=None, zenoh_config_file=str(lay.agents["s1"])
@@ -198,6 +214,7 @@ def test_a_scout_ignores_partition_replies_of_others(open_router, caplog):
     ep, conf, service = open_router
     with _plain(ep) as imp, _plain(ep) as c:
         held = _lie_partition(imp)
+        assert _heard(c, partition_key(MAP), str(imp.info.zid()))
         with pytest.raises(Exception, match="different partitions"):  # without trust: the fleet cannot start
             get_partition(c, MAP, 3.0)
         with caplog.at_level(logging.WARNING, logger="common.trust"):
@@ -221,6 +238,7 @@ def test_router_refuses_server_tokens_of_scouts_and_planners(tmp_path):
                     held.append(s.liveliness().declare_token(alive_key(MAP, who)))
                 held.append(s.liveliness().declare_token(server_id_key(MAP, str(s.info.zid()))))
             held.append(s1.liveliness().declare_token(alive_key(MAP, "s1")))  # its own: allowed
+            _settle()
 
             def tokens() -> list[str]:
                 return [str(r.ok.key_expr) for k in (alive_pattern(MAP), server_id_pattern(MAP))
@@ -242,6 +260,7 @@ def _fake_notice() -> bytes:
 def test_router_refuses_tile_change_notices_of_a_planner(secured):
     ep, lay, service = secured
     with _open(lay, "p1") as p1, _open(lay, "p2") as p2, RegionWatch(p2, MAP, RES, (0, 0, 1, 1)) as watch:
+        _settle()  # the watch's subscription has reached the router
         p1.put(changes_key(MAP), _fake_notice())
         p1.declare_publisher(changes_key(MAP)).put(_fake_notice())
         _feed(service, ep, lay)  # a real notice follows
@@ -299,6 +318,7 @@ def test_a_watching_planner_does_not_replan_on_notices_from_others(open_router):
         t.start()
         try:
             assert _wait(lambda: len(plans) == 1)
+            _settle()  # the watch's subscription has reached the router
             fake = imp.declare_publisher(changes_key(MAP))
             for k in range(5):  # the corridor's tile, a version far ahead, its own id and none
                 fake.put(_fake_notice(), source_info=zenoh.SourceInfo(fake.id, k))
@@ -312,7 +332,7 @@ def test_a_watching_planner_does_not_replan_on_notices_from_others(open_router):
             stop.set()
             t.join(timeout=20)
     assert n_after_fake == 1
-    assert plans[1][0] is not None and all(c.version < FAKE_VERSION for c in plans[1][2])
+    assert plans[1][0] is not None and all(c.version < FAKE_VERSION for c in plans[1][2]), plans[1][1]
     assert out[0].plans == 2 and out[0].resyncs == 0
 
 
@@ -342,6 +362,7 @@ def test_a_server_id_cannot_be_taken_over_while_the_server_is_down(tmp_path):
             with fake:  # an honest-looking map to copy a reply shape from (its own fresh id, server creds)
                 region = _fake_region(fake)
             held = _impostor_queryables(imp, region)
+            _settle()
             with MapService(cfg) as service:  # the real server starts while the impostor holds the old id
                 new = str(service._session.info.zid())
                 assert new != old
@@ -369,6 +390,7 @@ def test_clients_do_not_believe_a_stopped_servers_id(tmp_path, caplog):
                     q.reply(status_key(MAP), _fake_status())
 
             held = imp.declare_queryable(status_key(MAP), status)
+            assert _heard(c, status_key(MAP), old)
             assert FAKE_VERSION in [
                 s.version for s in get_statuses(c, MAP, 3.0, (old,))
             ]  # a pinned id: fooled
