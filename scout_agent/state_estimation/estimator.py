@@ -60,13 +60,14 @@ from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
+from numba import njit
 
 from scout_agent.estimators.elevation import terrain_normal
 from scout_agent.estimators.feet import PinocchioFeet
 from scout_agent.robot import constants as C
-from scout_agent.robot.vectors import cross
 from scout_agent.sensors import SensorTick
 
+from . import kernels
 from .ekf import ErrorStateEKF, NoiseConfig
 from .launch import LaunchPose
 from .leg_odometry import stance_velocity_measurements
@@ -104,23 +105,23 @@ class StateEstimate(NamedTuple):
     omega: np.ndarray  # (3,) bias-corrected angular velocity, base frame [rad/s]
 
 
+@njit(cache=True, nogil=True)
 def matrix_to_quat(R: np.ndarray) -> np.ndarray:
-    """(w, x, y, z) of a rotation matrix (Shepperd's method)."""
+    """(w, x, y, z) of a rotation matrix (Shepperd's method); compiled, the estimate needs it every tick."""
     tr = R[0, 0] + R[1, 1] + R[2, 2]
     if tr > 0:
         s = 2.0 * np.sqrt(tr + 1.0)
-        q = [0.25 * s, (R[2, 1] - R[1, 2]) / s, (R[0, 2] - R[2, 0]) / s, (R[1, 0] - R[0, 1]) / s]
+        q = np.array([0.25 * s, (R[2, 1] - R[1, 2]) / s, (R[0, 2] - R[2, 0]) / s, (R[1, 0] - R[0, 1]) / s])
     elif R[0, 0] > R[1, 1] and R[0, 0] > R[2, 2]:
         s = 2.0 * np.sqrt(1.0 + R[0, 0] - R[1, 1] - R[2, 2])
-        q = [(R[2, 1] - R[1, 2]) / s, 0.25 * s, (R[0, 1] + R[1, 0]) / s, (R[0, 2] + R[2, 0]) / s]
+        q = np.array([(R[2, 1] - R[1, 2]) / s, 0.25 * s, (R[0, 1] + R[1, 0]) / s, (R[0, 2] + R[2, 0]) / s])
     elif R[1, 1] > R[2, 2]:
         s = 2.0 * np.sqrt(1.0 + R[1, 1] - R[0, 0] - R[2, 2])
-        q = [(R[0, 2] - R[2, 0]) / s, (R[0, 1] + R[1, 0]) / s, 0.25 * s, (R[1, 2] + R[2, 1]) / s]
+        q = np.array([(R[0, 2] - R[2, 0]) / s, (R[0, 1] + R[1, 0]) / s, 0.25 * s, (R[1, 2] + R[2, 1]) / s])
     else:
         s = 2.0 * np.sqrt(1.0 + R[2, 2] - R[0, 0] - R[1, 1])
-        q = [(R[1, 0] - R[0, 1]) / s, (R[0, 2] + R[2, 0]) / s, (R[1, 2] + R[2, 1]) / s, 0.25 * s]
-    out = np.array(q)
-    return out if out[0] >= 0 else -out
+        q = np.array([(R[1, 0] - R[0, 1]) / s, (R[0, 2] + R[2, 0]) / s, (R[1, 2] + R[2, 1]) / s, 0.25 * s])
+    return q if q[0] >= 0 else -q
 
 
 class StateEstimator:
@@ -173,11 +174,7 @@ class StateEstimator:
         """The specific force at the base origin: the IMU's, less its lever arm (ω̇ × r + ω × (ω × r))."""
         if not self._lever:
             return tick.imu_acc
-        w = tick.imu_gyro - self.ekf.bg
-        wdot = (w - self._w_prev) / dt
-        self._w_prev = w
-        r = self._r_imu
-        return tick.imu_acc - cross(wdot, r) - cross(w, cross(w, r))
+        return kernels.imu_to_base(tick.imu_acc, tick.imu_gyro, self.ekf.bg, self._w_prev, self._r_imu, dt)
 
     def _inflate(self, tick: SensorTick, dt: float, n_rejected: int) -> None:
         """Process noise the 15-state model has no state for (module docstring, "Consistency")."""

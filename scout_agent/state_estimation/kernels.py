@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["propagate", "so3_exp", "update", "velocity_rows_many"]
+__all__ = ["imu_to_base", "propagate", "so3_exp", "update", "velocity_rows_many"]
 
 
 @njit(cache=True, nogil=True)
@@ -165,3 +165,20 @@ def update(
         bg[i] += dx[9 + i]
         ba[i] += dx[12 + i]
     return keep
+
+
+@njit(cache=True, nogil=True)
+def imu_to_base(
+    acc: np.ndarray, gyro: np.ndarray, bg: np.ndarray, w_prev: np.ndarray, r: np.ndarray, dt: float
+) -> np.ndarray:
+    """The specific force at the base origin from the IMU's at `r` (base frame): f − (ω̇ × r + ω × (ω × r)),
+    ω = gyro − bg, ω̇ by difference with `w_prev` (this tick's ω is written back into it)."""
+    w = gyro - bg
+    wdot = (w - w_prev) / dt
+    w_prev[:] = w
+    wr = np.array([w[1] * r[2] - w[2] * r[1], w[2] * r[0] - w[0] * r[2], w[0] * r[1] - w[1] * r[0]])
+    out = np.empty(3)
+    out[0] = acc[0] - (wdot[1] * r[2] - wdot[2] * r[1]) - (w[1] * wr[2] - w[2] * wr[1])
+    out[1] = acc[1] - (wdot[2] * r[0] - wdot[0] * r[2]) - (w[2] * wr[0] - w[0] * wr[2])
+    out[2] = acc[2] - (wdot[0] * r[1] - wdot[1] * r[0]) - (w[0] * wr[1] - w[1] * wr[0])
+    return out
