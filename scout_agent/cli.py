@@ -172,6 +172,12 @@ def add_scout_arguments(p: argparse.ArgumentParser) -> None:
         metavar="XY_M,YAW_DEG",
         help="launch survey σ: horizontal per axis [m] and heading [deg] (default 0.15,1)",
     )
+    p.add_argument(
+        "--no-hazard-control",
+        action="store_true",
+        help="walk with the fixed trot and friction cone of before: no friction estimate, adaptive gait, "
+        "hazard reflex or detour (for before/after comparisons)",
+    )
     p.add_argument("--scout-id", default="scout1", type=id_arg("scout"), help="scout id ([A-Za-z0-9_-]+)")
 
 
@@ -246,6 +252,7 @@ def config_from_args(args: argparse.Namespace, parser: argparse.ArgumentParser) 
         scout_id=args.scout_id,
         sim=_sim_config(args.state, args.contact, args.imu, args.sensors, _launch(args, parser)),
         dem=_dem(args, parser),
+        hazard_control=not args.no_hazard_control,
     )
     try:
         build_world(cfg)
@@ -323,8 +330,14 @@ def cmd_scout(args: argparse.Namespace) -> int:
         state = (
             "FELL at {}".format(summary["fall_xy"])
             if summary["fell"]
-            else ("reached the goal" if summary["reached_goal"] else "stopped (time limit)")
+            else (
+                "reached the goal"
+                if summary["reached_goal"]
+                else (f"stopped: {summary['gave_up']}" if summary["gave_up"] else "stopped (time limit)")
+            )
         )
+        if summary["hazard_stops"]:
+            state += f"; {len(summary['hazard_stops'])} hazard stop(s), detour {summary['detour_m']:.2f} m"
         print(
             f"{summary['terrain']}: {state}; {summary['distance_m']:.2f} m at {summary['mean_speed_mps']:.3f} m/s, "
             f"{summary['sim_seconds']:.1f} s simulated, {summary['real_time_factor']}× real time; "

@@ -86,7 +86,14 @@ def run(config: ScoutConfig) -> ScoutSummary:
         on_estimates = logger.log_estimates if logger is not None else None
         with open_mapping(cfg.scout_id, config.res, config.delta_hz, config.link, config.save_map, on_tick,
                           on_estimates) as mapping:  # fmt: skip
-            report = run_scout(cfg, on_tick=mapping.on_tick, progress=config.progress, world=world)
+            hazard_sinks = [mapping.on_hazard] + ([logger.log_hazard] if logger is not None else [])
+
+            def on_hazard(felt: Any) -> None:
+                for sink in hazard_sinks:
+                    sink(felt)
+
+            report = run_scout(cfg, on_tick=mapping.on_tick, progress=config.progress, world=world,
+                               on_hazard=on_hazard)  # fmt: skip
         report["map"] = mapping.summary
     else:
         report = run_scout(cfg, on_tick=on_tick, progress=config.progress, world=world)

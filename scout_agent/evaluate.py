@@ -140,7 +140,10 @@ class Evaluator:
         self.ticks = 0
 
     # ------------------------------------------------------------------ per tick
-    def on_tick(self, sample: ProprioSample, truth: GroundTruth, sim: Any = None) -> None:
+    def on_hazard(self, felt: Any) -> None:
+        self.mapper.record_hazard(felt.x, felt.y, felt.reasons)
+
+    def on_tick(self, sample: ProprioSample, truth: GroundTruth, sim: Any = None) -> TickEstimates:
         self.ticks += 1
         planned = sample.stance_planned
         contact = sample.contact
@@ -172,6 +175,7 @@ class Evaluator:
         self.nonfoot_truth += t_nf
         self.nonfoot_flagged += est.nonfoot
         self.nonfoot_both += t_nf and est.nonfoot
+        return est
 
     def _mark(self, events, which: str) -> None:
         for i in range(4):
@@ -366,7 +370,13 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     cfg = config_from_args(args, parser)
     world = build_world(cfg)
     ev = Evaluator(res=args.res)
-    summary = run_scout(cfg, on_tick=ev.on_tick, progress=not args.quiet and not args.json, world=world)
+    summary = run_scout(
+        cfg,
+        on_tick=ev.on_tick,
+        progress=not args.quiet and not args.json,
+        world=world,
+        on_hazard=ev.on_hazard,
+    )
     out = {
         "scene": cfg.scene,
         "terrain": summary["terrain"],
@@ -383,6 +393,11 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         "fell": summary["fell"],
         "fall_xy": summary["fall_xy"],
         "reached_goal": summary["reached_goal"],
+        "hazard_stops": summary["hazard_stops"],
+        "detour_m": summary["detour_m"],
+        "gave_up": summary["gave_up"],
+        "friction_estimate": summary["friction_estimate"],
+        "hazard_control": cfg.hazard_control,
         "distance_m": summary["distance_m"],
         "sim_seconds": summary["sim_seconds"],
         "wall_seconds": summary["wall_seconds"],

@@ -21,6 +21,7 @@ from typing import Any
 from common.defaults import DEFAULT_DELTA_HZ, DEFAULT_RES_M
 from common.session import endpoint_arg, file_endpoints
 from protocol.keys import id_arg
+from protocol.layers import HAZARD_REASONS
 from scout_agent.cells import CellAccumulator, LocalMap
 from scout_agent.errors import ScoutConfigError
 from scout_agent.estimators import EstimatorPipeline, PipelineConfig, TickEstimates, record
@@ -80,6 +81,7 @@ class Mapper:
         self.publisher = publisher
         self.deltas = 0
         self.slip_events = 0
+        self.hazards = 0
         self._period = 1.0 / config.delta_hz
         self._next_flush: float | None = None
         self._t = 0.0
@@ -97,6 +99,16 @@ class Mapper:
             if self.publisher is not None:
                 self.publisher.poll()
         return est
+
+    def record_hazard(self, x: float, y: float, reasons: tuple[str, ...]) -> None:
+        """One hazard report at (x, y) [m] into the `hazard` layer (leaves with the next delta)."""
+        bad = set(reasons) - set(HAZARD_REASONS)
+        if bad:
+            raise ScoutConfigError(
+                f"hazard reasons {sorted(bad)} unknown; reasons: {', '.join(HAZARD_REASONS)}"
+            )
+        self.acc.add("hazard", x, y, n=1.0, **{r: 1.0 for r in reasons})
+        self.hazards += 1
 
     def flush(self) -> int | None:
         """Send what accumulated as one delta; returns its seq (publishing) or None.
@@ -123,6 +135,7 @@ class Mapper:
         out: dict[str, Any] = {
             "deltas": self.deltas,
             "slip_events": int(self.slip_events),
+            "hazard_reports": int(self.hazards),
             "res": self.config.res,
             "cells": {k: len(self.local.cells(k)["ix"]) for k in ("elevation", "slip", "cot")},
         }
@@ -190,13 +203,23 @@ class MappingSession:
         self.on_estimates = on_estimates  # called with each tick's TickEstimates (e.g. the Rerun logger)
         self.summary: dict | None = None
 
-    def on_tick(self, sample: ProprioSample, truth: object = None, sim: object = None) -> None:
+    def on_tick(
+        self, sample: ProprioSample, truth: object = None, sim: object = None
+    ) -> TickEstimates | None:
+        """Feed one tick; returns its estimates (the pilot feels them), None without a map."""
         if self.chained is not None:
             self.chained(sample, truth, sim)
+        if self.mapper is None:
+            return None
+        est = self.mapper.update(sample)
+        if self.on_estimates is not None:
+            self.on_estimates(est)
+        return est
+
+    def on_hazard(self, felt: Any) -> None:
+        """A hazard the pilot's reflex felt (`control.reflex.Felt`): into the map's `hazard` layer."""
         if self.mapper is not None:
-            est = self.mapper.update(sample)
-            if self.on_estimates is not None:
-                self.on_estimates(est)
+            self.mapper.record_hazard(felt.x, felt.y, felt.reasons)
 
     def finish(self) -> dict | None:
         if self.mapper is None or self.summary is not None:

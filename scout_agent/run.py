@@ -15,8 +15,10 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from common.defaults import DEFAULT_SEED
-from scout_agent.control.follower import FollowerConfig, PathFollower
+from scout_agent.control.pilot import Pilot, PilotConfig
+from scout_agent.control.reflex import Felt
 from scout_agent.errors import ScoutConfigError
+from scout_agent.estimators import TickEstimates
 from scout_agent.robot import constants as C
 from scout_agent.signals import GroundTruth, ProprioSample
 from scout_agent.sim.dem import DemWindow, read_dem_window
@@ -40,7 +42,8 @@ from scout_agent.sim.terrain import (
 from scout_agent.state_estimation.consistency import ConsistencyTracker
 
 SCENES = ("ramps", "lunar")
-OnTick = Callable[[ProprioSample, GroundTruth, ScoutSim], object]
+OnTick = Callable[[ProprioSample, GroundTruth, ScoutSim], object]  # may return the tick's TickEstimates
+OnHazard = Callable[[Felt], object]
 
 
 @dataclass(frozen=True)
@@ -66,6 +69,9 @@ class ScoutRunConfig:
     sim: SimConfig = field(default_factory=SimConfig)
     scout_id: str = "scout1"
     dem: DemWindow | None = None  # lunar: the broad relief from a DEM window (seeded detail on top)
+    hazard_control: bool = True  # friction estimate + adaptive gait + hazard reflex + detour (issue 24);
+    # False: the fixed trot and friction cone of before, walking on whatever it feels
+    pilot: PilotConfig = field(default_factory=PilotConfig)  # their settings (speed: `speed` above)
 
 
 @dataclass(frozen=True)
@@ -148,13 +154,26 @@ def path_length(waypoints: np.ndarray) -> float:
 
 
 def run_scout(
-    cfg: ScoutRunConfig, on_tick: OnTick | None = None, progress: bool = True, world: World | None = None
+    cfg: ScoutRunConfig,
+    on_tick: OnTick | None = None,
+    progress: bool = True,
+    world: World | None = None,
+    on_hazard: OnHazard | None = None,
 ) -> dict:
-    """Walk the configured path until the goal, a fall or the time limit; return the JSON summary."""
+    """Walk the configured path until the goal, a fall, a hazard it cannot go around or the time limit;
+    return the JSON summary. `on_tick` may return the tick's `TickEstimates` (the mapping does): the pilot
+    feels them; `on_hazard` receives each hazard the reflex felt (the mapping records it in the map)."""
     world = world or build_world(cfg)
     sim_cfg = replace(cfg.sim, sensors=replace(cfg.sim.sensors, seed=cfg.seed))
     sim = ScoutSim(world.terrain, world.friction, sim_cfg, start=world.start)
-    follower = PathFollower(world.waypoints, FollowerConfig(speed=cfg.speed))
+    on, pc = cfg.hazard_control, cfg.pilot
+    pilot_cfg = replace(
+        pc,
+        follower=replace(pc.follower, speed=cfg.speed),
+        adaptive=pc.adaptive and on,
+        reflex=pc.reflex and on,
+    )
+    pilot = Pilot(world.waypoints, sim.controller, world.terrain.extent, pilot_cfg)
     limit = cfg.sim_seconds or 2.0 * path_length(world.waypoints) / max(cfg.speed, 0.05) + 10.0
     n_ticks = int(np.ceil(limit / sim.control_dt))
     bar = None
@@ -176,10 +195,9 @@ def run_scout(
     on_estimate = sim.config.state_source == "estimate"
     for k in range(n_ticks):
         st = sim.robot_state()  # the robot's own estimate (exact only with state_source "exact")
-        yaw = float(np.arctan2(st.R[1, 0], st.R[0, 0]))
-        v, w = follower.command(st.pos[:2], yaw, st.vel[:2], sim.control_dt)
+        v, w = pilot.command(st, sim.control_dt)
         if sim.t < sim.config.settle_s:
-            follower.integral = 0.0
+            pilot.follower.integral = 0.0
         sample, truth = sim.step(v, w)
         if walk_t0 is None and sim.t >= sim.config.settle_s:
             walk_t0 = sim.t
@@ -200,8 +218,10 @@ def run_scout(
             sim.estimator.position_covariance()[:2, :2] if on_estimate else None,
         )
         speed_path += float(np.hypot(truth.base.vel[0], truth.base.vel[1])) * sim.control_dt
-        if on_tick is not None:
-            on_tick(sample, truth, sim)
+        est = on_tick(sample, truth, sim) if on_tick is not None else None
+        felt = pilot.feel(sample, est if isinstance(est, TickEstimates) else None)
+        if felt is not None and on_hazard is not None:
+            on_hazard(felt)
         if bar is not None and k % 50 == 0:
             bar.update(50)
         elif time.perf_counter() - wall0 >= next_line:
@@ -211,7 +231,7 @@ def run_scout(
                 file=sys.stderr,
                 flush=True,
             )
-        if sim.fell or follower.reached:
+        if sim.fell or pilot.done:
             break
     if bar is not None:
         bar.close()
@@ -227,7 +247,8 @@ def run_scout(
         "speed_cmd_mps": cfg.speed,
         "fell": bool(sim.fell),
         "fall_xy": list(sim.fall_xy) if sim.fall_xy else None,
-        "reached_goal": bool(follower.reached),
+        "reached_goal": bool(pilot.reached),
+        **pilot.summary(),
         "final_xy": [float(pos[0]), float(pos[1])],
         "distance_m": round(distance, 3),
         "mean_speed_mps": round(distance / walked, 4) if walked > 0 else 0.0,

@@ -145,6 +145,7 @@ class ScoutLogger:
         self._next_trail = 0.0
         self._next_flush = 0.0
         self._slips: list[list[float]] = []
+        self._hazards: list[tuple[list[float], str]] = []
         self._work = 0.0
         self._dist = 0.0
         self._t = 0.0
@@ -258,6 +259,22 @@ class ScoutLogger:
         if np.isfinite(est.giim):
             add(s("giim_rad"), t, float(est.giim))
             add(s("giam_mps2"), t, float(est.giam))
+
+    def log_hazard(self, felt) -> None:
+        """A hazard stop (`control.reflex.Felt`): a labelled marker where the reflex felt it."""
+        self.rec.set_time(TIMELINE, duration=felt.t)
+        z = float(self.height(felt.x, felt.y)) + 0.05 if self.height is not None else 0.0
+        self._hazards.append(([felt.x, felt.y, z], f"{self.id}: {','.join(felt.reasons)}"))
+        self.rec.log(
+            f"{self.root}/hazards",
+            rr.Points3D(
+                [p for p, _ in self._hazards],
+                radii=0.15,
+                colors=[255, 140, 0],
+                labels=[label for _, label in self._hazards],
+                show_labels=True,
+            ),
+        )
 
     def _log_trail(self) -> None:
         """The true trajectory (scout colour) and the scout's estimate of it (lighter), side by side."""

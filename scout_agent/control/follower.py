@@ -27,8 +27,12 @@ class FollowerConfig:
 
 
 class PathFollower:
-    def __init__(self, waypoints, config: FollowerConfig = FollowerConfig()) -> None:
+    """Pure pursuit over `waypoints`; `reverse=True` walks them backwards (trunk facing away from the
+    path: the hazard reflex's back-off along its own trail, no turn on ground that does not hold)."""
+
+    def __init__(self, waypoints, config: FollowerConfig = FollowerConfig(), reverse: bool = False) -> None:
         self.config = config
+        self.reverse = reverse
         self.points = np.asarray(waypoints, dtype=float)[:, :2]
         if len(self.points) < 2:
             raise ScoutConfigError("a path needs at least a start and a goal")
@@ -67,6 +71,12 @@ class PathFollower:
 
     def command(self, pos_xy: np.ndarray, yaw: float, vel_xy: np.ndarray, dt: float) -> tuple[float, float]:
         """(forward speed [m/s], yaw rate [rad/s]) for the controller; sets `reached` at the goal."""
+        if self.reverse:  # pursue with the tail: the heading is the trunk's reversed, speed is backwards
+            v, w = self._forward(pos_xy, yaw + np.pi, vel_xy, dt)
+            return -v, w
+        return self._forward(pos_xy, yaw, vel_xy, dt)
+
+    def _forward(self, pos_xy: np.ndarray, yaw: float, vel_xy: np.ndarray, dt: float) -> tuple[float, float]:
         c = self.config
         if self.reached or np.hypot(*(self.goal - pos_xy)) < c.goal_tolerance_m:
             self.reached = True

@@ -1,0 +1,93 @@
+"""Per-foot friction estimate from what the scout feels: the slip detector's events and the force ratios.
+
+Each stance foot's ground force comes from its joint torques (f = −J⁻ᵀτ, `sensors.leg_forces_from_torques`:
+an Aliengo has no 3-axis foot force sensors); split along the controller's foothold-plane normal n̂ it gives
+the ratio ρ = |f_t| / f_n the ground is bearing. A foot that slips was asking for more than the ground holds:
+while it slides the ground bears its kinetic friction, so the ratio filtered over the last ticks before the
+slip event (`ratio_tau_s`) is an observation of μ. A stance that ends without a slip proves the ground held
+at least the largest ratio it bore. So, per foot:
+
+- slip event: μ̂ ← clip(ρ_filtered, `floor_mu`, μ̂) (never raised by a slip);
+- stance ended without a slip: μ̂ ← max(μ̂ + `recover` · (prior − μ̂), the largest settled ρ of that stance),
+  capped at the prior: the estimate recovers over a few clean stances once the ground grips again.
+
+`area_mu` is the smallest of the four: the feet stand within 0.5 m of each other, on the same patch of ground.
+The estimate uses only the torques, encoders, contact flags, the slip detector and the controller's own
+plane — the robot's side of `signals.ProprioSample`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from scout_agent.robot import kinematics as K
+from scout_agent.sensors import leg_forces_from_torques
+
+__all__ = ["FrictionEstimate", "FrictionEstimateConfig"]
+
+_ZERO12 = np.zeros(12)
+
+
+@dataclass(frozen=True)
+class FrictionEstimateConfig:
+    prior_mu: float = 0.6  # what the scout assumes before it felt anything (the stance QP's old constant)
+    floor_mu: float = 0.08  # never believe less than this
+    min_normal_n: float = 8.0  # force ratios only from feet bearing at least this much [N]
+    ratio_tau_s: float = 0.03  # low-pass of the force ratio within a stance [s]
+    recover: float = 0.15  # share of the way back to the prior after each clean stance
+
+
+class FrictionEstimate:
+    """`update(sample, slip_events, stance_end, slipped, normal, dt)` once per tick; `mu` (4,) per foot."""
+
+    def __init__(self, config: FrictionEstimateConfig = FrictionEstimateConfig()) -> None:
+        self.config = config
+        self.mu = np.full(4, config.prior_mu)
+        self._ratio = np.full(4, np.nan)  # filtered force ratio of the current stance
+        self._held = np.zeros(4)  # largest filtered ratio borne in the current stance
+        self.observations = 0  # slip events that set an estimate
+
+    @property
+    def area_mu(self) -> float:
+        return float(self.mu.min())
+
+    def ratios(self, q: np.ndarray, tau: np.ndarray, R: np.ndarray, normal: np.ndarray) -> np.ndarray:
+        """(4,) |f_t| / f_n of each foot's torque-estimated ground force (NaN below `min_normal_n`)."""
+        f = leg_forces_from_torques(K.jacobians(q), tau, _ZERO12) @ R.T  # world
+        fn = f @ normal
+        ft = np.linalg.norm(f - fn[:, None] * normal, axis=1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(fn >= self.config.min_normal_n, ft / fn, np.nan)
+
+    def update(
+        self,
+        q: np.ndarray,
+        tau: np.ndarray,
+        R: np.ndarray,
+        contact: np.ndarray,
+        normal: np.ndarray,
+        slip_event: tuple[bool, ...],
+        stance_end: tuple[bool, ...],
+        slipped: tuple[bool, ...],
+        dt: float,
+    ) -> None:
+        c = self.config
+        rho = self.ratios(q, tau, R, normal)
+        a = dt / (c.ratio_tau_s + dt) if dt > 0 else 1.0
+        for i in range(4):
+            r = rho[i]
+            if contact[i] and r == r:
+                prev = self._ratio[i]
+                self._ratio[i] = r if prev != prev else prev + a * (r - prev)
+                self._held[i] = max(self._held[i], self._ratio[i])
+            if slip_event[i] and self._ratio[i] == self._ratio[i]:
+                self.mu[i] = min(self.mu[i], max(c.floor_mu, float(self._ratio[i])))
+                self.observations += 1
+            if stance_end[i]:
+                if not slipped[i]:
+                    up = self.mu[i] + c.recover * (c.prior_mu - self.mu[i])
+                    self.mu[i] = min(c.prior_mu, max(up, float(self._held[i])))
+                self._ratio[i] = np.nan
+                self._held[i] = 0.0

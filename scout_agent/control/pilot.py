@@ -1,0 +1,229 @@
+"""The pilot: what the scout does with what it feels — adapt the gait, stop, back off, go around.
+
+`Pilot.command(state)` gives the (forward speed, yaw rate) command each tick; `Pilot.feel(sample, est)`
+takes that tick's sensors and estimates (`estimators.TickEstimates`, None when the scout maps nothing) and
+returns a `Felt` when the hazard reflex fires. Everything it reads is the robot's own: the state estimate,
+the sensors, the estimators, the controller's foothold plane — never the simulator's truth.
+
+Modes:
+
+- `walk`: follow the route (`follower.PathFollower`); the friction estimate (`friction_estimate`) feeds the
+  stance QP's cone and the adaptive gait (`adaptation`) scales the speed and lowers the trunk.
+- `stop` (`stop_s`): the reflex (`reflex.Senses`) fired — stand still, report the hazard.
+- `back`: walk backwards along its own estimated trail to the last place it held: the trail point from
+  `held_before_s` before the first slip of the episode (or before the trigger) that also lies `clear_m`
+  outside the detour's hazard radius, at least `backoff_min_m` and at most `backoff_max_m` back along
+  the trail.
+- then plan a detour (`detour.plan_detour`) from there to the goal around every hazard it has felt (and the
+  hazards and slips of a known map, when given) and `walk` it; with no detour, or after `max_stops` stops,
+  `stopped` with `gave_up` saying why.
+
+`stops` lists each hazard stop as {x, y, t, reason} (map frame, estimated); `detour_m` sums, per stop, the
+back-off walked plus the detour planned minus what was left of the route it abandoned.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from mapcore import LayerGrid
+from scout_agent.control.adaptation import GaitAdaptation, GaitAdaptationConfig, GaitSetting
+from scout_agent.control.controller import RobotState, TrotController
+from scout_agent.control.detour import DetourConfig, plan_detour
+from scout_agent.control.follower import FollowerConfig, PathFollower
+from scout_agent.control.friction_estimate import FrictionEstimate, FrictionEstimateConfig
+from scout_agent.control.reflex import Felt, ReflexConfig, Senses
+from scout_agent.estimators import TickEstimates
+from scout_agent.estimators.pipeline import quat_to_matrix
+from scout_agent.signals import ProprioSample
+
+__all__ = ["Pilot", "PilotConfig"]
+
+MODES = ("walk", "stop", "back", "stopped")
+
+
+@dataclass(frozen=True)
+class PilotConfig:
+    follower: FollowerConfig = field(default_factory=FollowerConfig)
+    adaptive: bool = True  # friction estimate → stance QP cone, adaptive gait
+    reflex: bool = True  # hazard reflex, back-off and detour
+    friction: FrictionEstimateConfig = field(default_factory=FrictionEstimateConfig)
+    gait: GaitAdaptationConfig = field(default_factory=GaitAdaptationConfig)
+    senses: ReflexConfig = field(default_factory=ReflexConfig)
+    detour: DetourConfig = field(default_factory=DetourConfig)
+    stop_s: float = 0.2  # short: a robot standing on ground it cannot hold slides
+    back_speed: float = 0.12  # [m/s]
+    held_before_s: float = 1.0
+    backoff_min_m: float = 0.4
+    backoff_max_m: float = 2.5
+    back_timeout_s: float = 25.0
+    trail_step_m: float = 0.05
+    clear_m: float = 0.2  # back off until this far outside the detour's hazard radius (or backoff_max_m)
+    max_stops: int = 3
+
+
+def _length(points: np.ndarray) -> float:
+    return float(np.sum(np.hypot(*np.diff(points, axis=0).T))) if len(points) > 1 else 0.0
+
+
+class Pilot:
+    def __init__(
+        self,
+        waypoints: np.ndarray,
+        controller: TrotController,
+        bounds: tuple[float, float, float, float],
+        config: PilotConfig = PilotConfig(),
+        known: Callable[[], LayerGrid | None] | None = None,
+    ) -> None:
+        self.config = config
+        self.controller = controller
+        self.bounds = bounds
+        self.known = known
+        self.route = np.asarray(waypoints, dtype=float)[:, :2]
+        self.follower = PathFollower(self.route, config.follower)
+        self.goal = self.route[-1]
+        self.friction = FrictionEstimate(config.friction)
+        self.adaptation = GaitAdaptation(config.gait)
+        self.senses = Senses(config.senses)
+        self.setting: GaitSetting | None = None
+        self.mode = "walk"
+        self.reached = False
+        self.gave_up: str | None = None
+        self.stops: list[dict] = []
+        self.hazards: list[tuple[float, float]] = []
+        self.detour_m = 0.0
+        self.trail: list[tuple[float, float, float]] = []  # t, x, y of the estimate, every trail_step_m
+        self._t_mode = 0.0
+        self._back: PathFollower | None = None
+        self._back_len = 0.0
+        self._left_of_route = 0.0
+        self._t_prev: float | None = None
+
+    @property
+    def done(self) -> bool:
+        return self.reached or self.mode == "stopped"
+
+    # ------------------------------------------------------------------ command
+    def command(self, s: RobotState, dt: float) -> tuple[float, float]:
+        yaw = float(np.arctan2(s.R[1, 0], s.R[0, 0]))
+        if self.mode == "walk":
+            v, w = self.follower.command(s.pos[:2], yaw, s.vel[:2], dt)
+            self.reached = self.follower.reached
+            if self.setting is not None:
+                v *= self.setting.speed_scale
+            return v, w
+        if self.mode == "back" and self._back is not None:
+            v, w = self._back.command(s.pos[:2], yaw, s.vel[:2], dt)
+            if self._back.reached or s.t - self._t_mode > self.config.back_timeout_s:
+                self._go_around(s.pos[:2], s.t)
+            return v, w
+        if self.mode == "stop" and s.t - self._t_mode >= self.config.stop_s:
+            self._start_back(s.pos[:2], s.t)
+        return 0.0, 0.0
+
+    # ------------------------------------------------------------------ feel
+    def feel(self, sample: ProprioSample, est: TickEstimates | None) -> Felt | None:
+        c = self.config
+        t = sample.t
+        dt = 0.0 if self._t_prev is None else t - self._t_prev
+        self._t_prev = t
+        R = quat_to_matrix(sample.base.quat)
+        x, y = float(sample.base.pos[0]), float(sample.base.pos[1])
+        if not self.trail or math.hypot(x - self.trail[-1][1], y - self.trail[-1][2]) >= c.trail_step_m:
+            self.trail.append((t, x, y))
+        grad, _ = self.controller.plane()
+        if c.adaptive and est is not None:
+            n = np.array([-grad[0], -grad[1], 1.0])
+            n /= np.linalg.norm(n)
+            sl = est.slip
+            self.friction.update(
+                sample.q, sample.tau, R, sample.contact, n, sl.event, sl.stance_end, sl.slipped, dt
+            )
+            self.setting = self.adaptation.setting(self.friction.mu, grad)
+            self.controller.set_friction(self.setting.qp_mu)
+            self.controller.height_offset = self.setting.height_offset_m
+        if not c.reflex or self.mode != "walk" or self.reached:
+            return None
+        margin = self.setting.margin if self.setting is not None else math.inf
+        felt = self.senses.feel(t, est, R, margin)
+        if felt is None:
+            return None
+        self._stop(felt, x, y)
+        return felt
+
+    # ------------------------------------------------------------------ modes
+    def _stop(self, felt: Felt, x: float, y: float) -> None:
+        self.stops.append(
+            {
+                "x": round(felt.x, 3),
+                "y": round(felt.y, 3),
+                "t": round(felt.t, 3),
+                "reason": ",".join(felt.reasons),
+                "slips": felt.slips,
+                "mu_felt": round(self.friction.area_mu, 3),
+                "margin_felt": round(self.setting.margin, 3) if self.setting is not None else None,
+            }
+        )
+        self.hazards.append((felt.x, felt.y))
+        f = self.follower
+        nxt = min(f.segment + 1, len(f.points) - 1)
+        self._left_of_route = math.hypot(*(f.points[nxt] - (x, y))) + _length(f.points[nxt:])
+        t0 = self.senses.first_slip_t() if "slip" in felt.reasons else None
+        self._t_held = (t0 if t0 is not None else felt.t) - self.config.held_before_s
+        self.senses.reset()
+        self.mode, self._t_mode = "stop", felt.t
+
+    def _start_back(self, pos: np.ndarray, t: float) -> None:
+        c = self.config
+        back = [(float(pos[0]), float(pos[1]))]
+        hx, hy = self.hazards[-1]
+        clear = c.detour.hazard_radius_m + c.clear_m
+        walked = 0.0
+        for p in reversed(self.trail):  # newest first
+            q = (p[1], p[2])
+            step = math.hypot(q[0] - back[-1][0], q[1] - back[-1][1])
+            if step < 0.01:
+                continue
+            walked += step
+            back.append(q)
+            held = p[0] <= self._t_held and math.hypot(q[0] - hx, q[1] - hy) >= clear
+            if walked >= c.backoff_max_m or (walked >= c.backoff_min_m and held):
+                break
+        self._back_len = walked
+        if len(back) < 2 or walked < 0.05:
+            self._go_around(pos, t)
+            return
+        self._back = PathFollower(np.array(back), FollowerConfig(speed=c.back_speed, goal_tolerance_m=0.1),
+                                  reverse=True)  # fmt: skip
+        self.mode, self._t_mode = "back", t
+
+    def _go_around(self, pos: np.ndarray, t: float) -> None:
+        c = self.config
+        self._back = None
+        if len(self.stops) >= c.max_stops:
+            self._give_up(f"{len(self.stops)} hazard stops: the limit (max_stops {c.max_stops})", t)
+            return
+        known = self.known() if self.known is not None else None
+        way = plan_detour(pos, self.goal, self.hazards, self.bounds, c.detour, known)
+        if way is None or len(way) < 2:
+            self._give_up(f"no path to the goal around the {len(self.hazards)} hazard(s) felt", t)
+            return
+        self.detour_m += self._back_len + _length(way) - self._left_of_route
+        self.follower = PathFollower(way, c.follower)
+        self.mode, self._t_mode = "walk", t
+
+    def _give_up(self, why: str, t: float) -> None:
+        self.gave_up = why
+        self.mode, self._t_mode = "stopped", t
+
+    def summary(self) -> dict:
+        return {
+            "hazard_stops": self.stops,
+            "detour_m": round(self.detour_m, 3),
+            "gave_up": self.gave_up,
+            "friction_estimate": [round(float(m), 3) for m in self.friction.mu],
+        }

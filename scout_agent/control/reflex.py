@@ -1,0 +1,108 @@
+"""The hazard reflex's senses: when does the scout feel ground it cannot hold?
+
+Four triggers, each from the scout's own estimates (`estimators.TickEstimates`) and sensors only:
+
+- **slip**: at least `slip_events` slip events within `slip_window_s`, *and* the ground's margin
+  μ̂ − tan θ̂ (`adaptation.GaitSetting.margin`) below `slip_hold_margin` — or `slip_events_alone` events in
+  the window whatever the margin. Slippery ground the scout can still hold (the paper's patches) makes
+  slips too; there the adaptive gait slows down and walks on.
+- **margin**: GIIM below `min_giim_rad` or GIAM below `min_giam` on at least `margin_share` of the ticks
+  of the last `margin_window_s` (single ticks dip to zero: the IMU's GIA sees the trunk's own jolts).
+- **contact**: a non-foot contact flagged by the estimators on `contact_ticks` consecutive ticks.
+- **attitude**: the estimated trunk tilt from vertical beyond `max_tilt_deg`.
+
+`Senses.feel(...)` returns the triggers that fired this tick (empty when none) and where: the slip
+trigger at the mean of the recent slip footholds, the others at the CoM.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from scout_agent.estimators import TickEstimates
+
+__all__ = ["Felt", "ReflexConfig", "Senses"]
+
+
+@dataclass(frozen=True)
+class ReflexConfig:
+    slip_events: int = 3
+    slip_events_alone: int = 20  # the paper's holdable 10° patch (μ 0.25) made 8 in 3 s: not a hazard
+    slip_window_s: float = 3.0
+    slip_hold_margin: float = 0.01  # μ̂ − tan θ̂ below which repeated slips mean "cannot hold"
+    min_giim_rad: float = 0.087  # 5°: the planner's hard limit; GIIM fell below it 0.5–1 s before falls
+    min_giam: float = -math.inf  # [m/s²]
+    margin_window_s: float = 0.5
+    margin_share: float = 0.6
+    contact_ticks: int = 5
+    max_tilt_deg: float = 40.0
+
+
+@dataclass(frozen=True)
+class Felt:
+    """What fired: `reasons` (subset of protocol.layers.HAZARD_REASONS), where (x, y) [m, map frame,
+    estimated], at scout time t [s], and the slip events in the window."""
+
+    t: float
+    x: float
+    y: float
+    reasons: tuple[str, ...]
+    slips: int
+
+
+class Senses:
+    def __init__(self, config: ReflexConfig = ReflexConfig()) -> None:
+        self.config = config
+        self._slips: deque[tuple[float, float, float]] = deque()  # t, x, y of recent slip events
+        self._margin: deque[tuple[float, bool]] = deque()
+        self._contact_run = 0
+
+    def reset(self) -> None:
+        """Forget the recent history (after a stop: what follows is a new walk)."""
+        self._slips.clear()
+        self._margin.clear()
+        self._contact_run = 0
+
+    def first_slip_t(self) -> float | None:
+        return self._slips[0][0] if self._slips else None
+
+    def feel(self, t: float, est: TickEstimates | None, R: np.ndarray, ground_margin: float) -> Felt | None:
+        c = self.config
+        reasons: list[str] = []
+        x = y = math.nan
+        if est is not None:
+            for fx, fy in est.slip_xy.tolist():
+                self._slips.append((t, fx, fy))
+            while self._slips and self._slips[0][0] < t - c.slip_window_s:
+                self._slips.popleft()
+            n = len(self._slips)
+            if n >= c.slip_events_alone or (n >= c.slip_events and ground_margin < c.slip_hold_margin):
+                reasons.append("slip")
+                x = float(np.mean([s[1] for s in self._slips]))
+                y = float(np.mean([s[2] for s in self._slips]))
+            low = (est.giim == est.giim and est.giim < c.min_giim_rad) or (
+                est.giam == est.giam and est.giam < c.min_giam
+            )
+            self._margin.append((t, bool(low)))
+            while self._margin and self._margin[0][0] < t - c.margin_window_s:
+                self._margin.popleft()
+            full = self._margin[-1][0] - self._margin[0][0] >= 0.8 * c.margin_window_s
+            if full and sum(m[1] for m in self._margin) >= c.margin_share * len(self._margin):
+                reasons.append("margin")
+            self._contact_run = self._contact_run + 1 if est.nonfoot else 0
+            if self._contact_run >= c.contact_ticks:
+                reasons.append("contact")
+            cx, cy = est.com_xy
+        else:
+            cx = cy = math.nan
+        if math.degrees(math.acos(max(-1.0, min(1.0, float(R[2, 2]))))) > c.max_tilt_deg:
+            reasons.append("attitude")
+        if not reasons:
+            return None
+        if x != x:
+            x, y = cx, cy
+        return Felt(t, x, y, tuple(reasons), len(self._slips))

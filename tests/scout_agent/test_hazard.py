@@ -1,0 +1,116 @@
+"""The hazard reflex on small scenes, one test per trigger, checked against the simulator's ground truth;
+the friction estimate, the adaptive gait and the detour search as units."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from scout_agent.control.adaptation import GaitAdaptation
+from scout_agent.control.detour import DetourConfig, plan_detour
+from scout_agent.control.pilot import PilotConfig
+from scout_agent.control.reflex import ReflexConfig
+from scout_agent.mapping import open_mapping
+from scout_agent.run import ScoutRunConfig, World, build_world, run_scout
+from scout_agent.sim.friction import FrictionMap
+from scout_agent.sim.terrain import RampConfig, Terrain
+
+# a short testbed: approach 1, up 1.5, platform 0.8, down 2.5 (x 3.3–5.8), exit 1.5 m; the patch covers the
+# middle half of the down-ramp, x 3.925–5.175, across the whole width
+SHORT = RampConfig(approach_m=1.0, up_m=1.5, platform_m=0.8, down_m=2.5, exit_m=1.5)
+
+
+def _walk(cfg: ScoutRunConfig, world: World | None = None) -> tuple[dict, dict]:
+    """Walk with the scout's own mapping (its estimates feed the pilot); (summary, the local hazard cells)."""
+    world = world or build_world(cfg)
+    truth = {"nonfoot_ticks": 0, "mu_under_feet": []}
+
+    with open_mapping(cfg.scout_id, 0.4, 5.0) as mapping:
+
+        def on_tick(sample, gt, sim):
+            truth["nonfoot_ticks"] += gt.nonfoot_contacts > 0
+            return mapping.on_tick(sample, gt, sim)
+
+        summary = run_scout(cfg, on_tick=on_tick, progress=False, world=world, on_hazard=mapping.on_hazard)
+        assert mapping.mapper is not None
+        mapping.mapper.flush()
+        hazard = mapping.mapper.local.cells("hazard")
+    return summary, hazard
+
+
+def test_slip_trigger_stops_at_an_unholdable_patch_where_the_fixed_trot_falls():
+    # μ 0.26 < tan 20° = 0.364: no robot stands on this patch (ground truth); the fixed trot slides and falls
+    cfg = ScoutRunConfig(scene="ramps", slope_deg=20.0, ramp=SHORT, slippery_mu=0.26, sim_seconds=30.0)
+    before = run_scout(replace(cfg, hazard_control=False), progress=False)
+    assert before["fell"] and before["hazard_stops"] == []
+    s, hazard = _walk(cfg)
+    assert not s["fell"]
+    (stop,) = s["hazard_stops"][:1]
+    assert "slip" in stop["reason"]
+    assert abs(stop["x"] - 3.925) < 1.0  # within 1 m of the patch's edge (x 3.925)
+    # it felt friction below the slope's tangent (its estimate falls from the prior 0.6 as the feet slip)
+    assert 0.2 < stop["mu_felt"] < np.tan(np.radians(20.0)) and stop["margin_felt"] < 0
+    # the patch spans the testbed's width: no way around, and the scout says so
+    assert not s["reached_goal"] and "no path to the goal" in s["gave_up"]
+    assert s["final_xy"][0] < 3.925  # it backed off the patch
+    # the hazard layer holds the report, counted as a slip, near the stop
+    assert hazard["n"].sum() == len(s["hazard_stops"]) and hazard["slip"].sum() >= 1
+
+
+def test_margin_trigger_fires_when_the_felt_margin_drops_below_the_configured_limit():
+    # a 15° ramp holds (μ 0.7), its GIIM on the ramp is ≈ 0.3–0.5 rad; a limit of 0.45 rad is beyond it
+    strict = PilotConfig(senses=ReflexConfig(min_giim_rad=0.45))
+    cfg = ScoutRunConfig(scene="ramps", slope_deg=15.0, ramp=SHORT, sim_seconds=16.0, pilot=strict)
+    s, hazard = _walk(cfg)
+    assert not s["fell"] and s["hazard_stops"]
+    assert s["hazard_stops"][0]["reason"] == "margin"
+    assert hazard["margin"].sum() >= 1 and hazard["slip"].sum() == 0
+    # with the default limit (5°, the planner's) the same walk never stops
+    s2, _ = _walk(replace(cfg, pilot=PilotConfig()))
+    assert not s2["fell"] and s2["hazard_stops"] == []
+
+
+def _step_world(height_m: float) -> World:
+    res = 0.05
+    x = np.arange(int(6.0 / res) + 1) * res
+    z = np.tile(np.where(x >= 2.5, height_m, 0.0), (int(3.0 / res) + 1, 1))
+    t = Terrain(z=z, res=res, x0=0.0, y0=-1.5, name="step", spawn=(0.6, 0.0, 0.0), goal=(5.2, 0.0))
+    return World(t, FrictionMap(), np.array([[0.6, 0.0], [5.2, 0.0]]), (0.6, 0.0, 0.0))
+
+
+def test_contact_trigger_stops_at_a_step_the_legs_run_into_and_backs_off():
+    # a 15 cm step across the testbed at x = 2.5: the legs hit its face, a force the feet's torques do not
+    # explain (the estimators' non-foot contact)
+    cfg = ScoutRunConfig(scene="ramps", sim_seconds=16.0)
+    s, hazard = _walk(cfg, _step_world(0.15))
+    assert not s["fell"] and s["hazard_stops"]
+    stop = s["hazard_stops"][0]
+    assert "contact" in stop["reason"] and 1.8 < stop["x"] < 2.7
+    assert s["final_xy"][0] < 2.2  # backed off the step
+    assert hazard["contact"].sum() >= 1
+
+
+def test_friction_estimate_feeds_the_gait_only_where_the_margin_is_small():
+    a = GaitAdaptation()
+    full = a.setting(np.full(4, 0.6), np.array([np.tan(np.radians(10.0)), 0.0]))
+    assert full.speed_scale == 1.0 and full.height_offset_m == 0.0 and np.all(full.qp_mu == 0.6)
+    low = a.setting(np.array([0.3, 0.6, 0.6, 0.6]), np.array([0.0, np.tan(np.radians(17.0))]))
+    assert low.margin == pytest.approx(0.3 - np.tan(np.radians(17.0)))
+    assert low.speed_scale == pytest.approx(a.config.min_speed_scale) and low.height_offset_m < 0
+    assert low.qp_mu[0] == pytest.approx(0.85 * 0.3) and low.qp_mu[1] == 0.6
+
+
+def test_detour_goes_around_hazards_or_says_there_is_none():
+    bounds = (0.0, 0.0, 10.0, 10.0)
+    cfg = DetourConfig()
+    way = plan_detour((1.0, 5.0), (9.0, 5.0), [(5.0, 5.0)], bounds, cfg)
+    assert way is not None and np.allclose(way[0], (1.0, 5.0)) and np.hypot(*(way[-1] - (9.0, 5.0))) < 0.2
+    # every leg between waypoints stays clear of the hazard's radius
+    for a, b in zip(way[:-1], way[1:], strict=True):
+        u = np.linspace(0, 1, 50)[:, None]
+        seg = a + (b - a) * u
+        assert np.min(np.hypot(seg[:, 0] - 5.0, seg[:, 1] - 5.0)) >= cfg.hazard_radius_m - cfg.res
+    wall = [(5.0, y) for y in np.arange(0.5, 10.0, 1.0)]  # hazards across the whole field
+    assert plan_detour((1.0, 5.0), (9.0, 5.0), wall, bounds, cfg) is None
