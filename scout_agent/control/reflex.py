@@ -3,8 +3,9 @@
 Four triggers, each from the scout's own estimates (`estimators.TickEstimates`) and sensors only:
 
 - **slip**: at least `slip_events` slip events within `slip_window_s`, *and* the ground's margin
-  μ̂ − tan θ̂ (`adaptation.GaitSetting.margin`) below `slip_hold_margin` — or `slip_events_alone` events in
-  the window whatever the margin. Slippery ground the scout can still hold (the paper's patches) makes
+  μ̂ − tan θ̂ (`adaptation.GaitSetting.margin`) below `slip_hold_margin`; one slip event when the margin is
+  below `slip_sure_margin` (clearly unholdable: react with the first foot on it); or `slip_events_alone`
+  events in the window whatever the margin. Slippery ground the scout can still hold (the paper's patches) makes
   slips too; there the adaptive gait slows down and walks on.
 - **margin**: GIIM below `min_giim_rad` or GIAM below `min_giam` on at least `margin_share` of the ticks
   of the last `margin_window_s` (single ticks dip to zero: the IMU's GIA sees the trunk's own jolts).
@@ -34,6 +35,7 @@ class ReflexConfig:
     slip_events_alone: int = 20  # the paper's holdable 10° patch (μ 0.25) made 8 in 3 s: not a hazard
     slip_window_s: float = 3.0
     slip_hold_margin: float = 0.01  # μ̂ − tan θ̂ below which repeated slips mean "cannot hold"
+    slip_sure_margin: float = -0.05  # ... below which one slip is enough (the first foot on the patch)
     min_giim_rad: float = 0.087  # 5°: the planner's hard limit; GIIM fell below it 0.5–1 s before falls
     min_giam: float = -math.inf  # [m/s²]
     margin_window_s: float = 0.5
@@ -80,7 +82,11 @@ class Senses:
             while self._slips and self._slips[0][0] < t - c.slip_window_s:
                 self._slips.popleft()
             n = len(self._slips)
-            if n >= c.slip_events_alone or (n >= c.slip_events and ground_margin < c.slip_hold_margin):
+            if (
+                n >= c.slip_events_alone
+                or (n >= c.slip_events and ground_margin < c.slip_hold_margin)
+                or (n >= 1 and ground_margin < c.slip_sure_margin)
+            ):
                 reasons.append("slip")
                 x = float(np.mean([s[1] for s in self._slips]))
                 y = float(np.mean([s[2] for s in self._slips]))

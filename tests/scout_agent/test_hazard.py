@@ -14,7 +14,7 @@ from scout_agent.control.pilot import PilotConfig
 from scout_agent.control.reflex import ReflexConfig
 from scout_agent.mapping import open_mapping
 from scout_agent.run import ScoutRunConfig, World, build_world, run_scout
-from scout_agent.sim.friction import FrictionMap
+from scout_agent.sim.friction import FrictionMap, unholdable
 from scout_agent.sim.terrain import RampConfig, Terrain
 
 # a short testbed: approach 1, up 1.5, platform 0.8, down 2.5 (x 3.3–5.8), exit 1.5 m; the patch covers the
@@ -40,12 +40,14 @@ def _walk(cfg: ScoutRunConfig, world: World | None = None) -> tuple[dict, dict]:
     return summary, hazard
 
 
-def test_slip_trigger_stops_at_an_unholdable_patch_where_the_fixed_trot_falls():
-    # μ 0.26 < tan 20° = 0.364: no robot stands on this patch (ground truth); the fixed trot slides and falls
+def test_slip_trigger_stops_at_an_unholdable_patch_and_backs_off():
+    # μ 0.26 < tan 20° = 0.364: no robot stands on this patch (ground truth, `friction.unholdable`). (The fixed
+    # trot slid into it and fell in 3 of 3 CLI runs with mapping, seeds 0–2, but reached the end of this short
+    # patch in others: the outcome of sliding down it is chaotic; benchmarks/falls.py counts falls.)
     cfg = ScoutRunConfig(scene="ramps", slope_deg=20.0, ramp=SHORT, slippery_mu=0.26, sim_seconds=30.0)
-    before = run_scout(replace(cfg, hazard_control=False), progress=False)
-    assert before["fell"] and before["hazard_stops"] == []
-    s, hazard = _walk(cfg)
+    world = build_world(cfg)
+    assert unholdable(world.friction.patches[0].mu, 20.0)
+    s, hazard = _walk(cfg, world)
     assert not s["fell"]
     (stop,) = s["hazard_stops"][:1]
     assert "slip" in stop["reason"]
