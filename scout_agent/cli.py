@@ -26,6 +26,7 @@ from scout_agent.mapping import add_mapping_arguments, link_from_args
 from scout_agent.run import SCENES, ScoutRunConfig, build_world
 from scout_agent.sensors import IMU_PRESETS, SENSOR_PROFILES, SensorConfig
 from scout_agent.sensors.foot_pressure import CONTACT_SOURCES
+from scout_agent.sensors.imu import IMU_ERROR_PRESETS
 from scout_agent.sim.dem import DemWindow
 from scout_agent.sim.friction import Patch
 from scout_agent.sim.simulator import STATE_SOURCES, SimConfig
@@ -191,6 +192,8 @@ def _sim_config(
     base = SimConfig()
     prof = SensorConfig.named(sensors)
     prof = replace(prof, contact=replace(prof.contact, source=contact), imu=IMU_PRESETS[imu])
+    if sensors == "realistic":
+        prof = replace(prof, imu_errors=IMU_ERROR_PRESETS[imu])
     return replace(base, state_source=state, sensors=prof, launch=launch or LaunchSurvey())
 
 

@@ -133,6 +133,21 @@ class ImuErrors:
         )
 
 
+# the realistic errors of each preset's part. The ADIS16495 is calibrated by its maker over temperature, scale and
+# alignment (its datasheet lists the residuals in other terms); taken here as a tenth of the BMI088's temperature
+# coefficients and 0.1 % scale / cross-axis (assumed), on the same board, mounting and 16-bit quantisation
+IMU_ERROR_PRESETS: dict[str, ImuErrors] = {
+    "bmi088": ImuErrors(),
+    "adis16495": ImuErrors(
+        gyro_tempco=0.0015 * _DEG,
+        acc_tempco=0.02e-3 * _G0,
+        gyro_scale=0.001,
+        gyro_cross_axis=0.001,
+        gyro_g_sensitivity=0.01 * _DEG / _G0,
+    ),
+}
+
+
 def _rotation(rv: np.ndarray) -> np.ndarray:
     th = float(np.linalg.norm(rv))
     if th < 1e-12:
