@@ -12,6 +12,7 @@ Usage: python3 benchmarks/ingest.py [--publishers 4] [--seconds 5] [--rate 2000]
 from __future__ import annotations
 
 import argparse
+import atexit
 import json
 import multiprocessing as mp
 import os
@@ -83,19 +84,61 @@ def publisher(pid: int, endpoint: str, rate: float, seconds: float, offset: int,
             results.put((pid, k, ok))
 
 
+_CHILDREN: list[
+    subprocess.Popen
+] = []  # every service `spawn` started: stopped at exit whatever ends the benchmark
+
+
+# `python -m map_server ...` that first asks the kernel for SIGTERM when its parent dies, even by SIGKILL (Linux's
+# PR_SET_PDEATHSIG = 1; elsewhere only the atexit and signal handlers below stop the children)
+_LAUNCH = (
+    "import ctypes, runpy, signal, sys\n"
+    "if sys.platform.startswith('linux'):\n"
+    "    ctypes.CDLL(None).prctl(1, signal.SIGTERM)\n"
+    "sys.argv[0] = 'map_server'\n"
+    "runpy.run_module('map_server', run_name='__main__', alter_sys=True)\n"
+)
+
+
+def _stop_children() -> None:
+    for p in _CHILDREN:
+        if p.poll() is None:
+            p.terminate()
+    for p in _CHILDREN:
+        try:
+            p.wait(10)
+        except subprocess.TimeoutExpired:
+            p.kill()
+
+
+def _on_termination(signum: int, frame: object) -> None:
+    raise SystemExit(128 + signum)  # unwinds through the benchmark's `finally` blocks, then atexit
+
+
+def _guard_children() -> None:
+    """Once per benchmark process: SIGTERM/SIGHUP unwind like Ctrl-C does, and exit stops every child."""
+    if not _CHILDREN and threading.current_thread() is threading.main_thread():
+        atexit.register(_stop_children)
+        for sig in (signal.SIGTERM, signal.SIGHUP):
+            signal.signal(sig, _on_termination)
+
+
 def spawn(*args: str, malloc_arenas: int | None = None, core: int | None = None) -> subprocess.Popen:
     """A `python -m map_server ...` process, once it printed its "up" line; `core`: run every thread of it
-    on that core (threads it starts later inherit their creator's affinity)."""
+    on that core (threads it starts later inherit their creator's affinity). The process is stopped when the
+    benchmark exits, is interrupted or is killed (no orphan shard left behind)."""
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     if malloc_arenas:
         env["MALLOC_ARENA_MAX"] = str(malloc_arenas)
+    _guard_children()
     p = subprocess.Popen(
-        [sys.executable, "-m", "map_server", *args],
+        [sys.executable, "-c", _LAUNCH, *args],
         stdout=subprocess.PIPE,
         stderr=subprocess.DEVNULL,
         env=env,
         cwd=ROOT,
     )
+    _CHILDREN.append(p)
     assert p.stdout is not None
     p.stdout.readline()  # its "up" line
     if core is not None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import dataclasses
+import signal
 from pathlib import Path
 from typing import Any
 
@@ -67,6 +68,10 @@ def register(sub: Any) -> None:
     p.set_defaults(func=_cmd_mission, parser=p)
 
 
+def _interrupted(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt
+
+
 def _cmd_mission(args: argparse.Namespace) -> int:
     try:
         cfg = load_config(args.config)
@@ -98,6 +103,8 @@ def _cmd_mission(args: argparse.Namespace) -> int:
         args.parser.exit(2, f"psrmap mission: error: {exc}\n")
     except (MissionError, ValueError) as exc:
         args.parser.error(str(exc))
+    # SIGTERM (a supervisor, `kill`) unwinds like Ctrl-C: run_mission's cleanup stops every component it started
+    signal.signal(signal.SIGTERM, _interrupted)
     summary = run_mission(cfg, Path(args.run_dir) if args.run_dir else None, progress=not args.quiet)
     if args.quiet:
         print(Path(summary["run_dir"]) / "summary.json")
