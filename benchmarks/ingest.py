@@ -34,6 +34,14 @@ POLL_S = 0.005  # the latency probe queries at least this often while it waits
 LANE_LEN = 320  # cells a scout walks along x before turning into the next lane (128 m at 0.4 m)
 LANE_W = 4  # cells across a lane: the footprint of a legged scout (feet + CoM), 1.6 m at 0.4 m
 STEP = 5  # cells advanced along the lane per delta: a delta covers STEP x LANE_W = 20 cells
+# a benchmark publisher sending thousands of deltas/s stands for hundreds of scouts: the server's per-scout tile
+# quotas (sized for one walking scout) would refuse its sweep into new tiles, so its servers lift them
+FLEET_LIMITS = (
+    "--limit-max-new-tiles-per-scout-minute",
+    "100000000",
+    "--limit-max-tiles-per-scout",
+    "100000000",
+)
 
 
 def layers_for(pid: int, k: int, rng: np.random.Generator) -> dict:
@@ -213,6 +221,7 @@ def main() -> None:
         str(Path(tmp.name) / "b.db"),
         "--connect",
         ep,
+        *FLEET_LIMITS,
         malloc_arenas=args.malloc_arenas,
     )
     proc = psutil.Process(server.pid)

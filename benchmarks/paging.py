@@ -22,7 +22,7 @@ import numpy as np
 import psutil
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from ingest import LANE_LEN, LAYERS5, RES, STEP, layers_for, shutdown, spawn  # noqa: E402
+from ingest import FLEET_LIMITS, LANE_LEN, LAYERS5, RES, STEP, layers_for, shutdown, spawn  # noqa: E402
 
 MAPS = ("paged", "whole")
 
@@ -57,9 +57,9 @@ def main() -> None:
     router = spawn("router", "--listen", ep)
     servers = {}
     for name in MAPS:
-        budget = ["--tile-budget-mib", str(args.budget_mib)] if name == "paged" else []
+        budget = ["--tile-budget-mib", str(args.budget_mib) if name == "paged" else "0"]  # 0: no budget
         servers[name] = spawn("server", "--map", name, "--res", str(RES), "--db", str(Path(tmp.name) / f"{name}.db"),
-                              "--connect", ep, *budget)  # fmt: skip
+                              "--connect", ep, *budget, *FLEET_LIMITS)  # fmt: skip
     out: dict = {
         "benchmark": "paging",
         "budget_mib": args.budget_mib,

@@ -8,6 +8,13 @@ as the shards' acks allow (at most `--window` unacknowledged per shard). The mer
 how the machine's cores were shared. Prints one JSON object.
 
     python benchmarks/shards.py [--shards 1,2] [--publishers 2] [--seconds 8] [--warmup 2]
+
+With `--cpu-quota Q` (root; cgroup v1 or v2, benchmarks/cpu_quota.py) each shard server — and only the shards —
+runs in its own cgroup with Q of a core, as K separate hosts would; the router and the publishers (pre-encoded)
+stay outside the quotas. K = 1, 2, 3 then (default `--shards 1,2,3,1,2,3`); each run also reports every shard's
+CPU use and how often its quota throttled it. Goal with Q = 0.3: K=2 ≥ 1.8× and K=3 ≥ 2.5× K=1's deltas/s.
+
+    sudo python benchmarks/shards.py --cpu-quota 0.3 --max-rate 3000
 """
 
 from __future__ import annotations
@@ -15,6 +22,8 @@ from __future__ import annotations
 import argparse
 import json
 import multiprocessing as mp
+import os
+import signal
 import sys
 import tempfile
 import threading
@@ -25,7 +34,8 @@ import numpy as np
 import psutil
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from ingest import LAYERS5, MAP, RES, layers_for, shutdown, spawn  # noqa: E402
+from cpu_quota import CpuQuota  # noqa: E402
+from ingest import FLEET_LIMITS, LAYERS5, MAP, RES, layers_for, shutdown, spawn  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 TILE = 64
@@ -106,12 +116,16 @@ def run(k: int, args: argparse.Namespace) -> dict:
     tmp = tempfile.TemporaryDirectory()
     router = spawn("router", "--listen", ep)
     servers = []
+    quotas: list[CpuQuota] = []
     for i in range(k):
         shard = ["--shards", str(k), "--shard", str(i)] if k > 1 else []
         servers.append(
             spawn("server", "--map", MAP, "--res", str(RES), "--tile", str(TILE), "--db", str(Path(tmp.name) / f"s{i}.db"),
-                  "--connect", ep, *shard, core=i % (psutil.cpu_count() or 1) if args.pin else None)
+                  "--connect", ep, *shard, *FLEET_LIMITS, core=i % (psutil.cpu_count() or 1) if args.pin else None)
         )  # fmt: skip
+        if args.cpu_quota:  # this shard, and only it, in a cgroup of its own with Q of a core
+            quotas.append(CpuQuota(args.cpu_quota, f"psrmap-bench-{os.getpid()}-k{k}-shard{i}"))
+            quotas[-1].add(servers[-1].pid)
     ctx = mp.get_context("spawn")
     ready = [ctx.Event() for _ in range(args.publishers)]
     go, stop, results = ctx.Event(), ctx.Event(), ctx.Queue()
@@ -120,7 +134,7 @@ def run(k: int, args: argparse.Namespace) -> dict:
         ctx.Process(target=publisher, args=(p, ep, k, n, args.window, ready[p], go, stop, results))
         for p in range(args.publishers)
     ]
-    out: dict = {"shards": k, "pinned": args.pin}  # pinned: shard i on core i mod cores, others float
+    out: dict = {"shards": k, "pinned": args.pin, "cpu_quota": args.cpu_quota}  # pinned: shard i on core i
     try:
         for p in procs:
             p.start()
@@ -143,10 +157,12 @@ def run(k: int, args: argparse.Namespace) -> dict:
             ps.update({f"shard{i}": psutil.Process(sv.pid) for i, sv in enumerate(servers)})
             ps.update({f"publisher{j}": psutil.Process(p.pid) for j, p in enumerate(procs)})
             cpu0 = {name: sum(pr.cpu_times()[:2]) for name, pr in ps.items()}
+            q0 = [q.stats() for q in quotas]
             m0, t0 = merged(), time.perf_counter()
             time.sleep(args.seconds)
             m1, t1 = merged(), time.perf_counter()
             cpu1 = {name: sum(pr.cpu_times()[:2]) for name, pr in ps.items()}
+            q1 = [q.stats() for q in quotas]
             stop.set()
             got = [results.get(timeout=120) for _ in procs]
             dt = t1 - t0
@@ -159,10 +175,17 @@ def run(k: int, args: argparse.Namespace) -> dict:
                 }
             )
             out["cpu_cores_used_total"] = round(sum(out["cpu_cores_used"].values()), 2)
+            if quotas:  # per shard: periods its quota throttled it in the window (it used its whole share)
+                out["quota_throttled_periods"] = {
+                    f"shard{i}": int(b["nr_throttled"] - a["nr_throttled"])
+                    for i, (a, b) in enumerate(zip(q0, q1, strict=True))
+                }
     finally:
         stop.set()
         go.set()
         shutdown(procs, [*servers, router])
+        for q in quotas:
+            q.close()
         tmp.cleanup()
     return out
 
@@ -171,8 +194,16 @@ def main() -> None:
     ap = argparse.ArgumentParser(allow_abbrev=False, description=__doc__.splitlines()[0])
     ap.add_argument(
         "--shards",
-        default="1,2,1,2,1,2",
-        help="comma-separated K, run in this order (the first K is the baseline)",
+        default=None,
+        help="comma-separated K, run in this order (the first K is the baseline); default 1,2,1,2,1,2, with "
+        "--cpu-quota 1,2,3,1,2,3",
+    )
+    ap.add_argument(
+        "--cpu-quota",
+        type=float,
+        default=None,
+        metavar="Q",
+        help="run each shard server (only the shards) in its own cgroup with Q of a core (root; cgroup v1 or v2)",
     )
     ap.add_argument("--publishers", type=int, default=2)
     ap.add_argument("--seconds", type=float, default=8.0, help="measurement window per K [s]")
@@ -185,7 +216,15 @@ def main() -> None:
         "--pin", action="store_true", help="pin shard i to core i (same CPU per shard whatever K; Linux only)"
     )
     args = ap.parse_args()
-    ks = [int(x) for x in args.shards.split(",")]
+    if args.cpu_quota is not None and not args.cpu_quota > 0:
+        ap.error(f"--cpu-quota {args.cpu_quota}: need a share of a core > 0 (e.g. 0.3)")
+    shards = args.shards or ("1,2,3,1,2,3" if args.cpu_quota else "1,2,1,2,1,2")
+    ks = [int(x) for x in shards.split(",")]
+
+    def interrupted(signum: int, frame: object) -> None:  # SIGTERM: unwind, so `run` stops its children
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, interrupted)
     runs = [run(k, args) for k in ks]
     per_k: dict[int, list[float]] = {}
     cpu_k: dict[int, list[float]] = {}
@@ -207,7 +246,10 @@ def main() -> None:
         "median_cpu_us_per_delta_all_processes": {
             str(k): round(float(np.median(v)), 1) for k, v in cpu_k.items()
         },
-        "goal": "2 shards >= 1.5x one shard's saturated deltas/s",
+        "cpu_quota": args.cpu_quota,
+        "goal": "K=2 >= 1.8x and K=3 >= 2.5x K=1's deltas/s (each shard Q of a core)"
+        if args.cpu_quota
+        else "2 shards >= 1.5x one shard's saturated deltas/s",
         "note": "runs alternate in the order of --shards; medians per K; cpu_cores_used = CPU seconds per second of "
         "the window, per process (router, shards, publishers): how the machine's cores were shared",
     }
