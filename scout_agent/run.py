@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -40,6 +40,7 @@ from scout_agent.sim.terrain import (
     route_slope_stats,
 )
 from scout_agent.state_estimation.consistency import ConsistencyTracker
+from scout_agent.state_estimation.launch import HeightDatum
 
 SCENES = ("ramps", "lunar")
 OnTick = Callable[[ProprioSample, GroundTruth, ScoutSim], object]  # may return the tick's TickEstimates
@@ -159,13 +160,15 @@ def run_scout(
     progress: bool = True,
     world: World | None = None,
     on_hazard: OnHazard | None = None,
+    datum_sources: Sequence[tuple[str, HeightDatum]] = (),
 ) -> dict:
     """Walk the configured path until the goal, a fall, a hazard it cannot go around or the time limit;
     return the JSON summary. `on_tick` may return the tick's `TickEstimates` (the mapping does): the pilot
-    feels them; `on_hazard` receives each hazard the reflex felt (the mapping records it in the map)."""
+    feels them; `on_hazard` receives each hazard the reflex felt (the mapping records it in the map);
+    `datum_sources` are where the scout may take its launch height datum (state_estimation/launch.py)."""
     world = world or build_world(cfg)
     sim_cfg = replace(cfg.sim, sensors=replace(cfg.sim.sensors, seed=cfg.seed))
-    sim = ScoutSim(world.terrain, world.friction, sim_cfg, start=world.start)
+    sim = ScoutSim(world.terrain, world.friction, sim_cfg, start=world.start, datum_sources=datum_sources)
     on, pc = cfg.hazard_control, cfg.pilot
     pilot_cfg = replace(
         pc,
