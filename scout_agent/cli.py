@@ -17,6 +17,7 @@ from dataclasses import replace
 
 from common.defaults import DEFAULT_SEED
 from common.errors import ViewerUnavailable
+from common.recording import use_viewer
 from protocol.keys import id_arg
 from scout_agent import component
 from scout_agent.component import ScoutConfig
@@ -317,11 +318,17 @@ def scout_config(args: argparse.Namespace, parser: argparse.ArgumentParser) -> S
 
 
 def cmd_scout(args: argparse.Namespace) -> int:
-    _compile_notice(args)
-    try:
-        result = component.run(scout_config(args, args._parser))
+    cfg = scout_config(args, args._parser)
+    try:  # the viewer before the compile notice: a bad place for a viewer is the one line said
+        use_viewer(cfg.viewer, cfg.connect_viewer)
     except ViewerUnavailable as exc:  # one line: nothing is wrong with the command, only the place
         args._parser.exit(2, f"psrmap scout: error: {exc}\n")
+    except ValueError as exc:
+        args._parser.error(str(exc))
+    cfg = replace(cfg, viewer=False, connect_viewer=None)  # streams go to the viewer use_viewer named
+    _compile_notice(args)
+    try:
+        result = component.run(cfg)
     except ScoutConfigError as exc:
         args._parser.error(str(exc))
     except ScoutLinkError as exc:
