@@ -21,6 +21,7 @@ __all__ = [
     "endpoint_arg",
     "file_endpoints",
     "open_session",
+    "why_refused",
     "zenoh_config",
 ]
 
@@ -149,11 +150,50 @@ def _authenticated(conf) -> bool:  # type: ignore[no-untyped-def]
 
 
 def open_session(conf: Any) -> Any:
-    """`zenoh.open(conf)`, or a SessionError saying what went wrong (endpoints look like tcp/HOST:PORT;
-    to connect, a router must be listening there)."""
+    """`zenoh.open(conf)`, or a SessionError saying what went wrong: nothing listens at the endpoints, or a
+    router answers there but refused the session (no credentials, or not ones it accepts)."""
     import zenoh
 
     try:
         return zenoh.open(conf)
     except zenoh.ZError as exc:
-        raise SessionError(f"cannot open a Zenoh session: {exc}") from None
+        raise SessionError(f"cannot open a Zenoh session: {why_refused(conf)} ({exc})") from None
+
+
+def why_refused(conf: Any) -> str:
+    """Why a session with `conf` could not connect, told apart by a plain TCP connect to its endpoints:
+    nothing listens there, or something does and turned the session away (Zenoh reports both alike)."""
+    import socket
+
+    def get(key: str) -> Any:
+        try:
+            return json.loads(conf.get_json(key))
+        except Exception:
+            return None
+
+    eps = [e for e in (get("connect/endpoints") or []) if isinstance(e, str)]
+    answering = []
+    for e in eps:
+        proto, _, addr = e.partition("/")
+        m = _HOST_PORT.match(addr.split("?", 1)[0].split("#", 1)[0])
+        if proto in ("tcp", "tls") and m:
+            try:
+                with socket.create_connection((m.group(1).strip("[]"), int(m.group(2))), timeout=1.0):
+                    answering.append(e)
+            except OSError:
+                pass
+    if not answering:
+        return (
+            f"nothing accepts connections at {', '.join(eps) or '(no endpoint)'}; a router must be listening "
+            "there: is `psrmap router --listen ...` (or `psrmap server --listen ...`) running?"
+        )
+    if _authenticated(conf):
+        return (
+            f"a router answers at {', '.join(answering)} but refused this session: it does not accept these "
+            "credentials (user/password or TLS certificate; check --zenoh-config against the router's "
+            "`psrmap secure init` folder)"
+        )
+    return (
+        f"a router answers at {', '.join(answering)} but refused this session: it requires credentials; give "
+        "--zenoh-config FILE (this agent's file from `psrmap secure init`)"
+    )

@@ -22,7 +22,7 @@ import zenoh
 
 from common.errors import QueryError
 from common.query import get_replies, get_statuses, map_extent
-from common.session import zenoh_config
+from common.session import SessionError, open_session, zenoh_config
 from common.trust import Trust, TrustedIds, load_trust
 from consumer_planner.errors import PlannerError
 from mapcore import LayerGrid, MapCoreError, stitch
@@ -119,13 +119,11 @@ class MapClient:
     def __enter__(self) -> MapClient:
         try:
             c = self.config
-            self._session = zenoh.open(
+            self._session = open_session(
                 zenoh_config(c.connect, (), None if c.zenoh_config else c.mode, c.zenoh_config)
             )
-        except (zenoh.ZError, ValueError) as exc:
-            raise PlannerError(
-                f"cannot open a Zenoh session to {', '.join(self.config.connect)}: {exc}"
-            ) from None
+        except (SessionError, ValueError) as exc:  # SessionError: nothing listens, or credentials needed
+            raise PlannerError(str(exc)) from None
         return self
 
     def __exit__(self, *exc: object) -> None:

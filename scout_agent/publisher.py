@@ -22,7 +22,7 @@ import zenoh
 
 from common.errors import QueryError
 from common.query import get_partition
-from common.session import zenoh_config
+from common.session import why_refused, zenoh_config
 from common.trust import load_trust
 from protocol.codec import decode
 from protocol.errors import ProtocolError
@@ -88,13 +88,12 @@ class ScoutPublisher:
             raise ScoutConfigError("no endpoint to connect to; give one like tcp/127.0.0.1:7447")
         if resume and outbox is None:
             raise ScoutConfigError("--resume needs an outbox (--outbox PATH) to resume from")
+        conf = zenoh_config(list(connect), (), None if zenoh_config_file else mode, zenoh_config_file)
         try:
-            conf = zenoh_config(list(connect), (), None if zenoh_config_file else mode, zenoh_config_file)
             self._session = zenoh.open(conf)
         except zenoh.ZError as exc:
             raise ScoutLinkError(
-                f"cannot reach the map service's router at {', '.join(connect)} ({exc}); "
-                "is `psrmap router --listen ...` (or `psrmap server --listen ...`) running there?"
+                f"cannot reach the map service's router at {', '.join(connect)}: {why_refused(conf)} ({exc})"
             ) from None
         if partition is None:
             try:

@@ -88,3 +88,39 @@ def test_connect_viewer_to_nothing_fails_fast_with_a_message(command, capsys, tm
     assert err.count("\n") == 1, err
     assert f"--connect-viewer {url}: no Rerun viewer answers at 127.0.0.1:" in err
     assert not (tmp_path / "runs").exists()
+
+
+def test_an_anonymous_client_on_a_secured_router_is_told_it_needs_credentials(tmp_path, capsys):
+    import subprocess
+    import sys
+    import time
+
+    from psrmap.secure import secure_init
+
+    ep = f"tcp/127.0.0.1:{_closed_port()}"
+    lay = secure_init(tmp_path / "secure", "m", ["s1"], ["p1"], endpoint=ep)
+    router = subprocess.Popen([sys.executable, "-m", "psrmap", "router", "--zenoh-config", str(lay.router)],
+                              stdout=subprocess.PIPE, text=True)  # fmt: skip
+    try:
+        assert router.stdout is not None and '"up"' in router.stdout.readline()
+        for argv, message in (
+            (["status", "--map", "m", "--connect", ep], "refused this session: it requires credentials"),
+            (["status", "--map", "m", "--connect", ep, "--zenoh-config", str(lay.agents["s1"])], None),
+        ):
+            t0 = time.monotonic()
+            code = None
+            try:
+                main(argv)
+            except SystemExit as exc:
+                code = exc.code
+            err = capsys.readouterr().err
+            if message is None:  # with its credentials the same client gets in (and finds no server)
+                assert "refused this session" not in err and "no server of map 'm'" in err, err
+            else:
+                assert code == 2 and message in err and "a router must be listening" not in err, err
+                assert time.monotonic() - t0 < 10
+    finally:
+        router.terminate()
+        router.wait(10)
+        if router.stdout:
+            router.stdout.close()
