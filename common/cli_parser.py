@@ -11,10 +11,11 @@ from __future__ import annotations
 
 import argparse
 import difflib
+import math
 from collections.abc import Sequence
 from typing import Any
 
-__all__ = ["Parser"]
+__all__ = ["Parser", "non_negative_int", "positive_float"]
 
 
 class Parser(argparse.ArgumentParser):
@@ -40,3 +41,25 @@ class Parser(argparse.ArgumentParser):
                 if close:
                     return f" (did you mean {close[0]}?)"
         return ""
+
+
+def positive_float(text: str) -> float:
+    """argparse type: a finite number > 0 (seconds, metres, rates), else a usage error saying so."""
+    try:
+        v = float(text)
+    except ValueError:
+        v = math.nan
+    if not (math.isfinite(v) and v > 0):
+        raise argparse.ArgumentTypeError(f"{text!r}: need a finite number > 0")
+    return v
+
+
+def non_negative_int(text: str) -> int:
+    """argparse type: an integer >= 0 (seeds), else a usage error saying so."""
+    try:
+        v = int(text)
+    except ValueError:
+        v = -1
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"{text!r}: need an integer >= 0")
+    return v

@@ -17,6 +17,7 @@ import json
 import math
 from dataclasses import asdict, replace
 
+from common.cli_parser import positive_float
 from common.session import endpoint_arg, file_endpoints
 from consumer_planner import component
 from consumer_planner.compare import Route
@@ -75,7 +76,9 @@ def _common(p: argparse.ArgumentParser) -> None:
     src.add_argument(
         "--npz", metavar="FILE", help="a saved map (.npz, map_region layout) instead of a server"
     )
-    src.add_argument("--timeout", type=float, default=5.0, help="seconds to wait for map servers (default 5)")
+    src.add_argument(
+        "--timeout", type=positive_float, default=5.0, help="seconds to wait for map servers (default 5)"
+    )
     src.add_argument(
         "--zenoh-config",
         metavar="FILE",

@@ -12,7 +12,7 @@ from collections.abc import Sequence
 from dataclasses import replace
 from typing import Any
 
-from common.cli_parser import Parser
+from common.cli_parser import Parser, positive_float
 from common.defaults import DEFAULT_RES_M
 from common.session import endpoint_arg
 from map_server.limits import Limits
@@ -498,7 +498,7 @@ def register(subparsers: Any) -> None:
             action="append",
             help="router endpoint (default: the one the --zenoh-config file names)",
         )
-        p.add_argument("--timeout", type=float, default=5.0, help="reply timeout [s]")
+        p.add_argument("--timeout", type=positive_float, default=5.0, help="reply timeout [s]")
         add_security_arguments(p)
         if name == "query":
             p.add_argument(

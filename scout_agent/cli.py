@@ -15,6 +15,7 @@ import json
 import sys
 from dataclasses import replace
 
+from common.cli_parser import non_negative_int, positive_float
 from common.defaults import DEFAULT_SEED
 from common.errors import ViewerUnavailable
 from common.recording import use_viewer
@@ -71,7 +72,7 @@ def add_scout_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--seed",
-        type=int,
+        type=non_negative_int,
         default=DEFAULT_SEED,
         help=f"lunar terrain and sensor-noise seed (default {DEFAULT_SEED})",
     )
@@ -107,7 +108,7 @@ def add_scout_arguments(p: argparse.ArgumentParser) -> None:
         help="intermediate waypoint x,y (repeatable)",
     )
     p.add_argument("--speed", type=float, default=0.2, help="commanded speed [m/s] (default 0.2)")
-    p.add_argument("--sim-seconds", type=float, help="simulated time limit [s]")
+    p.add_argument("--sim-seconds", type=positive_float, help="simulated time limit [s]")
     p.add_argument("--friction", type=float, default=0.7, help="regolith friction (default 0.7)")
     p.add_argument(
         "--slippery",

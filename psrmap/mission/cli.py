@@ -9,6 +9,7 @@ import signal
 from pathlib import Path
 from typing import Any
 
+from common.cli_parser import non_negative_int, positive_float
 from common.recording import ViewerUnavailable, use_viewer
 from psrmap.mission.config import MissionError, load_config, validate, with_scouts
 from psrmap.mission.run import run_mission
@@ -26,8 +27,10 @@ def register(sub: Any) -> None:
     )
     p.add_argument("--config", help="mission TOML file (default: the embedded mission_default.toml)")
     p.add_argument("--scouts", type=int, help="number of scouts (default: as many as the config lists, 3)")
-    p.add_argument("--seed", type=int, help="terrain seed")
-    p.add_argument("--sim-seconds", type=float, help="cap on each scout's walk [s of simulated time]")
+    p.add_argument("--seed", type=non_negative_int, help="terrain seed")
+    p.add_argument(
+        "--sim-seconds", type=positive_float, help="cap on each scout's walk [s of simulated time]"
+    )
     p.add_argument("--out", help="parent folder of the run folder (default runs/)")
     p.add_argument("--run-dir", help="exact run folder (default <out>/<timestamp>)")
     p.add_argument("--no-rrd", action="store_true", help="do not write Rerun recordings")

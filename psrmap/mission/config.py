@@ -302,6 +302,8 @@ def validate(cfg: MissionConfig) -> None:
     bad = {k: v for k, v in cfg.weights.items() if k not in TERMS or not (math.isfinite(v) and v >= 0)}
     if bad:
         raise MissionError(f"[planner] weights {bad}: names in {', '.join(TERMS)}, each a finite number >= 0")
+    if cfg.seed < 0:
+        raise MissionError(f"seed = {cfg.seed}: need an integer >= 0")
     if cfg.slippery_patches < 0:
         raise MissionError(f"slippery_patches = {cfg.slippery_patches}: need >= 0")
     if cfg.scene not in SCENES:
@@ -324,8 +326,8 @@ def validate(cfg: MissionConfig) -> None:
         ("speed", cfg.speed),
         ("rate_hz", cfg.rate_hz),
     ):
-        if not v > 0:
-            raise MissionError(f"{name} = {v}: must be > 0")
+        if not (v > 0 and math.isfinite(v)):
+            raise MissionError(f"{name} = {v}: must be a finite number > 0")
     if not 1 <= cfg.shards <= MAX_SHARDS:
         raise MissionError(f"shards = {cfg.shards}: need 1 (one server) to {MAX_SHARDS} map-server shards")
     t = cfg.tile

@@ -38,6 +38,12 @@ def _closed_port() -> int:
         (["mission", "--scout", "2"], "psrmap mission: error: unrecognized arguments: --scout 2"),
         (["mission", "--scots", "2"], "unrecognized arguments: --scots 2 (did you mean --scouts?)"),
         (["secure", "init", "d", "--map", "m", "--scout", "a"], "psrmap secure init: error:"),
+        # numbers checked before any work: a negative walk, a NaN, a zero timeout, a negative seed
+        (["scout", "--sim-seconds", "-1"], "argument --sim-seconds: '-1': need a finite number > 0"),
+        (["scout", "--sim-seconds", "nan"], "argument --sim-seconds: 'nan': need a finite number > 0"),
+        (["evaluate", "--sim-seconds", "-2"], "need a finite number > 0"),
+        (["mission", "--seed", "-1"], "argument --seed: '-1': need an integer >= 0"),
+        (["status", "--map", "m", "--connect", "tcp/127.0.0.1:1", "--timeout", "0"], "argument --timeout"),
     ],
 )
 def test_bad_arguments_name_what_is_valid(argv, message, capsys):

@@ -23,6 +23,7 @@ SCOUT = '[[scouts]]\nid = "a"\nstart = [1, 1, 0]\ngoal = [2, 2]\n'
         ('[mission]\nmap = "a.b"\n', "map 'a.b' must match [A-Za-z0-9_-]+"),
         ("[terrain]\nseed = 1.5\n", "[terrain] seed = 1.5: need an integer"),
         ('[terrain]\nscene = "mars"\n', "scenes: lunar, ramps"),
+        ("[terrain]\nseed = -1\n", "seed = -1: need an integer >= 0"),
         (
             "[planner]\nweights = { cot = 1.0, slpi = 2.0 }\n",
             "weights: unknown term 'slpi'; terms: distance, cot",
