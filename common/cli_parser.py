@@ -15,7 +15,7 @@ import math
 from collections.abc import Sequence
 from typing import Any
 
-__all__ = ["Parser", "non_negative_int", "positive_float"]
+__all__ = ["Parser", "non_negative_int", "positive_float", "positive_int"]
 
 
 class Parser(argparse.ArgumentParser):
@@ -54,12 +54,21 @@ def positive_float(text: str) -> float:
     return v
 
 
-def non_negative_int(text: str) -> int:
-    """argparse type: an integer >= 0 (seeds), else a usage error saying so."""
+def _int_at_least(text: str, least: int) -> int:
     try:
         v = int(text)
     except ValueError:
-        v = -1
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"{text!r}: need an integer >= 0")
+        v = least - 1
+    if v < least:
+        raise argparse.ArgumentTypeError(f"{text!r}: need an integer >= {least}")
     return v
+
+
+def non_negative_int(text: str) -> int:
+    """argparse type: an integer >= 0 (seeds, epochs), else a usage error saying so."""
+    return _int_at_least(text, 0)
+
+
+def positive_int(text: str) -> int:
+    """argparse type: an integer >= 1 (counts: shards, runs, workers), else a usage error saying so."""
+    return _int_at_least(text, 1)

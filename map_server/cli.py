@@ -12,7 +12,7 @@ from collections.abc import Sequence
 from dataclasses import replace
 from typing import Any
 
-from common.cli_parser import Parser, positive_float
+from common.cli_parser import Parser, non_negative_int, positive_float, positive_int
 from common.defaults import DEFAULT_RES_M
 from common.session import endpoint_arg
 from map_server.limits import Limits
@@ -107,16 +107,6 @@ def cmd_router(args: argparse.Namespace) -> int:
         print(json.dumps({"router": "up", "listen": list(shown)}), flush=True)
         stop.wait()
     return 0
-
-
-def _positive_int(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        v = 0
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"{text!r}: need an integer >= 1")
-    return v
 
 
 def _bbox(text: str) -> tuple[float, float, float, float]:
@@ -372,16 +362,6 @@ def cmd_remove(args: argparse.Namespace) -> int:
     return 0
 
 
-def _epoch(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        v = -1
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"{text!r}: need an integer >= 0")
-    return v
-
-
 def register(subparsers: Any) -> None:
     """Add `router`, `server`, `remove`, `status`, `query` to the `psrmap` CLI."""
     p = subparsers.add_parser("router", help="run an embedded Zenoh router")
@@ -417,7 +397,7 @@ def register(subparsers: Any) -> None:
     )
     p.add_argument("--rrd", default=None, help="log merged layers to this Rerun .rrd file")
     p.add_argument(
-        "--shards", type=_positive_int, default=1, metavar="K",
+        "--shards", type=positive_int, default=1, metavar="K",
         help="the map is split over K shard servers by tile (protocol.partition; default 1: unsharded)",
     )  # fmt: skip
     p.add_argument(
@@ -446,7 +426,7 @@ def register(subparsers: Any) -> None:
     )
     p.add_argument(
         "--max-queries",
-        type=_positive_int,
+        type=positive_int,
         default=64,
         metavar="N",
         help="queries queued or being answered at most; more get a `busy` reply (deltas never wait on queries)",
@@ -464,7 +444,7 @@ def register(subparsers: Any) -> None:
         g.add_argument(
             f"--limit-{f.name.replace('_', '-')}",
             dest=f"limit_{f.name}",
-            type=_positive_int,
+            type=positive_int,
             default=f.default,
             metavar="N",
             help=f"(default {f.default})",
@@ -482,7 +462,10 @@ def register(subparsers: Any) -> None:
     p.add_argument("--db", required=True, help="the map server's SQLite file")
     p.add_argument("--scout", type=id_arg("scout"), default=None, help="the scout whose deltas to remove")
     p.add_argument(
-        "--epoch", type=_epoch, default=None, help="only this epoch (without --scout: of every scout)"
+        "--epoch",
+        type=non_negative_int,
+        default=None,
+        help="only this epoch (without --scout: of every scout)",
     )
     p.set_defaults(func=cmd_remove, parser=p)
 
@@ -506,14 +489,14 @@ def register(subparsers: Any) -> None:
             )
             p.add_argument(
                 "--max-cells",
-                type=_positive_int,
+                type=positive_int,
                 default=MAX_CLIENT_CELLS,
                 metavar="N",
                 help=f"refuse replies spanning more cells than this (default {MAX_CLIENT_CELLS})",
             )
             p.add_argument(
                 "--max-reply-mib",
-                type=_positive_int,
+                type=positive_int,
                 default=64,
                 metavar="MIB",
                 help="refuse a reply larger than this (default 64, the server's max_reply_bytes)",

@@ -22,6 +22,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from common.cli_parser import positive_int
 from psrmap.experiments import lunar, ramps, slopes, utility
 from psrmap.experiments.common import RunPool, write_json
 from psrmap.experiments.config import ExperimentConfig, ExperimentError, from_args
@@ -44,16 +45,6 @@ def _seeds(text: str) -> list[int]:
     return vals
 
 
-def _positive_int(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        v = 0
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"{text!r}: need an integer ≥ 1")
-    return v
-
-
 def _add_common(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--out",
@@ -69,12 +60,12 @@ def _add_common(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--runs",
-        type=_positive_int,
+        type=positive_int,
         metavar="N",
         help="runs per seed and condition (default: ramps/slopes 4, lunar/utility 1)",
     )
     p.add_argument(
-        "--workers", type=_positive_int, default=2, help="parallel simulation processes (default 2)"
+        "--workers", type=positive_int, default=2, help="parallel simulation processes (default 2)"
     )
     p.add_argument(
         "--sim-seconds",
