@@ -11,13 +11,20 @@ Without `--out`, the folder is `runs/<timestamp>-<experiment>/`. Each writes `re
 quoted in docs/results.md) and PNG figures into its folder, with a tqdm bar over the runs. Independent runs
 go to `--workers` spawn processes (default 2); every run is cached in `<out>/runs/`, so a second experiment
 needing the same walk reads it instead (`--fresh` ignores the cache).
+
+Modules: `config` (the options), `common` (a run's spec, the worker, the pool), `maps` (runs' cells merged,
+saved for the planner, laid out densely), one module per experiment, `plots` and `report`. The simulator
+(MuJoCo, Pinocchio), the planner (numba) and matplotlib are imported inside the functions that walk, plan or
+draw, so `psrmap experiment --help` loads numpy and the map code only.
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import os
 import platform
+import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -140,8 +147,6 @@ def run_experiment(name: str, args: argparse.Namespace, pool: RunPool, out_dir: 
 
 
 def _command(args: argparse.Namespace) -> str:
-    import sys
-
     return (
         "psrmap " + " ".join(sys.argv[1:])
         if sys.argv and "experiment" in sys.argv
@@ -201,6 +206,4 @@ def _run(args: argparse.Namespace, out: Path, pool: RunPool) -> int:
 
 
 def _cpus() -> int | None:
-    import os
-
     return os.cpu_count()

@@ -27,6 +27,10 @@ from typing import Any
 
 import numpy as np
 
+from protocol.layers import LAYERS, cell_center, layer_value
+from psrmap.progress import progress
+from scout_agent.cells import CellAccumulator, LocalMap
+
 __all__ = [
     "EXTRA_RES",
     "MAP_RES",
@@ -115,8 +119,6 @@ def _run_config(spec: RunSpec):
 
 
 def recording_accumulator(res: float):
-    from scout_agent.cells import CellAccumulator
-
     class RecordingAccumulator(CellAccumulator):
         """The mapper's accumulator, also keeping every row it was given (to re-bin at other cell sizes)."""
 
@@ -138,8 +140,6 @@ def recording_accumulator(res: float):
 
 def rebin(acc: Any, res: float):
     """A `LocalMap` at cell size `res` [m] from everything a `RecordingAccumulator` was given."""
-    from scout_agent.cells import CellAccumulator, LocalMap
-
     fresh = CellAccumulator(res)
     for layer, rows in acc.log.items():
         for row in rows:
@@ -159,7 +159,6 @@ def elevation_errors(local: Any, terrain: Any, segments: dict | None = None) -> 
     protocol's plane fit where footholds spread ≥ 2 cm along both axes, else the mean) and the scout's
     truncated plane fit (`plane_from_moments`: slope only along the directions the footholds span); also on
     the ramp cells only."""
-    from protocol.layers import cell_center, layer_value
     from scout_agent.estimators.elevation import plane_from_moments
 
     c = local.cells("elevation")
@@ -230,7 +229,6 @@ def _paper_cells(ev: Any) -> dict[str, dict[str, np.ndarray]]:
 
 def run_spec(spec: RunSpec) -> dict[str, Any]:
     """Walk one spec with the evaluator attached; return everything the experiments read (picklable)."""
-    from protocol.layers import LAYERS
     from scout_agent.evaluate import Evaluator
     from scout_agent.run import build_world, run_scout
 
@@ -324,8 +322,6 @@ class RunPool:
                 todo[k] = s
         bar = None
         if self.progress:
-            from psrmap.progress import progress
-
             bar = progress(len(results) + len(todo), desc, "run", initial=len(results), every_s=30.0)
         try:
             for res in self._walk(list(todo.values())):

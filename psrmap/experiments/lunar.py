@@ -22,6 +22,7 @@ import numpy as np
 
 from psrmap.experiments.common import MAP_RES, RunPool, RunSpec, estimation_summary, fmean, fstd, jitter_start
 from psrmap.experiments.config import ExperimentConfig
+from psrmap.experiments.maps import merged_grid, merged_local_map
 
 __all__ = [
     "PAPER_TABLE",
@@ -29,12 +30,8 @@ __all__ = [
     "add_arguments",
     "analyse",
     "compare_on_merged",
-    "dense",
-    "merged_grid",
-    "merged_local_map",
     "route_specs",
     "run",
-    "save_region_npz",
     "specs",
     "trajectory_row",
 ]
@@ -94,53 +91,6 @@ def route_specs(
 
 def specs(cfg: ExperimentConfig) -> list[RunSpec]:
     return [s for seed in cfg.seeds for s in route_specs(cfg, seed, ROUTES)]
-
-
-# ------------------------------------------------------------------------------------------ maps
-
-
-def merged_local_map(runs: list[dict], res: float = MAP_RES):
-    """One `LocalMap` holding the merge of several runs' maps (the server's merge rule)."""
-    from scout_agent.cells import LocalMap
-
-    local = LocalMap(res)
-    for r in runs:
-        layers = {k: v for k, v in r["cells"].items() if len(v["ix"])}
-        if layers:
-            local.merge(layers)
-    return local
-
-
-def save_region_npz(local: Any, path: Path, size_m: float = 20.0) -> Path:
-    """`LocalMap.save_npz` (map_region layout) covering the whole field [0, size]² at least, so that routes
-    through unmapped cells can still be looked up."""
-    n = int(round(size_m / local.res))
-    return local.save_npz(path, cover=(0, 0, n - 1, n - 1))
-
-
-def merged_grid(runs: list[dict], npz_path: Path, map_id: str):
-    """The merged map saved as `.npz` (map_region layout) and read back as the planner's `LayerGrid`."""
-    from mapcore import read_npz
-
-    save_region_npz(merged_local_map(runs), npz_path)
-    return read_npz(npz_path, map_id=map_id)
-
-
-def dense(
-    cells: dict[str, np.ndarray], layer: str, size_m: float = 20.0, res: float = MAP_RES, what: str = "value"
-) -> np.ndarray:
-    """(n, n) grid over [0, size]² of a layer's value (or slip `events`); NaN where unmapped."""
-    from protocol.layers import layer_value
-
-    n = int(round(size_m / res))
-    out = np.full((n, n), np.nan)
-    if not len(cells["ix"]):
-        return out
-    v = cells["events"] if what == "events" else layer_value(layer, cells)
-    ix, iy = cells["ix"], cells["iy"]
-    ok = (ix >= 0) & (ix < n) & (iy >= 0) & (iy < n)
-    out[iy[ok], ix[ok]] = v[ok]
-    return out
 
 
 # ------------------------------------------------------------------------------------------ tables

@@ -14,6 +14,8 @@ import numpy as np  # noqa: E402
 from matplotlib.colors import LightSource  # noqa: E402
 from matplotlib.patches import Rectangle  # noqa: E402
 
+from psrmap.experiments.maps import dense  # noqa: E402
+
 __all__ = ["lunar_maps", "ramp_elevation_rmse", "ramp_profile", "slopes", "utility_bars", "utility_map"]
 
 DPI = 110
@@ -188,8 +190,6 @@ def _patches(ax: Any, patches: list) -> None:
 
 def lunar_maps(out_dir: Path, seed: int, terrain: Any, runs: dict[str, dict], merged: Any) -> list[Path]:
     """Per layer one PNG: the map of each trajectory (its own scout) and the merged map, over the terrain."""
-    from psrmap.experiments.lunar import dense
-
     paths = []
     routes: list[str] = [r for r in ("direct", "west", "east") if r in runs]
     patches = next(iter(runs.values()))["friction"]["patches"] if runs else []
@@ -268,8 +268,6 @@ def utility_map(
     straight: list,
     walked: dict[str, list[dict]],
 ) -> Path:
-    from psrmap.experiments.lunar import dense
-
     fig, axes = plt.subplots(1, 2, figsize=(12, 5.6))
     patches = scout_runs[0]["friction"]["patches"] if scout_runs else []
     for ax, layer in zip(axes, ("cot", "slip"), strict=True):

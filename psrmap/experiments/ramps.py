@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from protocol.layers import layer_value
 from psrmap.experiments.common import (
     EXTRA_RES,
     MAP_RES,
@@ -150,8 +151,6 @@ def _pr(counts: list[dict[str, int]]) -> dict[str, Any]:
 
 def profile(runs: list[dict], res: float = MAP_RES) -> dict[str, Any]:
     """Layers along the walking direction x: per column of cells, pooled over the runs' maps."""
-    from protocol.layers import layer_value
-
     cols: dict[int, dict[str, float]] = {}
 
     def col(ix: int) -> dict[str, float]:

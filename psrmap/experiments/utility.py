@@ -18,12 +18,14 @@ from __future__ import annotations
 
 import argparse
 import math
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from psrmap.experiments import lunar, utility_scores
+from mapcore import LayerGrid
+from psrmap.experiments import lunar, maps, utility_scores
 from psrmap.experiments.common import MAP_RES, RunPool, RunSpec, jitter_start
 from psrmap.experiments.config import ExperimentConfig, ExperimentError
 
@@ -145,8 +147,6 @@ def simplify(points: np.ndarray, tol: float) -> np.ndarray:
 
 
 def _cost_config(cfg: ExperimentConfig, unknown: str | None = None):
-    from dataclasses import replace
-
     from consumer_planner.costs import UNKNOWN_POLICIES, CostConfig, parse_weights
 
     policy: Any = unknown or cfg.unknown  # one of UNKNOWN_POLICIES, checked here
@@ -162,7 +162,7 @@ def plan(cfg: ExperimentConfig, seed: int, scouts: list[dict], out_dir: Path) ->
     from consumer_planner.costs import build_costs
     from consumer_planner.errors import PlannerError
 
-    grid = lunar.merged_grid(scouts, out_dir / f"scouts_seed{seed}.npz", f"scouts{seed}")
+    grid = maps.merged_grid(scouts, out_dir / f"scouts_seed{seed}.npz", f"scouts{seed}")
     costs = build_costs(grid, _cost_config(cfg))
     start, goal = tuple(cfg.utility_from), tuple(cfg.utility_to)
     out: dict[str, Any] = {"grid": grid, "costs": costs}
@@ -219,7 +219,6 @@ def experienced(cfg: ExperimentConfig, run: dict, waypoints: list) -> dict[str, 
     from consumer_planner.compare import evaluate_route
     from consumer_planner.costs import build_costs
     from consumer_planner.errors import PlannerError
-    from mapcore import LayerGrid
 
     s, sc = run["summary"], run["scores"]
     cot = sc.get("cot_whole_run")
@@ -242,7 +241,7 @@ def experienced(cfg: ExperimentConfig, run: dict, waypoints: list) -> dict[str, 
         "giam_paper_mean": sc.get("giam_paper_mean"),
         "nonfoot_contact_ticks": s.get("nonfoot_contact_ticks"),
     }
-    own = lunar.merged_local_map([run])
+    own = maps.merged_local_map([run])
     for layer in ("giim", "giam"):  # the worst cell mean, comparable with the planner's min over cells
         c = own.cells(layer)
         out[f"{layer}_min_cell"] = float(np.min(c["sum"] / c["n"])) if len(c["ix"]) else None
@@ -300,7 +299,7 @@ def run(cfg: ExperimentConfig, pool: RunPool, out_dir: Path) -> dict[str, Any]:
             continue
         entry["planned_waypoints"] = p["waypoints"]
         entry["planned_is_straight"] = len(p["waypoints"]) == 2
-        scouts_local = lunar.merged_local_map([r for r in scouting if r["spec"]["terrain_seed"] == seed])
+        scouts_local = maps.merged_local_map([r for r in scouting if r["spec"]["terrain_seed"] == seed])
         runs_by_route: dict[str, list[dict]] = {"planned": [], "straight": []}
         for (s_, name), r in zip(tags, walked, strict=True):
             if s_ == seed:

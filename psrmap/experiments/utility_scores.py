@@ -11,21 +11,21 @@ from typing import Any
 
 import numpy as np
 
-from psrmap.experiments import lunar
 from psrmap.experiments.common import MAP_RES, fmean
+from psrmap.experiments.maps import dense, merged_local_map
 
 __all__ = ["agreement", "beat", "pool_rows", "predicted", "predicted_vs_felt", "summary"]
 
 
 def agreement(scout_local: Any, run: dict, cells_xy: np.ndarray) -> dict[str, Any]:
     """Per-cell agreement, along a route's cells, of the scouts' map and the fresh robot's own map."""
-    own = lunar.merged_local_map([run])
+    own = merged_local_map([run])
     out: dict[str, Any] = {}
     ix = np.floor(cells_xy[:, 0] / MAP_RES).astype(int)
     iy = np.floor(cells_xy[:, 1] / MAP_RES).astype(int)
     for layer in ("cot", "giim", "giam", "elevation"):
-        a = lunar.dense(scout_local.cells(layer), layer)
-        b = lunar.dense(own.cells(layer), layer)
+        a = dense(scout_local.cells(layer), layer)
+        b = dense(own.cells(layer), layer)
         n = a.shape[0]
         ok = (ix >= 0) & (ix < n) & (iy >= 0) & (iy < n)
         va, vb = a[iy[ok], ix[ok]], b[iy[ok], ix[ok]]

@@ -201,7 +201,18 @@ def test_slope_trends_recognise_the_papers_shapes() -> None:
 def test_exported_names_exist() -> None:
     import importlib
 
-    for name in ("", ".common", ".ramps", ".slopes", ".lunar", ".utility", ".plots", ".report"):
+    for name in (
+        "",
+        ".common",
+        ".maps",
+        ".ramps",
+        ".slopes",
+        ".lunar",
+        ".utility",
+        ".utility_scores",
+        ".plots",
+        ".report",
+    ):
         mod = importlib.import_module(f"psrmap.experiments{name}")
         for member in getattr(mod, "__all__", ()):
             assert hasattr(mod, member), (name, member)
