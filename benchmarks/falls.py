@@ -23,8 +23,6 @@ import sys
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
 ANGLES = (5.0, 10.0, 15.0, 20.0, 25.0)
 OFFSETS = (-0.1, -0.05, 0.0, 0.05, 0.1)
 KEYS = ("fell", "fall_xy", "reached_goal", "gave_up", "hazard_stops", "detour_m", "unholdable_cells",

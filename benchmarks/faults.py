@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import selectors
 import subprocess
 import sys
@@ -23,20 +22,17 @@ import threading
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+import numpy as np
+import zenoh
 
-import numpy as np  # noqa: E402
-import zenoh  # noqa: E402
-
-from common.session import zenoh_config  # noqa: E402
-from map_server.service import free_endpoint  # noqa: E402
-from mapcore import TiledMap  # noqa: E402
-from protocol import decode  # noqa: E402
-from protocol.keys import status_key  # noqa: E402
-from protocol.testing import layer_cells  # noqa: E402
-from scout_agent.delivery import DeltaPublisher  # noqa: E402
-from scout_agent.publisher import ScoutLink, ZenohTransport  # noqa: E402
+from common.session import zenoh_config
+from map_server.service import free_endpoint
+from mapcore import TiledMap
+from protocol import decode
+from protocol.keys import status_key
+from protocol.testing import layer_cells
+from scout_agent.delivery import DeltaPublisher
+from scout_agent.publisher import ScoutLink, ZenohTransport
 
 MAP, RES = "faults", 0.4
 
@@ -46,8 +42,6 @@ def _spawn(*args: str) -> subprocess.Popen:
         [sys.executable, "-m", "psrmap", *args],
         stdout=subprocess.PIPE,
         stderr=subprocess.DEVNULL,
-        env={**os.environ, "PYTHONPATH": str(ROOT)},
-        cwd=ROOT,
     )
 
 

@@ -19,20 +19,17 @@ import logging
 import sys
 import time
 from collections import Counter
-from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+import msgpack
+import numpy as np
 
-import msgpack  # noqa: E402
-import numpy as np  # noqa: E402
-
-from map_server.limits import Limits  # noqa: E402
-from map_server.merge import Merger  # noqa: E402
-from mapcore import TiledMap  # noqa: E402
-from protocol import decode, encode  # noqa: E402
-from protocol.keys import delta_key  # noqa: E402
-from protocol.messages import CellDelta  # noqa: E402
-from protocol.testing import MAP, RES, layer_cells  # noqa: E402
+from map_server.limits import Limits
+from map_server.merge import Merger
+from mapcore import TiledMap
+from protocol import decode, encode
+from protocol.keys import delta_key
+from protocol.messages import CellDelta
+from protocol.testing import MAP, RES, layer_cells
 
 MUTATIONS = (
     "valid",

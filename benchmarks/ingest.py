@@ -27,7 +27,6 @@ from pathlib import Path
 import numpy as np
 import psutil
 
-ROOT = Path(__file__).resolve().parents[1]
 MAP, RES = "bench", 0.4
 LAYERS5 = ("elevation", "slip", "cot", "giim", "giam")
 POLL_S = 0.005  # the latency probe queries at least this often while it waits
@@ -135,7 +134,7 @@ def spawn(*args: str, malloc_arenas: int | None = None, core: int | None = None)
     """A `python -m map_server ...` process, once it printed its "up" line; `core`: run every thread of it
     on that core (threads it starts later inherit their creator's affinity). The process is stopped when the
     benchmark exits, is interrupted or is killed (no orphan shard left behind)."""
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    env = dict(os.environ)
     if malloc_arenas:
         env["MALLOC_ARENA_MAX"] = str(malloc_arenas)
     _guard_children()
@@ -144,7 +143,6 @@ def spawn(*args: str, malloc_arenas: int | None = None, core: int | None = None)
         stdout=subprocess.PIPE,
         stderr=subprocess.DEVNULL,
         env=env,
-        cwd=ROOT,
     )
     _CHILDREN.append(p)
     assert p.stdout is not None

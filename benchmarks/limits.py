@@ -13,10 +13,6 @@ from __future__ import annotations
 import argparse
 import json
 import multiprocessing as mp
-import sys
-from pathlib import Path
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 
 def _run(limits_on: bool, deltas: int, cells: int, max_tiles: int, q: mp.Queue) -> None:

@@ -13,16 +13,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 import psutil
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from ingest import FLEET_LIMITS, LANE_LEN, LAYERS5, RES, STEP, layers_for, shutdown, spawn  # noqa: E402
+from ingest import FLEET_LIMITS, LANE_LEN, LAYERS5, RES, STEP, layers_for, shutdown, spawn
 
 MAPS = ("paged", "whole")
 

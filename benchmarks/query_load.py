@@ -16,17 +16,13 @@ from __future__ import annotations
 import argparse
 import json
 import multiprocessing as mp
-import sys
 import tempfile
 import threading
 import time
 from pathlib import Path
 
 import numpy as np
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from ingest import MAP, RES, layers_for, shutdown, spawn  # noqa: E402
+from ingest import MAP, RES, layers_for, shutdown, spawn
 
 
 def scouts(endpoint: str, n: int, rate: float, seconds: float, phase2, results) -> None:

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -22,18 +21,15 @@ from pathlib import Path
 import numpy as np
 import psutil
 import zenoh
+from ingest import shutdown, spawn
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from ingest import shutdown, spawn  # noqa: E402
-
-from common.session import zenoh_config  # noqa: E402
-from map_server.service import free_endpoint, wait_for_server  # noqa: E402
-from protocol import decode, encode  # noqa: E402
-from protocol.keys import delta_key, status_key  # noqa: E402
-from protocol.layers import LAYERS  # noqa: E402
-from protocol.messages import CellDelta, Status  # noqa: E402
-from protocol.testing import layer_cells  # noqa: E402
+from common.session import zenoh_config
+from map_server.service import free_endpoint, wait_for_server
+from protocol import decode, encode
+from protocol.keys import delta_key, status_key
+from protocol.layers import LAYERS
+from protocol.messages import CellDelta, Status
+from protocol.testing import layer_cells
 
 MAP, RES = "flood", 0.4
 

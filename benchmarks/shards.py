@@ -24,7 +24,6 @@ import json
 import multiprocessing as mp
 import os
 import signal
-import sys
 import tempfile
 import threading
 import time
@@ -32,12 +31,9 @@ from pathlib import Path
 
 import numpy as np
 import psutil
+from cpu_quota import CpuQuota
+from ingest import FLEET_LIMITS, LAYERS5, MAP, RES, layers_for, shutdown, spawn
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from cpu_quota import CpuQuota  # noqa: E402
-from ingest import FLEET_LIMITS, LAYERS5, MAP, RES, layers_for, shutdown, spawn  # noqa: E402
-
-ROOT = Path(__file__).resolve().parents[1]
 TILE = 64
 
 

@@ -15,19 +15,15 @@ from __future__ import annotations
 import argparse
 import json
 import statistics
-import sys
 import time
 from dataclasses import replace
-from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+import mujoco
+import numpy as np
 
-import mujoco  # noqa: E402
-import numpy as np  # noqa: E402
-
-from scout_agent.robot import constants as C  # noqa: E402
-from scout_agent.run import ScoutRunConfig, build_world, run_scout  # noqa: E402
-from scout_agent.sim.simulator import ScoutSim  # noqa: E402
+from scout_agent.robot import constants as C
+from scout_agent.run import ScoutRunConfig, build_world, run_scout
+from scout_agent.sim.simulator import ScoutSim
 
 
 def raw_step_rate(world, steps: int) -> float:

@@ -30,9 +30,7 @@ from pathlib import Path
 
 import numpy as np
 import psutil
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from ingest import shutdown, spawn  # noqa: E402
+from ingest import shutdown, spawn
 
 MAP, RES, TILE = "soak", 0.4, 64
 SPACING_CELLS = 100  # virtual scouts' patches are this many cells (40 m) apart
