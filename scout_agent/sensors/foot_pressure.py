@@ -22,6 +22,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from scout_agent.errors import ScoutConfigError
 
@@ -48,14 +49,21 @@ class ContactConfig:
             raise ScoutConfigError(f"contact thresholds need off_n < on_n (got {self.off_n}, {self.on_n})")
 
 
+@njit(cache=True, nogil=True)
 def leg_forces_from_torques(jacobians: np.ndarray, tau: np.ndarray, tau_gravity: np.ndarray) -> np.ndarray:
     """Ground forces on the feet (4, 3), base frame [N], from leg Jacobians (4, 3, 3) (d foot / d leg joints,
     base frame), joint torques (12,) and the joints' gravity torques (12,): f = −J⁻ᵀ (τ − τ_g).
-    Near-singular legs (a straight knee) give zeros rather than huge forces."""
-    t = (tau - tau_gravity).reshape(4, 3, 1)
-    ok = np.abs(np.linalg.det(jacobians)) > 1e-5
-    Jt = np.where(ok[:, None, None], np.swapaxes(jacobians, 1, 2), np.eye(3))
-    return np.where(ok[:, None], -np.linalg.solve(Jt, t)[..., 0], 0.0)
+    Near-singular legs (a straight knee) give zeros rather than huge forces. Compiled (the estimators call it
+    every tick); the same LAPACK solve per leg as numpy's, so the same figures."""
+    out = np.zeros((4, 3))
+    for i in range(4):
+        Jt = np.ascontiguousarray(jacobians[i].T)
+        if not abs(np.linalg.det(Jt)) > 1e-5:
+            continue
+        x = np.linalg.solve(Jt, tau[3 * i : 3 * i + 3] - tau_gravity[3 * i : 3 * i + 3])
+        for j in range(3):
+            out[i, j] = -x[j]
+    return out
 
 
 class FootContactSensors:
@@ -73,10 +81,30 @@ class FootContactSensors:
         c = self.config
         if c.offset_walk_n and dt > 0:
             self.offset = self.offset + self.rng.normal(0.0, c.offset_walk_n * math.sqrt(dt), 4)
-        r = self.gain * np.maximum(normal_force_n, 0.0) + self.offset + self.rng.normal(0.0, c.noise_n, 4)
-        return np.minimum(r, c.saturation_n)
+        noise = self.rng.normal(0.0, c.noise_n, 4)
+        return _readings(
+            np.asarray(normal_force_n, dtype=float), self.gain, self.offset, noise, c.saturation_n
+        )
 
     def flags(self, force_n: np.ndarray) -> np.ndarray:
         c = self.config
-        self.contact = np.where(self.contact, force_n > c.off_n, force_n > c.on_n)
+        _hysteresis(np.asarray(force_n, dtype=float), c.off_n, c.on_n, self.contact)
         return self.contact.copy()
+
+
+@njit(cache=True, nogil=True)
+def _readings(
+    normal_force_n: np.ndarray, gain: np.ndarray, offset: np.ndarray, noise: np.ndarray, saturation_n: float
+) -> np.ndarray:
+    """gain · max(f, 0) + offset + noise, saturated (compiled: every control tick)."""
+    r = np.empty(4)
+    for i in range(4):
+        r[i] = min(gain[i] * max(normal_force_n[i], 0.0) + offset[i] + noise[i], saturation_n)
+    return r
+
+
+@njit(cache=True, nogil=True)
+def _hysteresis(force_n: np.ndarray, off_n: float, on_n: float, contact: np.ndarray) -> None:
+    """Contact flags in place: stay on above `off_n`, turn on above `on_n`."""
+    for i in range(contact.shape[0]):
+        contact[i] = force_n[i] > off_n if contact[i] else force_n[i] > on_n

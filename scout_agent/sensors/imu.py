@@ -46,6 +46,7 @@ what a real part on a real robot also does, each drawn once per run from the run
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -92,6 +93,10 @@ class ImuTemperature:
     def delta_k(self, t_s: np.ndarray | float) -> np.ndarray:
         t = np.asarray(t_s, dtype=float)
         return self.warmup_k * (1.0 - np.exp(-t / self.warmup_tau_s)) + self.rate_k_per_h * t / 3600.0
+
+    def delta_k_at(self, t_s: float) -> float:
+        """`delta_k` at one time [s] (scalar arithmetic: the thermometer is read every tick)."""
+        return self.warmup_k * (1.0 - math.exp(-t_s / self.warmup_tau_s)) + self.rate_k_per_h * t_s / 3600.0
 
 
 @dataclass(frozen=True)
@@ -166,10 +171,6 @@ def _gain_matrix(rng: np.random.Generator, scale: float, cross: float) -> np.nda
     return m
 
 
-def _quantise(x: np.ndarray, lsb: float) -> np.ndarray:
-    return np.floor(x / lsb + 0.5) * lsb if lsb > 0 else x
-
-
 class ImuModel:
     """`sample(acc_true, gyro_true, dt)` for a block of k physics steps ((k, 3) each) → noisy (k', 3) pair
     (k' ≤ k: the samples that arrived); `temperature_c()` the on-chip thermometer's reading."""
@@ -194,8 +195,8 @@ class ImuModel:
 
     def temperature_c(self) -> float:
         e = self.errors
-        temp = e.start_temp_c + float(e.temperature.delta_k(self.t))
-        return float(_quantise(np.array(temp), e.temp_lsb_k))
+        temp = e.start_temp_c + e.temperature.delta_k_at(self.t)
+        return math.floor(temp / e.temp_lsb_k + 0.5) * e.temp_lsb_k if e.temp_lsb_k > 0 else temp
 
     def sample(self, acc_true: np.ndarray, gyro_true: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
         c, k = self.config, len(acc_true)

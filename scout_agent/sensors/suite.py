@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
+from numba import njit
 
 from scout_agent.robot import kinematics as K
 
@@ -166,8 +167,8 @@ class SensorSuite:
             return self._last._replace(joint_energy_j=0.0, fresh=False)
         stamp = self.t + (self._link_rng.normal(0.0, tm.jitter_s) if tm.jitter_s else 0.0)
         tick = SensorTick(
-            acc.mean(axis=0),
-            gyro.mean(axis=0),
+            _mean_rows(acc),
+            _mean_rows(gyro),
             q[-1],
             dq[-1],
             tau[-1],
@@ -181,3 +182,13 @@ class SensorSuite:
         self._energy_pending = 0.0
         self._last = tick
         return tick
+
+
+@njit(cache=True, nogil=True)
+def _mean_rows(a: np.ndarray) -> np.ndarray:
+    """Column means of a (k, 3) block (the tick's mean reading), compiled: twice every tick."""
+    out = np.zeros(3)
+    for r in range(a.shape[0]):
+        for j in range(3):
+            out[j] += a[r, j]
+    return out / a.shape[0]

@@ -70,7 +70,7 @@ from scout_agent.sensors import SensorTick
 from . import kernels
 from .ekf import ErrorStateEKF, NoiseConfig
 from .launch import LaunchPose
-from .leg_odometry import stance_velocity_measurements
+from .leg_odometry import odometry_rows
 
 _EZ = np.array([0.0, 0.0, 1.0])
 
@@ -122,6 +122,17 @@ def matrix_to_quat(R: np.ndarray) -> np.ndarray:
         s = 2.0 * np.sqrt(1.0 + R[2, 2] - R[0, 0] - R[1, 1])
         q = np.array([(R[1, 0] - R[0, 1]) / s, (R[0, 2] + R[2, 0]) / s, (R[1, 2] + R[2, 1]) / s, 0.25 * s])
     return q if q[0] >= 0 else -q
+
+
+@njit(cache=True, nogil=True)
+def _settled_feet(contact: np.ndarray, since: np.ndarray, t: float, settle_s: float) -> np.ndarray:
+    """Feet whose contact has lasted `settle_s`; `since` (4,) each contact's start [s] (inf without contact),
+    updated in place."""
+    out = np.empty(4, np.bool_)
+    for i in range(4):
+        since[i] = min(since[i], t) if contact[i] else np.inf
+        out[i] = contact[i] and t - since[i] >= settle_s
+    return out
 
 
 class StateEstimator:
@@ -234,26 +245,29 @@ class StateEstimator:
         self._held_s = 0.0
         e.propagate(tick.imu_gyro, self._specific_force(tick, dt), dt)
         contact = tick.contact
-        self._contact_since = np.where(contact, np.minimum(self._contact_since, t), np.inf)
-        use = contact & (t - self._contact_since >= c.stance_settle_s)
-        if mid_stance is not None:
-            use &= mid_stance
-        if contact.any():
+        settled = _settled_feet(contact, self._contact_since, t, c.stance_settle_s)
+        use = settled & mid_stance if mid_stance is not None else settled
+        any_contact = bool(contact.any())
+        if any_contact:
             fb, fv = self.feet.feet_base_and_vel(tick.q, tick.dq)
         if use.any():
-            n_b = e.R.T @ self._normal_w
-            z, rc = stance_velocity_measurements(
-                fb, fv, self.feet.foot_omega, tick.imu_gyro, n_b, c.foot_radius_m
+            residual, H = odometry_rows(
+                use,
+                fb,
+                fv,
+                self.feet.foot_omega,
+                tick.imu_gyro,
+                e.R.T @ self._normal_w,
+                c.foot_radius_m,
+                e.R,
+                e.v,
+                e.bg,
             )
-            h, H = e.velocity_rows_many(rc[use])
-            keep = e.update(
-                (z[use] - h).reshape(-1), H, np.full(H.shape[0], c.leg_vel_std**2), gate_chi2=c.gate_chi2
-            )
+            keep = e.update(residual, H, np.full(H.shape[0], c.leg_vel_std**2), gate_chi2=c.gate_chi2)
             self.rejected += int((~keep).sum())
             self._inflate(tick, dt, int((~keep).sum()))
         else:
             self._inflate(tick, dt, 0)
-        settled = contact & (t - self._contact_since >= c.stance_settle_s)
         if not self.anchored and settled.sum() >= 2:
             # settled feet stand on the launch ground: the one height the mission knows (its survey)
             feet_z = float(np.mean((fb[settled] @ e.R.T)[:, 2]))
@@ -261,7 +275,7 @@ class StateEstimator:
             var = c.anchor_std_m**2 + self.launch.sigma_z_m**2  # the datum's own σ (launch.py)
             e.update(np.array([z_meas - e.p[2]]), e.position_z_rows(), np.array([var]))
             self.anchored = True
-        if contact.any():
+        if any_contact:
             self._footholds[contact] = fb[contact] @ e.R.T + e.p
             if (contact & ~self._was_contact).any():  # a new foothold: refit the ground plane
                 self._normal_w = terrain_normal(self._footholds)

@@ -16,6 +16,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .kernels import velocity_rows_many
+
 
 @njit(cache=True, nogil=True)
 def stance_velocity_measurements(
@@ -45,3 +47,35 @@ def stance_velocity_measurements(
         z[i, 1] = -(g2 * r0 - g0 * r2) - feet_vel_b[i, 1] + foot_radius * (w2 * n0 - w0 * n2)
         z[i, 2] = -(g0 * r1 - g1 * r0) - feet_vel_b[i, 2] + foot_radius * (w0 * n1 - w1 * n0)
     return z, rc
+
+
+@njit(cache=True, nogil=True)
+def odometry_rows(
+    use: np.ndarray,
+    feet_b: np.ndarray,
+    feet_vel_b: np.ndarray,
+    foot_omega_b: np.ndarray,
+    gyro: np.ndarray,
+    normal_b: np.ndarray,
+    foot_radius: float,
+    R: np.ndarray,
+    v: np.ndarray,
+    bg: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The filter's velocity update from the feet in `use` (4,) bool: stacked residuals z − h (3k,) and the
+    Jacobian H (3k, 15) (`stance_velocity_measurements` with the ground normal `normal_b` (3,), base frame,
+    then the EKF's predicted measurement at the estimate R, v, bg, `kernels.velocity_rows_many`)."""
+    z, rc = stance_velocity_measurements(feet_b, feet_vel_b, foot_omega_b, gyro, normal_b, foot_radius)
+    k = 0
+    for i in range(4):
+        k += use[i]
+    rows = np.empty((k, 3))
+    zu = np.empty((k, 3))
+    m = 0
+    for i in range(4):
+        if use[i]:
+            rows[m] = rc[i]
+            zu[m] = z[i]
+            m += 1
+    h, H = velocity_rows_many(R, v, bg, rows)
+    return (zu - h).reshape(3 * k), H
