@@ -24,6 +24,7 @@ from scout_agent import component
 from scout_agent.component import ScoutConfig
 from scout_agent.errors import ScoutConfigError, ScoutLinkError
 from scout_agent.evaluate import register_evaluate
+from scout_agent.localization import LOCALIZE_MODES
 from scout_agent.mapping import add_mapping_arguments, link_from_args
 from scout_agent.run import SCENES, ScoutRunConfig, build_world
 from scout_agent.sensors import IMU_PRESETS, SENSOR_PROFILES, SensorConfig
@@ -181,6 +182,13 @@ def add_scout_arguments(p: argparse.ArgumentParser) -> None:
         help="walk with the fixed trot and friction cone of before: no friction estimate, adaptive gait, "
         "hazard reflex or detour (for before/after comparisons)",
     )
+    p.add_argument(
+        "--localize",
+        choices=LOCALIZE_MODES,
+        default="on",
+        help="match the scout's footholds against the orbital DEM (lunar: --dem, or the scene's simulated "
+        "orbiter DEM) and the shared map it publishes to, and correct its pose (default on)",
+    )
     p.add_argument("--scout-id", default="scout1", type=id_arg("scout"), help="scout id ([A-Za-z0-9_-]+)")
 
 
@@ -258,6 +266,7 @@ def config_from_args(args: argparse.Namespace, parser: argparse.ArgumentParser) 
         sim=_sim_config(args.state, args.contact, args.imu, args.sensors, _launch(args, parser)),
         dem=_dem(args, parser),
         hazard_control=not args.no_hazard_control,
+        localize=args.localize,
     )
     try:
         build_world(cfg)

@@ -389,6 +389,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         "sensors": summary["sensors"],
         "localization": summary["localization"],
         "launch": summary["launch"],
+        "localization_stats": summary["localization_stats"],
         "contact_source": cfg.sim.sensors.contact.source,
         "fell": summary["fell"],
         "fall_xy": summary["fall_xy"],

@@ -8,9 +8,11 @@ from __future__ import annotations
 
 import math
 import sys
+import tempfile
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 
 import numpy as np
 
@@ -19,9 +21,11 @@ from scout_agent.control.pilot import Pilot, PilotConfig
 from scout_agent.control.reflex import Felt
 from scout_agent.errors import ScoutConfigError
 from scout_agent.estimators import TickEstimates
+from scout_agent.localization import LOCALIZE_MODES, DemReference, Localizer, LocalizerConfig
+from scout_agent.localization.localizer import MapSource
 from scout_agent.robot import constants as C
 from scout_agent.signals import GroundTruth, ProprioSample
-from scout_agent.sim.dem import DemWindow, read_dem_window
+from scout_agent.sim.dem import DemWindow, OrbitalDemConfig, read_dem_grid, read_dem_window, write_orbital_dem
 from scout_agent.sim.friction import (
     DEFAULT_MU,
     FrictionMap,
@@ -73,6 +77,9 @@ class ScoutRunConfig:
     hazard_control: bool = True  # friction estimate + adaptive gait + hazard reflex + detour (issue 24);
     # False: the fixed trot and friction cone of before, walking on whatever it feels
     pilot: PilotConfig = field(default_factory=PilotConfig)  # their settings (speed: `speed` above)
+    localize: str = "on"  # one of LOCALIZE_MODES: match footholds against the DEM / shared map
+    localizer: LocalizerConfig = field(default_factory=LocalizerConfig)
+    orbital_dem: OrbitalDemConfig = field(default_factory=OrbitalDemConfig)  # procedural scenes' DEM
 
 
 @dataclass(frozen=True)
@@ -154,6 +161,21 @@ def path_length(waypoints: np.ndarray) -> float:
     return float(np.sum(np.hypot(*np.diff(waypoints, axis=0).T)))
 
 
+def dem_reference(cfg: ScoutRunConfig, world: World) -> DemReference | None:
+    """The orbital DEM the scout localizes against: the `--dem` tile under the scene when given, else (lunar)
+    the simulated orbiter's DEM of the scene, written as a GeoTIFF and read back through the same reader a
+    real tile takes; none for the ramps testbed (a 3 m wide bench is below a DEM's pixel)."""
+    if cfg.dem is not None:
+        return DemReference(read_dem_grid(cfg.dem))
+    if cfg.scene != "lunar":
+        return None
+    with tempfile.TemporaryDirectory(prefix="psrmap-dem-") as tmp:
+        path = Path(tmp) / f"orbital_{world.terrain.name}.tif"
+        write_orbital_dem(world.terrain, path, replace(cfg.orbital_dem, seed=cfg.seed))
+        xa, ya, xb, _ = world.terrain.extent
+        return DemReference(read_dem_grid(DemWindow(str(path), xa, ya, size_m=xb - xa)))
+
+
 def run_scout(
     cfg: ScoutRunConfig,
     on_tick: OnTick | None = None,
@@ -161,12 +183,16 @@ def run_scout(
     world: World | None = None,
     on_hazard: OnHazard | None = None,
     datum_sources: Sequence[tuple[str, HeightDatum]] = (),
+    map_source: MapSource | None = None,
 ) -> dict:
     """Walk the configured path until the goal, a fall, a hazard it cannot go around or the time limit;
     return the JSON summary. `on_tick` may return the tick's `TickEstimates` (the mapping does): the pilot
     feels them; `on_hazard` receives each hazard the reflex felt (the mapping records it in the map);
-    `datum_sources` are where the scout may take its launch height datum (state_estimation/launch.py)."""
+    `datum_sources` are where the scout may take its launch height datum (state_estimation/launch.py);
+    `map_source`: the shared map around the scout, for localization (`scout_agent.localization`)."""
     world = world or build_world(cfg)
+    if cfg.localize not in LOCALIZE_MODES:
+        raise ScoutConfigError(f"--localize {cfg.localize!r}: valid: {', '.join(LOCALIZE_MODES)}")
     sim_cfg = replace(cfg.sim, sensors=replace(cfg.sim.sensors, seed=cfg.seed))
     sim = ScoutSim(world.terrain, world.friction, sim_cfg, start=world.start, datum_sources=datum_sources)
     on, pc = cfg.hazard_control, cfg.pilot
@@ -177,6 +203,11 @@ def run_scout(
         reflex=pc.reflex and on,
     )
     pilot = Pilot(world.waypoints, sim.controller, world.terrain.extent, pilot_cfg)
+    localizer = None
+    if cfg.localize == "on" and sim.config.state_source == "estimate":
+        dem = dem_reference(cfg, world)
+        if dem is not None or map_source is not None:
+            localizer = Localizer(sim.estimator, cfg.localizer, dem=dem, map_source=map_source)
     limit = cfg.sim_seconds or 2.0 * path_length(world.waypoints) / max(cfg.speed, 0.05) + 10.0
     n_ticks = int(np.ceil(limit / sim.control_dt))
     bar = None
@@ -221,6 +252,8 @@ def run_scout(
             sim.estimator.position_covariance()[:2, :2] if on_estimate else None,
         )
         speed_path += float(np.hypot(truth.base.vel[0], truth.base.vel[1])) * sim.control_dt
+        if localizer is not None:  # before the mapper: what it publishes next is placed corrected
+            localizer.on_tick(sample)
         est = on_tick(sample, truth, sim) if on_tick is not None else None
         felt = pilot.feel(sample, est if isinstance(est, TickEstimates) else None)
         if felt is not None and on_hazard is not None:
@@ -262,7 +295,8 @@ def run_scout(
         "friction": world.friction.to_dict(),
         "state_source": sim.config.state_source,
         "sensors": sim.config.sensors.profile,
-        "localization": "off",
+        "localization": localizer.report.used if localizer is not None else "off",
+        "localization_stats": localizer.report.to_json() if localizer is not None else None,
         "launch": {
             "mode": sim.config.launch.mode,
             "datum": sim.launch.datum,

@@ -1,0 +1,33 @@
+"""Localization against a map: the scout's recent footholds matched to an orbital DEM and to the shared map.
+
+Feet are height probes. `FootholdTrack` (track.py) keeps where the estimate put the recent footholds;
+`match_track` (matcher.py) searches a small window of (dx, dy, dyaw) offsets of that track against a
+`HeightReference` (reference.py: a DEM, or the shared map's elevation with its per-cell spread and counts),
+scores each by a robust, uncertainty-weighted height residual (the vertical datum fitted per offset), and
+returns the best offset with its covariance from the score's curvature (Laplace), or says why it cannot:
+flat ground, an ambiguous second peak, the best on the window's edge. `Localizer` (localizer.py) runs it
+every few metres walked and fuses an accepted match into the state estimate as a pose measurement
+(`state_estimation.pose_update`), behind a χ² gate against the estimate's own covariance.
+"""
+
+from __future__ import annotations
+
+from .localizer import LOCALIZE_MODES, Localizer, LocalizerConfig, LocalizerReport
+from .matcher import MatchConfig, MatchResult, match_track
+from .reference import DemReference, GridReference, HeightReference, map_reference
+from .track import FootholdTrack
+
+__all__ = [
+    "LOCALIZE_MODES",
+    "DemReference",
+    "FootholdTrack",
+    "GridReference",
+    "HeightReference",
+    "Localizer",
+    "LocalizerConfig",
+    "LocalizerReport",
+    "MatchConfig",
+    "MatchResult",
+    "map_reference",
+    "match_track",
+]

@@ -1,0 +1,197 @@
+"""`Localizer`: in the scout's loop, collect footholds, match them every few metres walked against the
+references it has (an orbital DEM, the shared map), and fuse an accepted match into the state estimate.
+
+Per tick (`on_tick`, after the estimator's update and before the mapper turns the tick into map statistics,
+so what the scout publishes next is placed with the corrected pose): a foot whose contact has been on for
+`settle_s` adds its ground point, as the estimate places it, to the `FootholdTrack`. Each reference has its
+own cadence (`SourceConfig`): every `every_m` walked (by the estimate), the last `track_m` of footholds are
+matched (`match_track`) over a window sized by the filter's own position σ (a DEM's 5 m pixels need a long
+track; the shared map's 0.4 m cells a short one); an accepted match is fused as a pose measurement
+(`state_estimation.pose_update.update_pose`, χ²-gated at p = 0.001), and the track moves with the
+correction. Consecutive matches share track_m / every_m of their footholds, so their covariance is inflated
+by that factor (the filter must not count the same footholds twice as new evidence).
+
+`LocalizerReport` counts what happened: attempts, fused, refused per reason (few, edge, flat, ambiguous,
+gate), the last σ, and the matcher's cost.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import Counter
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+from scipy.stats import chi2
+
+from scout_agent.estimators.feet import PinocchioFeet
+from scout_agent.robot import constants as C
+from scout_agent.signals import ProprioSample
+from scout_agent.state_estimation import StateEstimator
+from scout_agent.state_estimation.pose_update import heading, update_pose
+
+from .matcher import MatchConfig, MatchResult, match_track
+from .reference import HeightReference
+from .track import FootholdTrack
+
+__all__ = ["LOCALIZE_MODES", "Localizer", "LocalizerConfig", "LocalizerReport", "MapSource", "SourceConfig"]
+
+LOCALIZE_MODES = ("on", "off")
+
+# the shared map around (x, y) within `radius` [m] as a reference, or None (no server, no data yet)
+MapSource = Callable[[float, float, float], "HeightReference | None"]
+
+
+@dataclass(frozen=True)
+class SourceConfig:
+    """How one reference is matched: cadence, track length, search, and the σ of its vertical datum."""
+
+    every_m: float  # a match every this much walked [m]
+    track_m: float  # footholds of the last this much walked [m]
+    match: MatchConfig
+    datum_m: float  # σ of the reference's vertical datum [m]
+
+
+@dataclass(frozen=True)
+class LocalizerConfig:
+    settle_s: float = 0.15  # a stance's foothold is taken once its contact has lasted this long [s]
+    gate_p: float = 0.001  # χ² gate's false-rejection probability
+    window_sigmas: float = 3.0  # the search window covers this many σ of the filter's position
+    # a DEM: 5 m pixels with 0.3 m noise: a long track, coarse steps, a wide window, a loose σ limit;
+    # datum σ: the DEM's vertical bias (OrbitalDemConfig, LOLA)
+    dem: SourceConfig = field(
+        default_factory=lambda: SourceConfig(
+            10.0, 30.0, MatchConfig(window_m=3.0, step_m=0.25, yaw_window_deg=1.5, max_sigma_m=1.0), 0.03
+        )
+    )
+    # the shared map: 0.4 m cells with cm-level scatter
+    map: SourceConfig = field(
+        default_factory=lambda: SourceConfig(
+            3.0, 10.0, MatchConfig(window_m=1.0, step_m=0.1, yaw_window_deg=1.0, max_sigma_m=0.3), 0.01
+        )
+    )
+
+
+@dataclass
+class LocalizerReport:
+    sources: tuple[str, ...] = ()  # the references it had: "dem", "map"
+    attempts: int = 0
+    fused: Counter = field(default_factory=Counter)  # per source
+    refused: Counter = field(default_factory=Counter)  # per source and reason, e.g. "dem_flat", "map_gate"
+    last_sigma_m: float | None = None
+    match_seconds: float = 0.0  # wall time spent matching and fusing [s]
+    corrections_m: list[float] = field(default_factory=list)  # horizontal size of each fused correction
+
+    @property
+    def used(self) -> str:
+        """What localization used: "off", or the references joined by "+" ("dem", "map", "dem+map")."""
+        return "+".join(self.sources) if self.sources else "off"
+
+    def to_json(self) -> dict:
+        return {
+            "used": self.used,
+            "attempts": self.attempts,
+            "fused": dict(self.fused),
+            "refused": dict(self.refused),
+            "last_sigma_m": None if self.last_sigma_m is None else round(self.last_sigma_m, 4),
+            "match_ms_mean": round(1e3 * self.match_seconds / self.attempts, 2) if self.attempts else None,
+            "correction_max_m": round(max(self.corrections_m), 4) if self.corrections_m else None,
+        }
+
+
+class Localizer:
+    def __init__(
+        self,
+        estimator: StateEstimator,
+        config: LocalizerConfig = LocalizerConfig(),
+        dem: HeightReference | None = None,
+        map_source: MapSource | None = None,
+        feet: PinocchioFeet | None = None,
+    ) -> None:
+        self.est = estimator
+        self.config = config
+        self.dem = dem
+        self.map_source = map_source
+        self.feet = feet or estimator.feet
+        keep = max(config.dem.track_m if dem else 0.0, config.map.track_m if map_source else 0.0)
+        self.track = FootholdTrack(keep_m=keep + 1.0)
+        self.report = LocalizerReport(sources=tuple(n for n, r in (("dem", dem), ("map", map_source)) if r))
+        self._since = np.full(4, np.inf)
+        self._taken = np.zeros(4, bool)
+        self.walked_m = 0.0
+        # each source's first match once its track is full
+        self._next = {"dem": config.dem.track_m, "map": config.map.track_m}
+        self._prev_xy: np.ndarray | None = None
+
+    def on_tick(self, sample: ProprioSample) -> None:
+        c = self.config
+        t = sample.t
+        contact = np.asarray(sample.contact, bool)
+        self._since = np.where(contact, np.minimum(self._since, t), np.inf)
+        self._taken &= contact
+        due = contact & ~self._taken & (t - self._since >= c.settle_s)
+        est = self.est.ekf
+        if due.any():
+            fb, _ = self.feet.feet_base_and_vel(sample.q, sample.dq)
+            pts = fb[due] @ est.R.T + est.p
+            pts[:, 2] -= C.FOOT_RADIUS
+            self.track.add(pts, self.walked_m)
+            self._taken |= due
+        xy = est.p[:2].copy()
+        if self._prev_xy is not None:
+            self.walked_m += float(np.hypot(*(xy - self._prev_xy)))
+        self._prev_xy = xy
+        for name in self.report.sources:
+            if self.walked_m >= self._next[name]:
+                self._next[name] = self.walked_m + getattr(c, name).every_m
+                self.localize(name)
+
+    def _reference(self, name: str, pts: np.ndarray) -> HeightReference | None:
+        if name == "dem":
+            return self.dem
+        if self.map_source is None or not len(pts):
+            return None
+        lo, hi = pts[:, :2].min(0), pts[:, :2].max(0)
+        mid = (lo + hi) / 2
+        return self.map_source(float(mid[0]), float(mid[1]), float(np.hypot(*(hi - lo)) / 2 + 2.0))
+
+    def localize(self, name: str) -> MatchResult | None:
+        """One attempt against reference `name` ("dem" or "map") now; returns the fused match, or None."""
+        c, ekf = self.config, self.est.ekf
+        src: SourceConfig = getattr(c, name)
+        w0 = time.perf_counter()
+        self.report.attempts += 1
+        pts = self.track.window(src.track_m, self.walked_m)
+        ref = self._reference(name, pts)
+        fused = None
+        if ref is None:
+            self.report.refused[f"no_{name}"] += 1
+        else:
+            sig_xy = float(np.sqrt(max(np.linalg.eigvalsh(ekf.P[6:8, 6:8]).max(), 0.0)))
+            mc = src.match
+            win = float(np.clip(c.window_sigmas * sig_xy + mc.step_m, 3 * mc.step_m, mc.window_m))
+            res = match_track(pts, ref, replace(mc, window_m=win), pivot=ekf.p[:2])
+            if not res.ok:
+                self.report.refused[f"{name}_{res.reason}"] += 1
+            else:
+                assert res.cov is not None
+                cov = res.cov.copy()
+                cov[2, 2] += src.datum_m**2
+                cov *= max(1.0, src.track_m / src.every_m)
+                meas = np.r_[
+                    ekf.p[0] + res.dx, ekf.p[1] + res.dy, ekf.p[2] + res.dz, heading(ekf.R) + res.dyaw
+                ]
+                k = int(np.isfinite(np.diag(cov)).sum())
+                before = ekf.p.copy()
+                up = update_pose(ekf, meas, cov, float(chi2.ppf(1.0 - c.gate_p, k)))
+                if up.accepted:
+                    self.track.shift(before, ekf.p.copy(), float(up.correction[3]))
+                    self.report.fused[name] += 1
+                    self.report.corrections_m.append(float(np.hypot(*up.correction[:2])))
+                    fused = res
+                else:
+                    self.report.refused[f"{name}_gate"] += 1
+        self.report.last_sigma_m = float(np.sqrt(max(np.linalg.eigvalsh(ekf.P[6:8, 6:8]).max(), 0.0)))
+        self.report.match_seconds += time.perf_counter() - w0
+        return fused

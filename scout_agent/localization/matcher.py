@@ -1,0 +1,205 @@
+"""`match_track`: the rigid offset (dx, dy, dyaw) of a foothold track that best fits a height reference, with
+its covariance, or the reason there is none.
+
+For every candidate offset on a grid (±`window` at `step`, yaw about `pivot`, the scout's position), the
+track's points are moved, the reference is read under them, and the vertical datum dz is fitted (a
+Huber-weighted mean: the estimate's height and a DEM's bias are unknown); the score is the Huber loss of the
+normalised residuals (r − dz)/σ, σ from the reference (its stated error, or the map cell's scatter), points
+the reference does not cover costing the loss's value at the Huber threshold. From the best grid point a
+Nelder–Mead search refines the offset off the grid (a map's peak is narrower than a grid step), and a
+quadratic fitted to the scores on a stencil of half steps around it gives the Hessian; score ≈ ½χ², so the
+Laplace covariance is H⁻¹, inflated by the footholds per independent reference cell (a DEM pixel's error is
+shared by every foothold in it).
+
+Refused (`MatchResult.ok` False, `reason` says which):
+- "few": fewer than `min_points` footholds, or under `min_coverage` of them on the reference;
+- "flat" (checked first): no offset in the window scores `min_separation_chi2` worse than the best;
+- "ambiguous": another place, farther than `exclusion_sigma` of the best's σ (and 3 steps),
+  scores within `min_separation_chi2` of it (a periodic or repeated relief);
+- "edge": the best lies on the window's border (the true offset may lie outside);
+- "flat": the offset's σ along its worst direction exceeds `max_sigma_m` (the terrain does not constrain it),
+  or the score has no minimum there.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import minimize
+
+from .reference import HeightReference
+
+__all__ = ["MatchConfig", "MatchResult", "match_track"]
+
+
+@dataclass(frozen=True)
+class MatchConfig:
+    window_m: float = 1.0  # search half-width in x and y [m]
+    step_m: float = 0.1  # grid step [m]
+    yaw_window_deg: float = 1.0  # search half-width in yaw [deg] (0: position only)
+    yaw_step_deg: float = 0.5
+    huber_k: float = 2.0  # Huber loss: quadratic within k σ
+    min_points: int = 40
+    min_coverage: float = 0.6
+    max_sigma_m: float = 0.5
+    min_separation_chi2: float = 9.0  # a second place within Δχ² 9 (3σ) of the best: ambiguous
+    exclusion_sigma: float = 3.0  # "another place": farther than this many σ (and 3 grid steps)
+
+
+@dataclass(frozen=True)
+class MatchResult:
+    ok: bool
+    reason: str  # "ok", or why not: few, edge, flat, ambiguous
+    dx: float = 0.0  # [m] add to the track's x to put it where the reference says it is
+    dy: float = 0.0
+    dz: float = 0.0  # vertical datum: reference minus track [m]
+    dyaw: float = 0.0  # [rad], about `pivot`
+    cov: np.ndarray | None = None  # (4, 4) over (dx, dy, dz, dyaw)
+    sigma_max_m: float = float("nan")  # σ of (dx, dy) along its worst direction [m]
+    separation_chi2: float = float("nan")  # Δχ² from the best to the best other place
+    points: int = 0
+    inflation: float = 1.0  # footholds per independent reference cell
+    pivot: tuple[float, float] = (0.0, 0.0)
+
+
+def _huber(u: np.ndarray, k: float) -> np.ndarray:
+    a = np.abs(u)
+    return np.where(a <= k, 0.5 * u * u, k * a - 0.5 * k * k)
+
+
+def _scores(
+    pts: np.ndarray, ref: HeightReference, cand: np.ndarray, pivot: np.ndarray, k: float, chunk: int = 256
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Score, datum dz and covered share of every candidate offset cand (m, 3) = (dx, dy, dyaw)."""
+    m, n = len(cand), len(pts)
+    S, DZ, COV = np.empty(m), np.empty(m), np.empty(m)
+    rel = pts[:, :2] - pivot
+    cap = 0.5 * k * k
+    for o in range(0, m, chunk):
+        cd = cand[o : o + chunk]
+        c, s = np.cos(cd[:, 2:3]), np.sin(cd[:, 2:3])
+        X = pivot[0] + c * rel[None, :, 0] - s * rel[None, :, 1] + cd[:, 0:1]
+        Y = pivot[1] + s * rel[None, :, 0] + c * rel[None, :, 1] + cd[:, 1:2]
+        h, sig = ref.heights(X, Y)
+        ok = np.isfinite(h) & np.isfinite(sig) & (sig > 0)
+        w = np.where(ok, 1.0 / np.where(ok, sig, 1.0) ** 2, 0.0)
+        r = np.where(ok, h - pts[None, :, 2], 0.0)  # reference minus track
+        dz = (w * r).sum(-1) / np.maximum(w.sum(-1), 1e-12)
+        for _ in range(2):  # Huber IRLS on the datum
+            u = (r - dz[:, None]) * np.sqrt(w)
+            hw = np.where(np.abs(u) <= k, 1.0, k / np.maximum(np.abs(u), 1e-12)) * w
+            dz = (hw * r).sum(-1) / np.maximum(hw.sum(-1), 1e-12)
+        u = (r - dz[:, None]) * np.sqrt(w)
+        S[o : o + chunk] = np.where(ok, _huber(u, k), cap).sum(-1)
+        DZ[o : o + chunk] = dz
+        COV[o : o + chunk] = ok.sum(-1) / n
+    return S, DZ, COV
+
+
+def _hessian(f, x0: np.ndarray, h: np.ndarray) -> np.ndarray:
+    """Hessian of f at x0 from a quadratic fitted on the 3^d stencil x0 + {-1, 0, 1}·h."""
+    d = len(x0)
+    grids = np.meshgrid(*[np.array([-1.0, 0.0, 1.0])] * d, indexing="ij")
+    U = np.stack([g.ravel() for g in grids], 1) * h
+    vals = f(x0 + U)
+    iu = np.triu_indices(d)
+    A = np.hstack([np.ones((len(U), 1)), U,
+                   np.stack([U[:, p] * U[:, q] * (0.5 if p == q else 1.0) for p, q in zip(*iu, strict=True)], 1)])  # fmt: skip
+    coef, *_ = np.linalg.lstsq(A, vals, rcond=None)
+    H = np.zeros((d, d))
+    for cf, p, q in zip(coef[1 + d :], *iu, strict=True):
+        H[p, q] = H[q, p] = cf
+    return H
+
+
+def match_track(
+    pts: np.ndarray, ref: HeightReference, cfg: MatchConfig = MatchConfig(), pivot: np.ndarray | None = None
+) -> MatchResult:
+    """Match the footholds `pts` (n, 3, map frame as estimated) against `ref` (see the module's doc)."""
+    pts = np.asarray(pts, dtype=float)
+    n = len(pts)
+    piv = np.asarray(pivot if pivot is not None else pts[-1, :2] if n else (0.0, 0.0), dtype=float)[:2]
+    pv = (float(piv[0]), float(piv[1]))
+    if n < cfg.min_points:
+        return MatchResult(False, "few", points=n, pivot=pv)
+    half = int(round(cfg.window_m / cfg.step_m))
+    dxs = np.arange(-half, half + 1) * cfg.step_m
+    yh = int(round(cfg.yaw_window_deg / cfg.yaw_step_deg)) if cfg.yaw_window_deg > 0 else 0
+    ystep = np.radians(cfg.yaw_step_deg)
+    dyaws = np.arange(-yh, yh + 1) * ystep
+    A, Y, X = np.meshgrid(dyaws, dxs, dxs, indexing="ij")
+    cand = np.stack([X.ravel(), Y.ravel(), A.ravel()], 1)
+    S, _, COVER = _scores(pts, ref, cand, piv, cfg.huber_k)
+    b = int(np.argmin(S))
+    if COVER[b] < cfg.min_coverage:
+        return MatchResult(False, "few", points=n, pivot=pv)
+    # footholds per independent reference cell, at the best offset
+    cell = max(ref.cell_m, 1e-3)
+    moved = pts[:, :2] + cand[b, :2]
+    h0, _ = ref.heights(moved[:, 0], moved[:, 1])
+    covered = np.isfinite(h0)
+    cells = np.unique(np.floor(moved[covered] / cell).astype(np.int64), axis=0)
+    inflation = max(1.0, covered.sum() / max(len(cells), 1))
+    if 2.0 * (float(S.max()) - float(S[b])) / inflation < cfg.min_separation_chi2:
+        return MatchResult(False, "flat", separation_chi2=0.0, points=n, inflation=inflation, pivot=pv)
+    # another place as good? (before the edge test: a periodic relief's best is as often on the edge)
+    far = np.hypot(cand[:, 0] - cand[b, 0], cand[:, 1] - cand[b, 1]) > 3 * cfg.step_m
+    sep = 2.0 * (float(S[far].min()) - float(S[b])) / inflation if far.any() else float("inf")
+    if sep < cfg.min_separation_chi2:
+        return MatchResult(False, "ambiguous", separation_chi2=sep, points=n, inflation=inflation, pivot=pv)
+    on_edge = abs(cand[b, 0]) >= dxs[-1] - 1e-9 or abs(cand[b, 1]) >= dxs[-1] - 1e-9
+    if on_edge or (yh and abs(cand[b, 2]) >= dyaws[-1] - 1e-12):
+        return MatchResult(False, "edge", separation_chi2=sep, points=n, inflation=inflation, pivot=pv)
+    # off the grid: Nelder–Mead in units of one step, yaw only when searched
+    scale = np.r_[cfg.step_m, cfg.step_m, ystep][: 3 if yh else 2]
+
+    def f(u: np.ndarray) -> np.ndarray:
+        u = np.atleast_2d(u) * scale
+        c3 = np.zeros((len(u), 3))
+        c3[:, : u.shape[1]] = u
+        return _scores(pts, ref, c3, piv, cfg.huber_k)[0]
+
+    x0 = cand[b, : len(scale)] / scale
+    opt = minimize(lambda u: float(f(u)[0]), x0, method="Nelder-Mead",
+                   options={"xatol": 0.02, "fatol": 1e-3, "maxfev": 150, "initial_simplex": x0 + np.vstack([np.zeros(len(x0)), 0.5 * np.eye(len(x0))])})  # fmt: skip
+    best = opt.x if opt.fun <= S[b] else x0
+    H = _hessian(f, best, np.full(len(best), 0.5)) / np.outer(scale, scale)
+    if np.linalg.eigvalsh(H).min() <= 0:
+        return MatchResult(False, "flat", separation_chi2=sep, points=n, inflation=inflation, pivot=pv)
+    C = np.linalg.inv(H) * inflation
+    sig_xy = float(np.sqrt(np.linalg.eigvalsh(C[:2, :2]).max()))
+    if sig_xy > cfg.max_sigma_m:
+        return MatchResult(False, "flat", sigma_max_m=sig_xy, separation_chi2=sep, points=n,
+                           inflation=inflation, pivot=pv)  # fmt: skip
+    if sig_xy * cfg.exclusion_sigma > 3 * cfg.step_m:  # a broad peak: the other place must lie beyond it
+        far = np.hypot(cand[:, 0] - cand[b, 0], cand[:, 1] - cand[b, 1]) > cfg.exclusion_sigma * sig_xy
+        sep = 2.0 * (float(S[far].min()) - float(S[b])) / inflation if far.any() else float("inf")
+        if sep < cfg.min_separation_chi2:
+            return MatchResult(False, "ambiguous", sigma_max_m=sig_xy, separation_chi2=sep, points=n,
+                               inflation=inflation, pivot=pv)  # fmt: skip
+    off = np.zeros(3)
+    off[: len(best)] = best * scale
+    _, DZ, _ = _scores(pts, ref, off[None, :], piv, cfg.huber_k)
+    dz = float(DZ[0])
+    # datum: residual scatter about the fit over the covered footholds, per independent cell
+    c, s_ = np.cos(off[2]), np.sin(off[2])
+    rel = pts[:, :2] - piv
+    q = np.stack(
+        [piv[0] + c * rel[:, 0] - s_ * rel[:, 1] + off[0], piv[1] + s_ * rel[:, 0] + c * rel[:, 1] + off[1]],
+        1,
+    )
+    h1, _ = ref.heights(q[:, 0], q[:, 1])
+    ok = np.isfinite(h1)
+    r = h1[ok] - pts[ok, 2] - dz
+    var_dz = float(np.mean(r**2)) * inflation / max(int(ok.sum()), 1)
+    cov = np.zeros((4, 4))
+    cov[:2, :2] = C[:2, :2]
+    cov[2, 2] = var_dz
+    if yh:
+        cov[3, 3] = C[2, 2]
+        cov[:2, 3] = cov[3, :2] = C[:2, 2]
+    else:
+        cov[3, 3] = np.inf
+    return MatchResult(True, "ok", dx=float(off[0]), dy=float(off[1]), dz=dz, dyaw=float(off[2]), cov=cov,
+                       sigma_max_m=sig_xy, separation_chi2=sep, points=n, inflation=inflation, pivot=pv)  # fmt: skip

@@ -1,0 +1,112 @@
+"""What footholds are matched against: heights with a per-point uncertainty, NaN where nothing is known.
+
+- `DemReference`: an orbital DEM (`scout_agent.sim.dem.DemGrid`, simulated or a real LOLA tile), bilinear
+  between pixel centres; each height's σ is the DEM's stated per-pixel error combined with what a 5 m pixel
+  cannot show (the craters and rocks a foot stands on: `subpixel_m`).
+- `GridReference`: a regular grid of planes (height at the cell centre and gradient) and σ (the shared map's
+  elevation layer: the plane fit of its statistics, σ from the footholds' scatter about it and their count,
+  `map_reference`), NaN in cells without data.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+from protocol.layers import plane_fit
+from scout_agent.sim.dem import DemGrid
+
+__all__ = ["DemReference", "GridReference", "HeightReference", "map_reference"]
+
+
+class HeightReference(Protocol):
+    @property
+    def name(self) -> str: ...
+
+    @property
+    def cell_m(self) -> float:
+        """The reference's own resolution: the scale of its independent errors [m]."""
+        ...
+
+    def heights(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(height, σ) [m] at map-frame points (any shape); NaN where the reference knows nothing."""
+        ...
+
+
+@dataclass(frozen=True)
+class DemReference:
+    dem: DemGrid
+    subpixel_m: float = 0.05  # σ of the relief below the DEM's resolution at a foothold [m]
+    name: str = "dem"
+
+    @property
+    def cell_m(self) -> float:
+        return self.dem.pixel_m
+
+    def heights(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        h = self.dem.height(x, y)
+        return h, np.where(np.isnan(h), np.nan, float(np.hypot(self.dem.noise_m, self.subpixel_m)))
+
+
+@dataclass(frozen=True)
+class GridReference:
+    """Per cell (lower-left corner (x0 + ix·res, y0 + iy·res)): height z at its centre, gradient gx, gy
+    (z = z + gx·dx + gy·dy within the cell), σ of a foothold's height about that plane."""
+
+    z: np.ndarray
+    sigma: np.ndarray
+    x0: float
+    y0: float
+    res: float
+    gx: np.ndarray | None = None
+    gy: np.ndarray | None = None
+    name: str = "map"
+
+    @property
+    def cell_m(self) -> float:
+        return self.res
+
+    def heights(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        ix = np.floor((np.asarray(x) - self.x0) / self.res).astype(np.int64)
+        iy = np.floor((np.asarray(y) - self.y0) / self.res).astype(np.int64)
+        h, w = self.z.shape
+        inside = (ix >= 0) & (iy >= 0) & (ix < w) & (iy < h)
+        ixc, iyc = np.clip(ix, 0, w - 1), np.clip(iy, 0, h - 1)
+        z = self.z[iyc, ixc]
+        if self.gx is not None and self.gy is not None:
+            dx = np.asarray(x) - (self.x0 + (ixc + 0.5) * self.res)
+            dy = np.asarray(y) - (self.y0 + (iyc + 0.5) * self.res)
+            z = z + self.gx[iyc, ixc] * dx + self.gy[iyc, ixc] * dy
+        return (np.where(inside, z, np.nan), np.where(inside, self.sigma[iyc, ixc], np.nan))
+
+
+def map_reference(
+    stats: dict[str, np.ndarray],
+    x0: float,
+    y0: float,
+    res: float,
+    min_count: float = 2.0,
+    floor_m: float = 0.01,
+) -> GridReference:
+    """The shared map's elevation as a reference: per cell the plane of `protocol.layers.plane_fit` (its
+    height at the centre and its gradient along the directions the footholds span). σ of a foothold about it:
+    the footholds' scatter about the plane (rocks, the foot's sinkage) with the plane's own uncertainty
+    (scatter/√n) and `floor_m` (how well the map's cells are placed); cells with fewer than `min_count`
+    footholds are unknown. `stats`: elevation statistics (n, sum, sumsq, sx, ...) as (h, w) arrays, x, y of
+    the moments relative to each cell's centre (the layer's convention); (x0, y0) the lower-left corner of
+    cell [0, 0]."""
+    n = np.asarray(stats["n"], dtype=float)
+    z0, gx, gy, _ = plane_fit(stats)
+    nn = np.maximum(n, 1.0)
+    mz = stats["sum"] / nn
+    cxz = stats["sxz"] / nn - stats["sx"] / nn * mz
+    cyz = stats["syz"] / nn - stats["sy"] / nn * mz
+    resid = np.maximum(stats["sumsq"] / nn - mz**2 - gx * cxz - gy * cyz, 0.0)  # scatter about the plane
+    sigma = np.sqrt(resid * (1.0 + 1.0 / nn) + floor_m**2)
+    known = (n >= min_count) & np.isfinite(z0)
+    nan = np.where(known, 0.0, np.nan)
+    return GridReference(
+        z0 + nan, sigma + nan, x0, y0, res, np.where(known, gx, 0.0), np.where(known, gy, 0.0)
+    )

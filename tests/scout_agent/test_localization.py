@@ -1,0 +1,134 @@
+"""Localization against a map: the matcher recovers a known offset of a foothold track on a synthetic map with
+a covariance that contains its error, refuses flat and periodic maps, and the EKF's pose update corrects the
+estimate, keeps its covariance honest, and gates a wrong place."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.ndimage import gaussian_filter
+
+from scout_agent.localization import GridReference, MatchConfig, map_reference, match_track
+from scout_agent.localization.track import FootholdTrack
+from scout_agent.state_estimation import ErrorStateEKF, NoiseConfig
+from scout_agent.state_estimation.pose_update import heading, update_pose
+
+RES = 0.1
+
+
+def _relief(seed: int, scale_cells: float = 8.0, amp_m: float = 3.0) -> np.ndarray:
+    return gaussian_filter(np.random.default_rng(seed).normal(0, 1, (300, 300)), scale_cells) * amp_m
+
+
+def _ref(z: np.ndarray, sigma: float = 0.01) -> GridReference:
+    gy, gx = np.gradient(z, RES)  # cell centres at (i + 0.5)·RES - RES/2 = i·RES
+    return GridReference(z, np.full(z.shape, sigma), -RES / 2, -RES / 2, RES, gx, gy)
+
+
+def _track(n: int = 300, length: float = 12.0, heading_rad: float = 0.6435) -> np.ndarray:
+    """Footholds (n, 2) of a trot along a straight 12 m line: two tracks 0.3 m apart."""
+    s = np.linspace(0, length, n)
+    u = np.array([np.cos(heading_rad), np.sin(heading_rad)])
+    side = np.where(np.arange(n) % 2, 0.15, -0.15)
+    return np.array([5.0, 5.0]) + s[:, None] * u + side[:, None] * np.array([-u[1], u[0]])
+
+
+@pytest.mark.parametrize("seed, off, dyaw_deg", [(0, (0.33, -0.27), 0.0), (1, (-0.12, 0.41), 0.7)])
+def test_a_known_offset_is_recovered_within_its_covariance(seed, off, dyaw_deg) -> None:
+    ref = _ref(_relief(seed))
+    true_xy = _track()
+    pivot = true_xy[-1]
+    h, _ = ref.heights(true_xy[:, 0], true_xy[:, 1])
+    rng = np.random.default_rng(seed + 10)
+    # the estimate placed the track rotated by -dyaw about its end and shifted by -off, 0.1 m low
+    a = np.radians(-dyaw_deg)
+    rel = true_xy - pivot
+    est = pivot + rel @ np.array([[np.cos(a), np.sin(a)], [-np.sin(a), np.cos(a)]]) - np.asarray(off)
+    pts = np.column_stack([est, h - 0.1 + rng.normal(0, 0.01, len(h))])
+    r = match_track(pts, ref, MatchConfig(window_m=0.8, yaw_window_deg=1.5), pivot=pivot - np.asarray(off))
+    assert r.ok, r.reason
+    err = np.array([r.dx - off[0], r.dy - off[1]])
+    assert np.hypot(*err) < 0.05
+    assert err @ np.linalg.solve(r.cov[:2, :2], err) < 13.8  # inside the 3σ ellipse (χ²₂, p = 0.001)
+    assert r.dz == pytest.approx(0.1, abs=0.01)
+    assert np.degrees(r.dyaw) == pytest.approx(dyaw_deg, abs=0.25)
+    assert r.sigma_max_m < 0.05 and r.separation_chi2 > 100
+
+
+def test_flat_and_periodic_maps_are_refused() -> None:
+    pts_xy = _track()
+    flat = _ref(np.zeros((300, 300)))
+    r = match_track(np.column_stack([pts_xy, np.zeros(len(pts_xy))]), flat, MatchConfig())
+    assert not r.ok and r.reason == "flat"
+    # ridges every 0.6 m across the track's direction: every 0.6 m along x fits as well
+    xs = np.arange(300) * RES
+    ridges = np.tile(0.2 * np.sin(2 * np.pi * xs / 0.6), (300, 1))
+    per = _ref(ridges)
+    h, _ = per.heights(pts_xy[:, 0], pts_xy[:, 1])
+    r = match_track(np.column_stack([pts_xy - (0.2, 0.0), h]), per, MatchConfig(window_m=1.0))
+    assert not r.ok and r.reason == "ambiguous"
+    assert r.separation_chi2 < 9.0
+
+
+def test_too_few_footholds_or_off_the_map_is_refused() -> None:
+    ref = _ref(_relief(2))
+    pts = np.column_stack([_track(20), np.zeros(20)])
+    assert match_track(pts, ref).reason == "few"
+    far = np.column_stack([_track() + 100.0, np.zeros(300)])
+    assert match_track(far, ref).reason == "few"
+
+
+def test_the_map_reference_uses_each_cells_plane_and_scatter() -> None:
+    # one cell (0.4 m) with footholds on the plane z = 1 + 0.2 dx - 0.1 dy (dx, dy from the centre)
+    rng = np.random.default_rng(3)
+    dx, dy = rng.uniform(-0.2, 0.2, (2, 50))
+    z = 1.0 + 0.2 * dx - 0.1 * dy + rng.normal(0, 0.02, 50)
+    one = lambda v: np.array([[v]])  # noqa: E731
+    stats = {"n": one(50.0), "sum": one(z.sum()), "sumsq": one((z**2).sum()), "sx": one(dx.sum()),
+             "sy": one(dy.sum()), "sxx": one((dx**2).sum()), "syy": one((dy**2).sum()),
+             "sxy": one((dx * dy).sum()), "sxz": one((dx * z).sum()), "syz": one((dy * z).sum()),
+             "min": one(z.min()), "max": one(z.max())}  # fmt: skip
+    ref = map_reference(stats, x0=2.0, y0=3.0, res=0.4)
+    h, s = ref.heights(np.array([2.2 + 0.15, 5.0]), np.array([3.2 - 0.1, 3.2]))
+    assert h[0] == pytest.approx(1.0 + 0.2 * 0.15 + 0.1 * 0.1, abs=0.01)
+    assert s[0] == pytest.approx(np.hypot(0.02, 0.01), abs=0.006)
+    assert np.isnan(h[1]) and np.isnan(s[1])
+
+
+def _ekf(sig_pos: float = 0.5, sig_yaw: float = 0.02) -> ErrorStateEKF:
+    e = ErrorStateEKF(np.eye(3), np.zeros(3), np.zeros(3), np.array([0, 0, -1.62]), NoiseConfig())
+    e.P[6:8, 6:8] = np.eye(2) * sig_pos**2
+    e.P[2, 2] = sig_yaw**2
+    return e
+
+
+def test_a_pose_measurement_corrects_the_estimate_and_shrinks_its_covariance() -> None:
+    e = _ekf()
+    cov = np.diag([0.05**2, 0.05**2, 0.02**2, np.radians(0.3) ** 2])
+    up = update_pose(e, np.array([0.4, -0.3, 0.05, np.radians(1.0)]), cov, gate_chi2=18.47)
+    assert up.accepted and up.dof == 4
+    np.testing.assert_allclose(e.p[:2], [0.4 * 0.25 / 0.2525, -0.3 * 0.25 / 0.2525], atol=1e-3)
+    assert np.degrees(heading(e.R)) == pytest.approx(
+        1.0 * 0.02**2 / (0.02**2 + np.radians(0.3) ** 2), abs=0.02
+    )
+    assert np.sqrt(e.P[6, 6]) < 0.051 and np.sqrt(e.P[2, 2]) < np.radians(0.3)
+    np.testing.assert_allclose(up.correction[:2], e.p[:2], atol=1e-9)
+
+
+def test_a_wrong_place_is_gated_and_changes_nothing() -> None:
+    e = _ekf(sig_pos=0.1)
+    P0 = e.P.copy()
+    cov = np.diag([0.05**2, 0.05**2, 0.02**2, np.inf])  # no yaw: that row is left out
+    up = update_pose(e, np.array([1.5, 0.0, 0.0, 0.0]), cov, gate_chi2=16.27)
+    assert not up.accepted and up.dof == 3 and up.d2 > 16.27
+    np.testing.assert_array_equal(e.P, P0)
+    assert not e.p.any()
+
+
+def test_the_track_moves_with_a_correction() -> None:
+    t = FootholdTrack(keep_m=10.0)
+    t.add(np.array([[1.0, 0.0, 0.0], [2.0, 0.0, 0.1]]), walked_m=0.0)
+    t.add(np.array([[3.0, 0.0, 0.2]]), walked_m=12.0)  # the first two are now older than 10 m
+    assert len(t) == 1
+    t.shift(np.array([3.0, 0.0, 0.0]), np.array([3.5, 0.5, 0.1]), np.pi / 2)
+    np.testing.assert_allclose(t.window(5.0, 12.0), [[3.5, 0.5, 0.3]])
