@@ -6,7 +6,8 @@ Roles (`GRANTS`, the README's roles table; everything else is denied by the rout
   `status` and `partition` queryables and replies on them, holds `alive/server*` tokens and the token
   `psr/<map>/serverid/<its Zenoh id>`, watches the scouts' tokens;
 - a scout `S`: puts only `psr/<map>/delta/S` (sharded: `psr/<map>/shard/<i>/delta/S`), holds only the token
-  `psr/<map>/alive/S`, receives its own acks, asks the partition, sees the servers' tokens;
+  `psr/<map>/alive/S`, receives its own acks, asks the partition, sees the servers' tokens, and reads the map
+  as a reader does (queries `map`, `status`, follows tile changes: it localizes against the map);
 - a reader (a planner or a bridge): queries `map`, `status`, `partition` and receives the replies, subscribes to
   tile changes, sees the tokens — nothing else.
 Whose replies to believe: each server start takes a fresh random Zenoh id and declares it in a `serverid` token,
@@ -73,8 +74,11 @@ GRANTS: tuple[Grant, ...] = (
     Grant("scout", "ingress", ("liveliness_token",), ("alive/<id>",), "its own token only"),
     Grant("scout", "ingress", ("declare_subscriber",), ("ack/<id>", "shard/*/ack/<id>"), "its own acks"),
     Grant("scout", "egress", ("put",), ("ack/<id>", "shard/*/ack/<id>"), "receive its acks"),
-    Grant("scout", "ingress", ("query",), ("partition",), "discover the shards"),
-    Grant("scout", "egress", ("reply",), ("partition",), "the servers' answers"),
+    Grant("scout", "ingress", ("query",), ("partition", "map", "status"),
+          "discover the shards; read the map it localizes against"),
+    Grant("scout", "egress", ("reply",), ("partition", "map", "status"), "the servers' answers"),
+    Grant("scout", "ingress", ("declare_subscriber",), ("changes/**",), "follow the map's tile changes"),
+    Grant("scout", "egress", ("put",), ("changes/**",), "receive tile changes"),
     Grant("scout", "ingress", ("declare_liveliness_subscriber", "liveliness_query"),
           ("alive/server", "alive/server-$*", "serverid/*"), "see the servers"),
     Grant("reader", "ingress", ("query",), ("map", "status", "partition"), "ask the map"),

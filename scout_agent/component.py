@@ -92,8 +92,13 @@ def run(config: ScoutConfig) -> ScoutSummary:
                 for sink in hazard_sinks:
                     sink(felt)
 
-            report = run_scout(cfg, on_tick=mapping.on_tick, progress=config.progress, world=world,
-                               on_hazard=on_hazard)  # fmt: skip
+            source = _shared_map_source(cfg, config, mapping, world)
+            try:
+                report = run_scout(cfg, on_tick=mapping.on_tick, progress=config.progress, world=world,
+                                   on_hazard=on_hazard, map_source=source)  # fmt: skip
+            finally:
+                if source is not None:
+                    source.close()
         report["map"] = mapping.summary
     else:
         report = run_scout(cfg, on_tick=on_tick, progress=config.progress, world=world)
@@ -113,3 +118,17 @@ def run(config: ScoutConfig) -> ScoutSummary:
         saved_map=m.get("saved"),
         report=report,
     )
+
+
+def _shared_map_source(cfg: ScoutRunConfig, config: ScoutConfig, mapping: Any, world: Any) -> Any:
+    """The shared map the scout publishes to, followed for localization (`--localize on` and a link)."""
+    mapper = mapping.mapper
+    if cfg.localize != "on" or config.link is None or mapper is None or mapper.publisher is None:
+        return None
+    from common.trust import load_trust
+    from scout_agent.localization.shared_map import SharedMapSource
+
+    pub = mapper.publisher
+    xa, ya, xb, yb = world.terrain.extent
+    trust = load_trust(None, config.link.zenoh_config)  # believe the servers the publisher believes
+    return SharedMapSource(pub.transport.session, config.link.map_id, mapper.local, (xa, ya, xb, yb), trust)
