@@ -45,4 +45,33 @@ def elevation_agreement(local_maps: dict[str, Path], min_cells: int = 3) -> dict
     return out
 
 
-__all__ = ["elevation_agreement"]
+def cross_scout_rms(agreement: dict[str, Any]) -> float | None:
+    """`map_cross_scout_rms_m`: the scouts' own maps' elevation disagreement, RMS over every shared cell of
+    every pair (the pairs of `elevation_agreement` pooled by their cell counts); None without overlap."""
+    cells = sum(p["cells"] for p in agreement.values())
+    if not cells:
+        return None
+    return round(
+        float(np.sqrt(sum(p["cells"] * p["rms_diff_m"] ** 2 for p in agreement.values()) / cells)), 4
+    )
+
+
+def map_elevation_rmse(grid: Any, terrain: Any) -> tuple[float | None, int]:
+    """`map_elevation_rmse_m`: the shared map's elevation (`layer_value`, the plane-fit height at each cell's
+    centre) against the exact terrain height there, RMS over the cells with data; and that cell count.
+    `grid`: a `mapcore.LayerGrid` of the map; `terrain`: the mission's `scout_agent.sim.terrain.Terrain`."""
+    elev = grid.layers.get("elevation")
+    if elev is None:
+        return None, 0
+    values = layer_value("elevation", elev)
+    ok = (elev["n"] > 0) & np.isfinite(values)
+    if not ok.any():
+        return None, 0
+    iy, ix = np.nonzero(ok)
+    cx = grid.x0 + (grid.ix0 + ix + 0.5) * grid.res
+    cy = grid.y0 + (grid.iy0 + iy + 0.5) * grid.res
+    err = values[iy, ix] - terrain.height(cx, cy)
+    return round(float(np.sqrt(np.mean(err**2))), 4), int(ok.sum())
+
+
+__all__ = ["cross_scout_rms", "elevation_agreement", "map_elevation_rmse"]

@@ -27,6 +27,7 @@ def scout_config(
         scene=cfg.scene,
         slope_deg=15.0 if lunar else cfg.slope,
         seed=cfg.seed if lunar else 0,
+        field_m=cfg.field_m if lunar else 20.0,
         start=tuple(s.start) if lunar else None,
         goal=tuple(s.goal) if lunar else None,  # type: ignore[arg-type]
         via=tuple(tuple(v) for v in s.via) if lunar else (),  # type: ignore[misc]

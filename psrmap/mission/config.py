@@ -25,6 +25,8 @@ __all__ = [
     "SCENES",
     "ScoutPlan",
     "UNKNOWN_POLICIES",
+    "field_scouts",
+    "route_seconds",
     "load_config",
     "validate",
     "with_scouts",
@@ -78,6 +80,9 @@ class MissionConfig:
     map: str = DEFAULT_MAP_ID
     res: float = DEFAULT_RES_M  # cell size [m]
     sim_seconds: float = 150.0  # cap on each scout's walk [s]
+    field_m: float = (
+        20.0  # lunar field side [m] ([mission] field); routes of the default scouts scale with it
+    )
     speed: float = 0.2  # [m/s]
     rate_hz: float = DEFAULT_DELTA_HZ  # deltas per second per scout
     out: str = "runs"
@@ -131,7 +136,36 @@ def _scout(d: dict[str, Any], i: int) -> ScoutPlan:
     return ScoutPlan(sid, (start[0], start[1], start[2]), goal, via)
 
 
-_MISSION_KEYS = ("map", "res", "sim_seconds", "speed", "rate_hz", "out", "secure", "origin", "shards", "tile")
+_MISSION_KEYS = (
+    "map", "res", "sim_seconds", "speed", "rate_hz", "out", "secure", "origin", "shards", "tile", "field",
+)  # fmt: skip
+
+
+def field_scouts(field_m: float) -> tuple[ScoutPlan, ...]:
+    """The default scouts of a `field_m` mission: routes that span the field and cross. scout1 walks the
+    diagonal south-west → north-east, scout2 the same diagonal the other way (from their meeting in the middle
+    on, each walks where the other has just mapped), scout3 the `east` route (along the south, then north:
+    it shares the corners' ground with both). Ends are the generator's flattened route ends."""
+    from scout_agent.sim.terrain import lunar_routes
+
+    r = lunar_routes(field_m)
+    (ax, ay), (bx, by) = r["direct"][0], r["direct"][-1]
+    east = r["east"]
+    yaw = math.atan2(by - ay, bx - ax)
+    e_yaw = math.atan2(east[1][1] - east[0][1], east[1][0] - east[0][0])
+    return (
+        ScoutPlan("scout1", (ax, ay, yaw), (bx, by)),
+        ScoutPlan("scout2", (bx, by, yaw - math.pi), (ax, ay)),
+        ScoutPlan("scout3", (east[0][0], east[0][1], e_yaw), east[-1], tuple(east[1:-1])),
+    )
+
+
+def route_seconds(scouts: tuple[ScoutPlan, ...], speed: float) -> float:
+    """A walking-time cap that follows the routes: 1.5 × the longest route at `speed`, plus 30 s."""
+    longest = max(
+        sum(math.dist(a, b) for a, b in zip(s.route()[:-1], s.route()[1:], strict=True)) for s in scouts
+    )
+    return round(1.5 * longest / speed + 30.0, 1)
 
 
 _TERRAIN_KEYS = ("scene", "seed", "slope", "slippery_patches")
@@ -261,6 +295,13 @@ def load_config(path: str | Path | None = None) -> MissionConfig:
     scouts = doc.get("scouts", [])
     if not isinstance(scouts, list):
         raise MissionError(f"{where}: scouts must be an array of tables ([[scouts]] id, start, goal, via)")
+    field_m = mt.number("field", base.field_m)
+    if not 5.0 <= field_m <= 400.0:
+        raise mt.bad("field", "a lunar field side in metres, 5–400")
+    scaled = "field" in m and not scouts  # a field-sized mission with its default scouts
+    if scaled:
+        # the paper's patches are placed for its routes' walking directions; scout2 walks one backwards
+        base = dataclasses.replace(base, slippery_patches=0)
     cfg = dataclasses.replace(
         base,
         map=mt.text("map", base.map),
@@ -276,13 +317,20 @@ def load_config(path: str | Path | None = None) -> MissionConfig:
         seed=tt.integer("seed", base.seed),
         slope=tt.number("slope", base.slope),
         slippery_patches=tt.integer("slippery_patches", base.slippery_patches),
-        scouts=tuple(_scout(s, i) for i, s in enumerate(scouts)),
-        plan_from=_pair(p.get("from", base.plan_from), f"{where}: [planner] from"),
-        plan_to=_pair(p.get("to", base.plan_to), f"{where}: [planner] to"),
+        field_m=field_m,
+        scouts=field_scouts(field_m) if scaled else tuple(_scout(s, i) for i, s in enumerate(scouts)),
+        plan_from=_pair(
+            p.get("from", (2.0, 2.0) if "field" in m else base.plan_from), f"{where}: [planner] from"
+        ),
+        plan_to=_pair(
+            p.get("to", (field_m - 2.0,) * 2 if "field" in m else base.plan_to), f"{where}: [planner] to"
+        ),
         unknown=pt.text("unknown", base.unknown),
         weights=pt.weights(),
         origin=_origin(m.get("origin"), where),
     )
+    if "field" in m and "sim_seconds" not in m and cfg.scouts:  # the walking time follows the routes
+        cfg = dataclasses.replace(cfg, sim_seconds=route_seconds(cfg.scouts, cfg.speed))
     try:
         validate(cfg)
     except MissionError as exc:

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from psrmap.agreement import elevation_agreement
+from psrmap.agreement import cross_scout_rms, elevation_agreement, map_elevation_rmse
 from psrmap.errors import MissionRunError
 from psrmap.mission.compile import compile_ahead
 from psrmap.mission.components import plan_and_compare, scout_config
@@ -77,7 +77,7 @@ def run_mission(cfg: MissionConfig, run_dir: Path | None = None, progress: bool 
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     ctx = mp.get_context("spawn")
     t0 = time.monotonic()
-    deadline = t0 + cfg.timeout_s
+    deadline = t0 + max(cfg.timeout_s, 8.0 * cfg.sim_seconds)  # a 100 m field's walks take ~700 s each
     summary: dict[str, Any] = {
         "run_dir": str(run_dir),
         "recording_id": recording_id,
@@ -147,7 +147,7 @@ def run_mission(cfg: MissionConfig, run_dir: Path | None = None, progress: bool 
             bar = progress_bar(round(total), "scouts", "sim-s", disable=not progress, every_s=15.0)
             while any(p.proc.is_alive() for p in procs):
                 if time.monotonic() > deadline:
-                    raise MissionRunError(f"mission timed out after {cfg.timeout_s:g} s")
+                    raise MissionRunError(f"mission timed out after {deadline - t0:g} s")
                 st = _status(session, cfg.map, 1.0, trust)
                 if st is not None:
                     walked = sum(
@@ -179,7 +179,12 @@ def run_mission(cfg: MissionConfig, run_dir: Path | None = None, progress: bool 
             summary["elevation_agreement"] = elevation_agreement(
                 {s.id: run_dir / f"{s.id}_local.npz" for s in cfg.scouts}
             )
+            summary["map_cross_scout_rms_m"] = cross_scout_rms(summary["elevation_agreement"])
+            summary["errors"] = {
+                sid: {k: s[k] for k in ERROR_KEYS if k in s} for sid, s in scouts.items() if "error" not in s
+            }
             summary["status"] = _status_json(_await_totals(session, cfg, scouts, trust))
+            summary["map_elevation_rmse_m"], summary["map_elevation_cells"] = _map_truth(session, cfg)
             say(
                 f"[mission] scouts done; server merged {summary['status']['merged']} deltas into {summary['status']['cells']} cells"
             )
@@ -236,6 +241,31 @@ def _await_totals(
 
 def _status_json(st: Any) -> dict[str, Any]:
     return {"error": "no status reply"} if st is None else st.to_json()
+
+
+# each scout's estimate against truth (scout_agent.run / evaluate), as its summary reports them
+ERROR_KEYS = ("sensors", "localization", "pos_error_max_m", "pos_error_final_m", "yaw_error_max_deg",
+              "nees_pos_mean", "inside_3sigma_frac", "localization_stats")  # fmt: skip
+
+
+def _map_truth(session: Any, cfg: MissionConfig) -> tuple[float | None, int]:
+    """The shared map's elevation RMSE against the terrain's truth over the cells with data (lunar scene)."""
+    from consumer_planner.client import ClientConfig, query_region
+    from consumer_planner.errors import PlannerError
+    from scout_agent.run import ScoutRunConfig, build_world
+
+    if cfg.scene != "lunar":
+        return None, 0
+    terrain = build_world(ScoutRunConfig(scene="lunar", seed=cfg.seed, field_m=cfg.field_m)).terrain
+    xa, ya, xb, yb = terrain.extent
+    try:
+        grid = query_region(
+            session, cfg.map, (xa, ya, xb, yb), ClientConfig(connect=()), layers=("elevation",)
+        )
+    except PlannerError as exc:
+        print(f"warning: no map elevation RMSE ({exc})", file=sys.stderr)
+        return None, 0
+    return map_elevation_rmse(grid, terrain)
 
 
 def _plot(session: Any, cfg: MissionConfig, run_dir: Path, summary: dict[str, Any]) -> str | None:
