@@ -21,7 +21,7 @@ from scout_agent.control.pilot import Pilot, PilotConfig
 from scout_agent.control.reflex import Felt
 from scout_agent.errors import ScoutConfigError
 from scout_agent.estimators import TickEstimates
-from scout_agent.localization import LOCALIZE_MODES, DemReference, Localizer, LocalizerConfig
+from scout_agent.localization import LOCALIZE_MODES, DemReference, Localizer, LocalizerConfig, height_datum
 from scout_agent.localization.localizer import MapSource
 from scout_agent.robot import constants as C
 from scout_agent.signals import GroundTruth, ProprioSample
@@ -194,7 +194,14 @@ def run_scout(
     if cfg.localize not in LOCALIZE_MODES:
         raise ScoutConfigError(f"--localize {cfg.localize!r}: valid: {', '.join(LOCALIZE_MODES)}")
     sim_cfg = replace(cfg.sim, sensors=replace(cfg.sim.sensors, seed=cfg.seed))
-    sim = ScoutSim(world.terrain, world.friction, sim_cfg, start=world.start, datum_sources=datum_sources)
+    # the height datum of an honest start: the shared map where others have mapped, else the orbital DEM
+    dem = dem_reference(cfg, world) if sim_cfg.state_source == "estimate" else None
+    sources = list(datum_sources)
+    if map_source is not None:
+        sources.append(("map", height_datum(lambda x, y: map_source(x, y, 2.0))))
+    if dem is not None:
+        sources.append(("dem", height_datum(lambda x, y: dem)))
+    sim = ScoutSim(world.terrain, world.friction, sim_cfg, start=world.start, datum_sources=sources)
     on, pc = cfg.hazard_control, cfg.pilot
     pilot_cfg = replace(
         pc,
@@ -205,7 +212,6 @@ def run_scout(
     pilot = Pilot(world.waypoints, sim.controller, world.terrain.extent, pilot_cfg)
     localizer = None
     if cfg.localize == "on" and sim.config.state_source == "estimate":
-        dem = dem_reference(cfg, world)
         if dem is not None or map_source is not None:
             localizer = Localizer(sim.estimator, cfg.localizer, dem=dem, map_source=map_source)
     limit = cfg.sim_seconds or 2.0 * path_length(world.waypoints) / max(cfg.speed, 0.05) + 10.0

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from .localizer import LOCALIZE_MODES, Localizer, LocalizerConfig, LocalizerReport
 from .matcher import MatchConfig, MatchResult, match_track
-from .reference import DemReference, GridReference, HeightReference, map_reference
+from .reference import DemReference, GridReference, HeightReference, height_datum, map_reference
 from .track import FootholdTrack
 
 __all__ = [
@@ -29,5 +29,6 @@ __all__ = [
     "MatchConfig",
     "MatchResult",
     "map_reference",
+    "height_datum",
     "match_track",
 ]

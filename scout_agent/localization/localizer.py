@@ -57,18 +57,20 @@ class SourceConfig:
 class LocalizerConfig:
     settle_s: float = 0.15  # a stance's foothold is taken once its contact has lasted this long [s]
     gate_p: float = 0.001  # χ² gate's false-rejection probability
-    window_sigmas: float = 3.0  # the search window covers this many σ of the filter's position
-    # a DEM: 5 m pixels with 0.3 m noise: a long track, coarse steps, a wide window, a loose σ limit;
-    # datum σ: the DEM's vertical bias (OrbitalDemConfig, LOLA)
+    window_sigmas: float = 3.0  # the search window covers this many σ of the filter's position and heading
+    yaw_steps: int = 3  # yaw candidates each side of the estimate's heading
+    # a DEM: 5 m pixels with 0.3 m noise: a long track, coarse steps, a wide window, a loose σ limit (a σ of
+    # 1.5 m still bounds a drift of metres; the gate keeps it from pulling a better estimate away); datum σ:
+    # the DEM's vertical bias (OrbitalDemConfig, LOLA). Window limits: position ≤ 4 m, heading ≤ 6°.
     dem: SourceConfig = field(
         default_factory=lambda: SourceConfig(
-            10.0, 30.0, MatchConfig(window_m=3.0, step_m=0.25, yaw_window_deg=1.5, max_sigma_m=1.0), 0.03
+            15.0, 30.0, MatchConfig(window_m=4.0, step_m=0.25, yaw_window_deg=6.0, max_sigma_m=1.5), 0.03
         )
     )
     # the shared map: 0.4 m cells with cm-level scatter
     map: SourceConfig = field(
         default_factory=lambda: SourceConfig(
-            3.0, 10.0, MatchConfig(window_m=1.0, step_m=0.1, yaw_window_deg=1.0, max_sigma_m=0.3), 0.01
+            3.0, 10.0, MatchConfig(window_m=1.0, step_m=0.1, yaw_window_deg=3.0, max_sigma_m=0.3), 0.01
         )
     )
 
@@ -171,7 +173,11 @@ class Localizer:
             sig_xy = float(np.sqrt(max(np.linalg.eigvalsh(ekf.P[6:8, 6:8]).max(), 0.0)))
             mc = src.match
             win = float(np.clip(c.window_sigmas * sig_xy + mc.step_m, 3 * mc.step_m, mc.window_m))
-            res = match_track(pts, ref, replace(mc, window_m=win), pivot=ekf.p[:2])
+            # heading: ±3σ of the filter's (δθ about the vertical), within the source's limit, yaw_steps a side
+            sig_yaw = float(np.degrees(np.sqrt(max(ekf.P[2, 2], 0.0))))
+            ywin = float(np.clip(c.window_sigmas * sig_yaw, 0.5, mc.yaw_window_deg))
+            mc = replace(mc, window_m=win, yaw_window_deg=ywin, yaw_step_deg=ywin / c.yaw_steps)
+            res = match_track(pts, ref, mc, pivot=ekf.p[:2])
             if not res.ok:
                 self.report.refused[f"{name}_{res.reason}"] += 1
             else:

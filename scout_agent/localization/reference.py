@@ -10,6 +10,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -18,7 +19,7 @@ import numpy as np
 from protocol.layers import plane_fit
 from scout_agent.sim.dem import DemGrid
 
-__all__ = ["DemReference", "GridReference", "HeightReference", "map_reference"]
+__all__ = ["DemReference", "GridReference", "HeightReference", "height_datum", "map_reference"]
 
 
 class HeightReference(Protocol):
@@ -110,3 +111,17 @@ def map_reference(
     return GridReference(
         z0 + nan, sigma + nan, x0, y0, res, np.where(known, gx, 0.0), np.where(known, gy, 0.0)
     )
+
+
+def height_datum(get: Callable[[float, float], HeightReference | None]):
+    """A launch height datum (`state_estimation.launch.HeightDatum`: (x, y) -> (height, σ) or None) read from
+    the reference `get(x, y)` returns (a DEM, or the shared map around the launch point)."""
+
+    def datum(x: float, y: float) -> tuple[float, float] | None:
+        ref = get(x, y)
+        if ref is None:
+            return None
+        h, s = ref.heights(np.array([x]), np.array([y]))
+        return (float(h[0]), float(s[0])) if np.isfinite(h[0]) and np.isfinite(s[0]) else None
+
+    return datum
