@@ -251,18 +251,9 @@ class StateEstimator:
         if any_contact:
             fb, fv = self.feet.feet_base_and_vel(tick.q, tick.dq)
         if use.any():
-            residual, H = odometry_rows(
-                use,
-                fb,
-                fv,
-                self.feet.foot_omega,
-                tick.imu_gyro,
-                e.R.T @ self._normal_w,
-                c.foot_radius_m,
-                e.R,
-                e.v,
-                e.bg,
-            )
+            feet = (fb, fv, self.feet.foot_omega)
+            n_b = e.R.T @ self._normal_w
+            residual, H = odometry_rows(use, e.R, e.v, e.bg, feet, tick.imu_gyro, n_b, c.foot_radius_m)
             keep = e.update(residual, H, np.full(H.shape[0], c.leg_vel_std**2), gate_chi2=c.gate_chi2)
             self.rejected += int((~keep).sum())
             self._inflate(tick, dt, int((~keep).sum()))

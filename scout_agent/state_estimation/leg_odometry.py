@@ -52,20 +52,19 @@ def stance_velocity_measurements(
 @njit(cache=True, nogil=True)
 def odometry_rows(
     use: np.ndarray,
-    feet_b: np.ndarray,
-    feet_vel_b: np.ndarray,
-    foot_omega_b: np.ndarray,
-    gyro: np.ndarray,
-    normal_b: np.ndarray,
-    foot_radius: float,
     R: np.ndarray,
     v: np.ndarray,
     bg: np.ndarray,
+    feet: tuple[np.ndarray, np.ndarray, np.ndarray],
+    gyro: np.ndarray,
+    normal_b: np.ndarray,
+    foot_radius: float,
 ) -> tuple[np.ndarray, np.ndarray]:
     """The filter's velocity update from the feet in `use` (4,) bool: stacked residuals z − h (3k,) and the
-    Jacobian H (3k, 15) (`stance_velocity_measurements` with the ground normal `normal_b` (3,), base frame,
-    then the EKF's predicted measurement at the estimate R, v, bg, `kernels.velocity_rows_many`)."""
-    z, rc = stance_velocity_measurements(feet_b, feet_vel_b, foot_omega_b, gyro, normal_b, foot_radius)
+    Jacobian H (3k, 15): `stance_velocity_measurements` of `feet` (positions, velocities, angular velocities,
+    base frame) with the ground normal `normal_b` (3,), base frame, less the EKF's predicted measurement at the
+    estimate R, v, bg (`kernels.velocity_rows_many`)."""
+    z, rc = stance_velocity_measurements(feet[0], feet[1], feet[2], gyro, normal_b, foot_radius)
     k = 0
     for i in range(4):
         k += use[i]
