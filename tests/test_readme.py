@@ -235,7 +235,8 @@ class Readme:
         want = "--viewer: no display here" if "--viewer" in args else "no Rerun viewer answers at"
         assert res.returncode == 2 and want in res.stderr, f"`{cmd.text}`: {res.stderr[-2000:]}"
         assert res.stderr.count("\n") == 1, res.stderr  # one line, no traceback
-        assert took < 15, f"`{cmd.text}` took {took:.1f} s to fail"
+        # how fast the check itself is (no 25 s gRPC wait): tests/integration/test_cli_errors.py, in-process;
+        # here the wall time is mostly importing the simulator on a shared machine
         self.log.append(f"{cmd.text}  -> (no display) exit 2 in {took:.1f} s: {res.stderr.strip()[:100]}…")
 
     def _ci(self, cmd: Command) -> None:
