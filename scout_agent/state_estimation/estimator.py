@@ -135,6 +135,37 @@ def _settled_feet(contact: np.ndarray, since: np.ndarray, t: float, settle_s: fl
     return out
 
 
+@njit(cache=True, nogil=True)
+def _update_footholds(
+    contact: np.ndarray,
+    was_contact: np.ndarray,
+    feet_b: np.ndarray,
+    R: np.ndarray,
+    p: np.ndarray,
+    footholds: np.ndarray,
+) -> bool:
+    """Each foot in contact: its world position R·foot + p into `footholds` (4, 3) (the same BLAS product as
+    numpy's `feet @ R.T`); True if one of them touched down this tick."""
+    k = 0
+    for i in range(4):
+        k += contact[i]
+    sel = np.empty((k, 3))
+    m = 0
+    for i in range(4):
+        if contact[i]:
+            sel[m] = feet_b[i]
+            m += 1
+    w = np.dot(sel, R.T)
+    m, new = 0, False
+    for i in range(4):
+        if contact[i]:
+            for j in range(3):
+                footholds[i, j] = w[m, j] + p[j]
+            m += 1
+            new |= not was_contact[i]
+    return new
+
+
 class StateEstimator:
     def __init__(
         self,
@@ -266,10 +297,8 @@ class StateEstimator:
             var = c.anchor_std_m**2 + self.launch.sigma_z_m**2  # the datum's own σ (launch.py)
             e.update(np.array([z_meas - e.p[2]]), e.position_z_rows(), np.array([var]))
             self.anchored = True
-        if any_contact:
-            self._footholds[contact] = fb[contact] @ e.R.T + e.p
-            if (contact & ~self._was_contact).any():  # a new foothold: refit the ground plane
-                self._normal_w = terrain_normal(self._footholds)
+        if any_contact and _update_footholds(contact, self._was_contact, fb, e.R, e.p, self._footholds):
+            self._normal_w = terrain_normal(self._footholds)  # a new foothold: refit the ground plane
         self._was_contact = contact
         self.estimate = self._estimate(tick.imu_gyro - e.bg)
         return self.estimate
