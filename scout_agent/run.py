@@ -223,7 +223,7 @@ def run_scout(
         bar = tqdm(total=n_ticks, unit="tick", desc=f"{cfg.scout_id} {world.terrain.name}", leave=False)
     next_line = 30.0 if progress and bar is None else math.inf  # not a terminal: a status line every 30 s
     wall0 = time.perf_counter()
-    prev_xy = np.array(world.start[:2])
+    prev_x, prev_y = world.start[:2]
     distance = 0.0
     speed_path = 0.0  # ∫‖v_xy‖dt of the true base, whole run (the CoT distance's ground truth) [m]
     walk_t0 = None
@@ -239,13 +239,13 @@ def run_scout(
         if sim.t < sim.config.settle_s:
             pilot.follower.integral = 0.0
         sample, truth = sim.step(v, w)
+        x, y, _ = truth.base.pos.tolist()
         if walk_t0 is None and sim.t >= sim.config.settle_s:
             walk_t0 = sim.t
-            prev_xy = truth.base.pos[:2].copy()
+            prev_x, prev_y = x, y
         if walk_t0 is not None:
-            xy = truth.base.pos[:2]
-            distance += float(np.hypot(*(xy - prev_xy)))
-            prev_xy = xy.copy()
+            distance += math.hypot(x - prev_x, y - prev_y)
+            prev_x, prev_y = x, y
         if sim.t >= next_path_t:
             next_path_t += PATH_EVERY_S
             path_estimate.append([round(sim.t, 3), *(round(float(v), 3) for v in sample.base.pos)])
@@ -257,7 +257,8 @@ def run_scout(
             sample.base.quat,
             sim.estimator.position_covariance()[:2, :2] if on_estimate else None,
         )
-        speed_path += float(np.hypot(truth.base.vel[0], truth.base.vel[1])) * sim.control_dt
+        vx, vy, _ = truth.base.vel.tolist()
+        speed_path += math.hypot(vx, vy) * sim.control_dt
         if localizer is not None:  # before the mapper: what it publishes next is placed corrected
             localizer.on_tick(sample)
         est = on_tick(sample, truth, sim) if on_tick is not None else None

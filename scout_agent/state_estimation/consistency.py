@@ -23,7 +23,7 @@ __all__ = ["ConsistencyTracker", "yaw_of_quat"]
 
 def yaw_of_quat(quat: np.ndarray) -> float:
     """Heading [rad] of a (w, x, y, z) quaternion."""
-    w, x, y, z = (float(v) for v in quat)
+    w, x, y, z = quat.tolist()
     return math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
 
 
@@ -45,7 +45,8 @@ class ConsistencyTracker:
         est_quat: np.ndarray,
         pos_cov: np.ndarray | None,
     ) -> None:
-        ex, ey = float(truth_pos[0] - est_pos[0]), float(truth_pos[1] - est_pos[1])
+        (tx, ty, _), (px, py, _) = truth_pos.tolist(), est_pos.tolist()
+        ex, ey = tx - px, ty - py
         err = math.hypot(ex, ey)
         self.n += 1
         self.err_final = err
@@ -54,7 +55,7 @@ class ConsistencyTracker:
         self.yaw_max = max(self.yaw_max, abs(dyaw))
         if pos_cov is None:
             return
-        a, b, d = float(pos_cov[0, 0]), float(pos_cov[0, 1]), float(pos_cov[1, 1])
+        (a, b), (_, d) = pos_cov[:2, :2].tolist()
         det = a * d - b * b
         if not det > 0:
             return
