@@ -59,7 +59,10 @@ def scouts(endpoint: str, n: int, rate: float, seconds: float, phase2, results) 
 
     with zenoh.open(zenoh_config(connect=[endpoint], mode="client")) as s:
         subs = [s.declare_subscriber(ack_key(MAP, f"q{i}"), on_ack) for i in range(n)]
-        pubs = [s.declare_publisher(delta_key(MAP, f"q{i}")) for i in range(n)]
+        pubs = [  # as scouts publish: reliable, blocking (never dropped under load)
+            s.declare_publisher(delta_key(MAP, f"q{i}"), congestion_control=zenoh.CongestionControl.BLOCK)
+            for i in range(n)
+        ]
         time.sleep(0.5)
         t0 = time.perf_counter()
         k = 0

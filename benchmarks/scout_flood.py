@@ -63,8 +63,11 @@ def run(deltas: int, cells: int, db: str | None, timeout_s: float = 120.0) -> di
             assert wait_for_server(s, MAP)
             time.sleep(1.0)  # let the server settle (imports, first allocations)
             rss0 = server.memory_info().rss
-            for p in flood_deltas("hog", deltas, cells):
-                s.put(delta_key(MAP, "hog"), p)
+            hog_pub = s.declare_publisher(
+                delta_key(MAP, "hog"), congestion_control=zenoh.CongestionControl.BLOCK
+            )
+            for p in flood_deltas("hog", deltas, cells):  # as a scout publishes: blocking, never dropped
+                hog_pub.put(p)
             deadline = time.monotonic() + timeout_s
             while time.monotonic() < deadline:
                 st = status(s)
@@ -77,7 +80,7 @@ def run(deltas: int, cells: int, db: str | None, timeout_s: float = 120.0) -> di
             other = encode(
                 CellDelta(MAP, "other", 1, 0, 0.0, RES, {"slip": layer_cells("slip", [5000], [-7000])})
             )
-            s.put(delta_key(MAP, "other"), other)
+            s.put(delta_key(MAP, "other"), other, congestion_control=zenoh.CongestionControl.BLOCK)
             deadline = time.monotonic() + 20
             while time.monotonic() < deadline and status(s).merged <= hog.merged:
                 time.sleep(0.1)
@@ -93,6 +96,7 @@ def run(deltas: int, cells: int, db: str | None, timeout_s: float = 120.0) -> di
             "goal_growth_mib": 256,
             "wal_mib": round(wal / 2**20, 1),
             "hog_merged": hog.merged,
+            "hog_decided": hog.merged + sum(hog.rejected.values()) == deltas,  # every delta merged or refused
             "hog_rejected": dict(hog.rejected),
             "other_scout_new_area_merged": after.merged == hog.merged + 1,
         }
