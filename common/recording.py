@@ -183,6 +183,7 @@ LAYER_SCALES: dict[str, Scale] = {
     "giam": Scale(-1.0, 1.5, "m/s²", "viridis", "mean GIAM: dark = close to tipping"),
     "contacts": Scale(0.0, 1.0, "fraction of samples", "magma", "non-foot body contacts"),
     "hazard": Scale(0.0, 3.0, "reports", "magma", "hazard stops: ground a scout could not hold"),
+    "placement": Scale(0.0, 1.0, "m", "magma", "placement σ: bright = placed by a scout unsure where it was"),
 }
 COUNT_SCALE = Scale(0.0, 1000.0, "observations", "viridis", "observations behind each cell", log=True)
 

@@ -42,6 +42,8 @@ class Breakdown:
     min_giam: float
     mean_giam: float
     max_slope_deg: float
+    mean_placement_sigma_m: float  # how well the path's cells are placed: the scouts' horizontal σ [m]
+    max_placement_sigma_m: float
     unknown_fraction: float
     inferred_fraction: float
     impassable_cells: int
@@ -94,13 +96,17 @@ def _extreme(fn, v: np.ndarray) -> float:
     return float(fn(v[ok])) if ok.any() else math.nan
 
 
-def breakdown(costs: CostMap, cells: np.ndarray, res: float) -> Breakdown:
-    """The figures above for a path of 8-connected cells (k, 2) on `costs`."""
+def breakdown(
+    costs: CostMap, cells: np.ndarray, res: float, placement: np.ndarray | None = None
+) -> Breakdown:
+    """The figures above for a path of 8-connected cells (k, 2) on `costs`; `placement` (h, w): the map's
+    placement σ per cell [m] (`protocol.layers` "placement"), read only for the breakdown."""
     cells = np.asarray(cells, dtype=np.int64)
     r, c = cells[:, 0], cells[:, 1]
     w = cell_weights(cells, res)
     length = float(w.sum())
     m = {k: v[r, c] for k, v in costs.metrics.items()}
+    place = placement[r, c] if placement is not None else np.full(len(r), np.nan)
     blocked = costs.impassable[r, c]
     cost = math.inf if blocked.any() else float(np.sum(w * costs.cost[r, c]))
     frac = (lambda mask: float(np.sum(w[mask]) / length)) if length > 0 else (lambda mask: 0.0)
@@ -114,6 +120,8 @@ def breakdown(costs: CostMap, cells: np.ndarray, res: float) -> Breakdown:
         min_giam=_extreme(np.min, m["giam"]),
         mean_giam=_wmean(w, m["giam"]),
         max_slope_deg=_extreme(np.max, m["slope_deg"]),
+        mean_placement_sigma_m=_wmean(w, place),
+        max_placement_sigma_m=_extreme(np.max, place),
         unknown_fraction=frac(~costs.known[r, c]),
         inferred_fraction=frac(costs.inferred[r, c]),
         impassable_cells=int(blocked.sum()),
@@ -148,7 +156,7 @@ def evaluate_route(
 ) -> Route:
     """A given route (map-frame waypoints [m]) on the map, with its breakdown."""
     cells = route_cells(grid, waypoints)
-    return Route(name, cells, grid.centers(cells), breakdown(costs, cells, grid.res))
+    return Route(name, cells, grid.centers(cells), breakdown(costs, cells, grid.res, grid.value("placement")))
 
 
 def plan_route(
@@ -172,4 +180,5 @@ def plan_route(
         raise PlannerError(str(exc)) from None
     if found is None:
         return None
-    return Route(name, found.cells, grid.centers(found.cells), breakdown(costs, found.cells, grid.res))
+    b = breakdown(costs, found.cells, grid.res, grid.value("placement"))
+    return Route(name, found.cells, grid.centers(found.cells), b)

@@ -114,6 +114,15 @@ LAYERS: dict[str, Layer] = {
             "attitude beyond the limit; one report may count several); value = n",
             counts=("n", "slip", "margin", "contact", "attitude"),
         ),
+        Layer(
+            "placement",
+            ("n", "var", "max"),
+            "m",
+            "how well the cell's data is placed (contract extension of issue 23): per elevation foothold the "
+            "scout's horizontal position uncertainty σ (the larger axis of its estimate's covariance); "
+            "n = footholds, var = sum of σ² [m²], max = the largest σ [m]; value = sqrt(var / n), the RMS σ",
+            counts=("n", "var"),
+        ),
     )
 }
 
@@ -233,6 +242,7 @@ _VALUE = {
     "giam": _mean,
     "contacts": lambda s: _ratio(_f(s, "nonfoot"), _f(s, "n"), _f(s, "n") > 0),
     "hazard": lambda s: np.where(_f(s, "n") > 0, _f(s, "n"), np.nan),
+    "placement": lambda s: np.sqrt(_ratio(_f(s, "var"), _f(s, "n"), _f(s, "n") > 0)),
 }
 
 # Named quantities beyond `value` that a reader (or a region query) may ask for.
@@ -259,6 +269,7 @@ _DERIVED = {
         reason: (lambda r: lambda s: np.where(_f(s, "n") > 0, _f(s, r), np.nan))(reason)
         for reason in ("slip", "margin", "contact", "attitude")
     },
+    "placement": {"worst": lambda s: np.where(_f(s, "n") > 0, _f(s, "max"), np.nan)},
 }
 
 
@@ -268,7 +279,8 @@ def layer_value(layer_name: str, stats: Stats) -> np.ndarray:
     elevation: plane-fit height at the cell centre (`plane_fit`: along the directions the footholds span by
     at least `MIN_PLANE_SPREAD_M`; the mean height where they span none) [m];
     slip: events / n; cot: work / dist (NaN where dist < `MIN_COT_DIST_M`); giim, giam: mean;
-    contacts: nonfoot / n; hazard: n (hazard reports).
+    contacts: nonfoot / n; hazard: n (hazard reports); placement: sqrt(var / n), the RMS horizontal σ of
+    the scout's position when it placed the cell's footholds [m].
     """
     get_layer(layer_name)
     return _VALUE[layer_name](stats)

@@ -18,6 +18,8 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from common.defaults import DEFAULT_DELTA_HZ, DEFAULT_RES_M
 from common.session import endpoint_arg, file_endpoints
 from protocol.keys import id_arg
@@ -86,9 +88,15 @@ class Mapper:
         self._next_flush: float | None = None
         self._t = 0.0
 
-    def update(self, sample: ProprioSample) -> TickEstimates:
+    def update(self, sample: ProprioSample, placement_sigma_m: float | None = None) -> TickEstimates:
+        """One tick. `placement_sigma_m`: the scout's horizontal position σ now [m] (the larger axis of its
+        estimate's covariance), recorded with each elevation foothold in the `placement` layer."""
         est = self.pipeline.update(sample)
         record(est, self.acc)
+        if placement_sigma_m is not None and len(est.footholds):
+            s = float(placement_sigma_m)
+            for fx, fy, _ in est.footholds.tolist():
+                self.acc.append("placement", (fx, fy, 1.0, s * s, s))  # n, var, max
         self.slip_events += sum(est.slip.event)
         self._t = sample.t
         if self._next_flush is None:
@@ -143,6 +151,16 @@ class Mapper:
             out["all_acked"] = bool(self.publisher.wait_acked(ack_timeout_s))
             out["publisher"] = self.publisher.stats()
         return out
+
+
+def _placement_sigma(sim: Any) -> float | None:
+    """The horizontal position σ [m] the scout's own estimator gives itself (None on the exact state, or
+    without an estimator): the square root of the larger eigenvalue of its x, y covariance."""
+    est = getattr(sim, "estimator", None)
+    if est is None or getattr(getattr(sim, "config", None), "state_source", "estimate") != "estimate":
+        return None
+    P = est.position_covariance()[:2, :2]
+    return float(np.sqrt(max(float(np.linalg.eigvalsh(P)[-1]), 0.0)))
 
 
 def add_mapping_arguments(p: argparse.ArgumentParser) -> None:
@@ -211,7 +229,7 @@ class MappingSession:
             self.chained(sample, truth, sim)
         if self.mapper is None:
             return None
-        est = self.mapper.update(sample)
+        est = self.mapper.update(sample, _placement_sigma(sim))
         if self.on_estimates is not None:
             self.on_estimates(est)
         return est
