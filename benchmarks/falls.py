@@ -148,6 +148,7 @@ def main() -> int:
     p.add_argument("--out", type=Path)
     p.add_argument("--seeds", default="0,1")
     p.add_argument("--before", action="store_true", help="also walk each case without the hazard control")
+    p.add_argument("--only", choices=("after", "before"), help="walk only with (after) or without (before) it")
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--summary", type=Path)
     a = p.parse_args()
@@ -162,7 +163,8 @@ def main() -> int:
     else:
         seeds = [int(v) for v in a.seeds.split(",")]
     done = _done(a.out)
-    jobs = [j for j in _jobs(a.kind, seeds, a.before)
+    jobs = [j for j in _jobs(a.kind, seeds, a.before or a.only == "before")
+            if a.only is None or j["on"] == (a.only == "after")
             if json.dumps({k: j[k] for k in j if k in ("kind", "seed", "slope", "mu", "route", "on")}, sort_keys=True)
             not in done]  # fmt: skip
     a.out.parent.mkdir(parents=True, exist_ok=True)

@@ -33,7 +33,7 @@ _ZERO12 = np.zeros(12)
 @dataclass(frozen=True)
 class FrictionEstimateConfig:
     prior_mu: float = 0.6  # what the scout assumes before it felt anything (the stance QP's old constant)
-    floor_mu: float = 0.08  # never believe less than this
+    floor_mu: float = 0.02  # never believe less than this
     min_normal_n: float = 8.0  # force ratios only from feet bearing at least this much [N]
     ratio_tau_s: float = 0.03  # low-pass of the force ratio within a stance [s]
     recover: float = 0.15  # share of the way back to the prior after each clean stance

@@ -55,8 +55,8 @@ class PilotConfig:
     gait: GaitAdaptationConfig = field(default_factory=GaitAdaptationConfig)
     senses: ReflexConfig = field(default_factory=ReflexConfig)
     detour: DetourConfig = field(default_factory=DetourConfig)
-    stop_s: float = 0.2  # short: a robot standing on ground it cannot hold slides
-    back_speed: float = 0.12  # [m/s]
+    stop_s: float = 0.05  # barely: a robot trotting in place on ground it cannot hold slides on
+    back_speed: float = 0.15  # [m/s]
     held_before_s: float = 1.0
     backoff_min_m: float = 0.4
     backoff_max_m: float = 2.5

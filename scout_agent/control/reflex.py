@@ -34,7 +34,8 @@ class ReflexConfig:
     slip_events: int = 3
     slip_events_alone: int = 20  # the paper's holdable 10° patch (μ 0.25) made 8 in 3 s: not a hazard
     slip_window_s: float = 3.0
-    slip_hold_margin: float = 0.01  # μ̂ − tan θ̂ below which repeated slips mean "cannot hold"
+    slip_hold_margin: float = 0.02  # μ̂ − tan θ̂ below which repeated slips mean "cannot hold" (walking
+    # needs more than standing: on a 5° ramp the fixed trot fell on μ = tan 5° exactly)
     slip_sure_margin: float = -0.05  # ... below which one slip is enough (the first foot on the patch)
     min_giim_rad: float = 0.087  # 5°: the planner's hard limit; GIIM fell below it 0.5–1 s before falls
     min_giam: float = -math.inf  # [m/s²]
