@@ -148,7 +148,9 @@ def main() -> int:
     p.add_argument("--out", type=Path)
     p.add_argument("--seeds", default="0,1")
     p.add_argument("--before", action="store_true", help="also walk each case without the hazard control")
-    p.add_argument("--only", choices=("after", "before"), help="walk only with (after) or without (before) it")
+    p.add_argument(
+        "--only", choices=("after", "before"), help="walk only with (after) or without (before) it"
+    )
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--summary", type=Path)
     a = p.parse_args()
