@@ -417,7 +417,8 @@ def register(subparsers: Any) -> None:
         type=_bbox,
         default=None,
         metavar="X0,Y0,X1,Y1",
-        help="mission area [m], map frame: deltas with a cell outside are rejected (outside_bbox)",
+        help="mission area [m], map frame: deltas with a cell outside are rejected (outside_bbox); negative "
+        "numbers: --bbox=-10,-10,10,10",
     )
     p.add_argument(
         "--discard-deltas",

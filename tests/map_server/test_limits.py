@@ -349,3 +349,26 @@ def test_a_thousand_concurrent_queries_do_not_slow_scout_acks():
     # goal: ≤ 2× the p99 without queries; 8 helpers share this 2-core machine, so a p99 below 60 ms (the noise
     # of the quiet phase here, against 4.4 s before) also passes
     assert p99 <= 2 * base or p99 <= 60, out
+
+
+def test_server_flags_for_the_limits_reach_its_config(capsys):
+    import argparse
+
+    from map_server.cli import register, server_config
+
+    parser = argparse.ArgumentParser(prog="psrmap")
+    register(parser.add_subparsers(dest="command", required=True))
+    base = ["server", "--map", "m1", "--connect", "tcp/127.0.0.1:1"]
+    args = parser.parse_args(
+        [*base, "--bbox=-10,-5,30,40", "--max-queries", "8", "--tile-budget-mib", "0", "--discard-deltas",
+         "--limit-max-tiles-per-scout", "7", "--limit-max-new-tiles-per-scout-minute", "3"]
+    )  # fmt: skip
+    cfg = server_config(args)
+    assert cfg.bbox_m == (-10.0, -5.0, 30.0, 40.0) and cfg.bbox_cells == (-25, -13, 75, 100)
+    assert (cfg.max_queries_in_flight, cfg.budget_mib, cfg.keep_deltas) == (8, 0.0, False)
+    assert (cfg.limits.max_tiles_per_scout, cfg.limits.max_new_tiles_per_scout_minute) == (7, 3)
+    assert server_config(parser.parse_args(base)).budget_mib == default_tile_budget_mib()
+    for bad in ("1,2,3", "5,0,1,1", "0,0,nan,1"):
+        with pytest.raises(SystemExit):
+            parser.parse_args([*base, "--bbox", bad])
+        assert "--bbox" in capsys.readouterr().err
