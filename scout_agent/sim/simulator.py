@@ -15,6 +15,7 @@ exact base state instead (sensor readings stay modelled). `GroundTruth` is for e
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
@@ -31,7 +32,7 @@ from scout_agent.signals import LEG_NAMES, BaseState, GroundTruth, ProprioSample
 from scout_agent.sim.friction import FrictionMap
 from scout_agent.sim.scene import TERRAIN_GEOM, PhysicsConfig, build_scene
 from scout_agent.sim.terrain import Terrain
-from scout_agent.sim.truth import foot_contacts, pose_and_feet, quat_to_mat, stance_displacement
+from scout_agent.sim.truth import quat_to_mat, tick_truth
 from scout_agent.state_estimation import EstimatorConfig, StateEstimator
 from scout_agent.state_estimation.launch import HeightDatum, LaunchSurvey, initial_pose
 
@@ -111,7 +112,7 @@ class ScoutSim:
             m.body_pos[m.body(f"{leg}_foot").id, 2] -= dl[i, 1]
         acc_adr = m.sensor_adr[m.sensor("imu_acc").id]
         gyro_adr = m.sensor_adr[m.sensor("imu_gyro").id]
-        self._touching = np.zeros(m.ngeom, bool)  # non-foot geoms on the ground (contacts.foot_contacts)
+        self._touching = np.zeros(m.ngeom, bool)  # non-foot geoms on the ground (truth.foot_contacts)
         # per control tick: the physics steps' readings land in these blocks (one row per step), copied from
         # views of MjData/MjModel taken once (MuJoCo keeps their memory for the model's/data's lifetime)
         k = config.decimation
@@ -220,28 +221,6 @@ class ScoutSim:
         """The state the robot's software runs on: the estimate (sensor readings), or exact on request."""
         return self._state
 
-    def _contacts(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, bool]:
-        """Per-foot summed ground force (4, 3) world, force-weighted contact point (4, 3), normal force (4,),
-        and the number of non-foot robot geoms touching the terrain, and whether the trunk is one of them."""
-        d = self.data
-        forces, points, fn = np.empty((4, 3)), np.empty((4, 3)), np.empty(4)
-        n = d.ncon
-        con = d.contact
-        n_nonfoot = foot_contacts(
-            con.geom[:n],
-            con.efc_address[:n],
-            con.frame[:n],
-            con.pos[:n],
-            d.efc_force,
-            self._leg_of_geom,
-            self._terrain_geom,
-            forces,
-            points,
-            fn,
-            self._touching,
-        )
-        return forces, points, fn, n_nonfoot, bool(self._touching[self._trunk_geom])
-
     # ------------------------------------------------------------------------------------------ step
     def step(
         self, forward_speed: float | None = None, yaw_rate: float = 0.0
@@ -282,15 +261,31 @@ class ScoutSim:
 
     def _records(self, out: ControlOutput, energy_true_j: float) -> tuple[ProprioSample, GroundTruth]:
         d, cfg = self.data, self.config
-        forces, points, fn, n_nonfoot, trunk_touch = self._contacts()
-        true_contact = fn > cfg.contact_threshold_n
-        tick = self.sensors.read(
-            TrueBlock(self.dt, self._blk_acc, self._blk_gyro, self._blk_q, self._blk_tau, fn)
-        )
         qpos = d.qpos.copy()
-        pos, quat, q = qpos[0:3], qpos[3:7], qpos[7:]
-        R, feet_w = np.empty((3, 3)), np.empty((4, 3))
-        pose_and_feet(qpos, R, feet_w)
+        con, tz = d.contact, self.terrain
+        tt = tick_truth(
+            con.geom,
+            con.efc_address,
+            con.frame,
+            con.pos,
+            d.efc_force,
+            self._leg_of_geom,
+            self._terrain_geom,
+            self._touching,
+            qpos,
+            tz.z,
+            tz.x0,
+            tz.y0,
+            tz.res,
+            cfg.contact_threshold_n,
+            out.stance_planned,
+            self._cp0,
+            self._swung,
+        )
+        tick = self.sensors.read(
+            TrueBlock(self.dt, self._blk_acc, self._blk_gyro, self._blk_q, self._blk_tau, tt.normal_force)
+        )
+        pos, quat = qpos[0:3], qpos[3:7]
         truth_base = BaseState(pos, quat, d.qvel[0:3].copy(), d.qvel[3:6].copy())
         if cfg.state_source == "exact":
             st = self.exact_state()
@@ -302,13 +297,6 @@ class ScoutSim:
                 self.t, est.pos, est.R, est.vel, est.omega, tick.q, tick.dq, tick.contact
             )
             base = BaseState(est.pos, est.quat, est.vel, est.omega)
-        xy = np.empty((2, 5))
-        xy[:, :4] = feet_w[:, :2].T
-        xy[:, 4] = pos[:2]
-        ground = self.terrain.height_at_points(xy[0], xy[1])  # feet, base
-        # stance displacement of the contact point since the stance's first contact
-        disp = np.empty(4)
-        stance_displacement(out.stance_planned, true_contact, points, self._cp0, self._swung, disp)
         sample = ProprioSample(
             t=self.t,
             q=tick.q,
@@ -328,20 +316,21 @@ class ScoutSim:
         truth = GroundTruth(
             t=self.t,
             base=truth_base,
-            foot_pos_world=feet_w,
-            contact_point_world=np.where(true_contact[:, None], points, np.nan),
-            stance_disp=disp,
-            terrain_height_at_feet=ground[:4],
+            foot_pos_world=tt.feet,
+            contact_point_world=tt.contact_point,
+            stance_disp=tt.stance_disp,
+            terrain_height_at_feet=tt.ground[:4],
             friction_at_feet=self._mu_feet.copy(),
-            nonfoot_contacts=n_nonfoot,
-            contact=true_contact,
-            foot_force_world=forces,
+            nonfoot_contacts=tt.n_nonfoot,
+            contact=tt.contact,
+            foot_force_world=tt.foot_force,
             joint_energy_j=energy_true_j,
-            q=q,
+            q=qpos[7:],
             dq=d.qvel[6:].copy(),
         )
-        tilt = np.degrees(np.arccos(min(max(R[2, 2], -1.0), 1.0)))
-        clearance = pos[2] - float(ground[4])
+        tilt = math.degrees(math.acos(min(max(float(tt.R[2, 2]), -1.0), 1.0)))
+        clearance = float(pos[2] - tt.ground[4])
+        trunk_touch = bool(self._touching[self._trunk_geom])
         if not self.fell and (tilt > cfg.fall_tilt_deg or clearance < cfg.fall_min_height_m or trunk_touch):
             self.fell = True
             self.fall_xy = (float(pos[0]), float(pos[1]))

@@ -92,7 +92,7 @@ class Terrain:
     def height_at_points(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         """`height` at the points (x, y), two float arrays (n,): the simulator's per-tick lookup."""
         out = np.empty(len(x))
-        _heights(self.z, self.x0, self.y0, self.res, x, y, out)
+        heights_at(self.z, self.x0, self.y0, self.res, x, y, out)
         return out
 
     def gradient(self, x, y):
@@ -146,10 +146,11 @@ class Terrain:
 
 
 @njit(cache=True, nogil=True)
-def _heights(
+def heights_at(
     z: np.ndarray, x0: float, y0: float, res: float, x: np.ndarray, y: np.ndarray, out: np.ndarray
 ) -> None:
-    """`Terrain.height` at the points (x, y) (n,) into `out` (n,), compiled: the simulator asks every tick."""
+    """`Terrain.height` of the grid `z` (origin x0, y0, spacing res) at the points (x, y) (n,) into `out` (n,),
+    compiled: the simulator asks every tick."""
     ny, nx = z.shape
     for i in range(x.shape[0]):
         u = min(max((x[i] - x0) / res, 0.0), nx - 1 - 1e-9)

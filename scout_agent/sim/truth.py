@@ -8,12 +8,15 @@ they replaced.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 from numba import njit
 
 from scout_agent.robot.kinematics import leg_kinematics
+from scout_agent.sim.terrain import heights_at
 
-__all__ = ["foot_contacts", "pose_and_feet", "stance_displacement"]
+__all__ = ["TickTruth", "foot_contacts", "pose_and_feet", "stance_displacement", "tick_truth"]
 
 
 @njit(cache=True, nogil=True)
@@ -112,3 +115,63 @@ def stance_displacement(
             disp[i] = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
         else:
             disp[i] = np.nan
+
+
+class TickTruth(NamedTuple):
+    """The simulator's ground truth at the end of a control tick (`tick_truth`)."""
+
+    foot_force: np.ndarray  # (4, 3) summed ground force on each foot, world [N]
+    contact_point: np.ndarray  # (4, 3) force-weighted contact point, world [m]; NaN without a pushing contact
+    normal_force: np.ndarray  # (4,) normal force on each foot [N]
+    contact: np.ndarray  # (4,) bool, normal force above the contact threshold
+    n_nonfoot: int  # non-foot robot geoms touching the terrain
+    R: np.ndarray  # (3, 3) trunk rotation, world_R_base
+    feet: np.ndarray  # (4, 3) foot-sphere centres, world [m]
+    ground: np.ndarray  # (5,) terrain height under the four feet and the trunk origin [m]
+    stance_disp: np.ndarray  # (4,) contact point's displacement since its stance's first contact [m]; NaN
+
+
+@njit(cache=True, nogil=True)
+def tick_truth(
+    geom: np.ndarray,
+    efc_address: np.ndarray,
+    frame: np.ndarray,
+    pos: np.ndarray,
+    efc_force: np.ndarray,
+    leg_of_geom: np.ndarray,
+    terrain_geom: int,
+    touching: np.ndarray,
+    qpos: np.ndarray,
+    z: np.ndarray,
+    x0: float,
+    y0: float,
+    res: float,
+    contact_threshold_n: float,
+    stance_planned: np.ndarray,
+    first_point: np.ndarray,
+    swung: np.ndarray,
+) -> TickTruth:
+    """All of a tick's ground truth in one compiled pass: `foot_contacts` (MuJoCo's contact arrays, the
+    `touching` flags), `pose_and_feet` (qpos), the terrain (grid z, x0, y0, res) under the feet and the trunk,
+    and `stance_displacement` (its carried-over `first_point`, `swung`)."""
+    forces, points, fn = np.empty((4, 3)), np.empty((4, 3)), np.empty(4)
+    n_nonfoot = foot_contacts(
+        geom, efc_address, frame, pos, efc_force, leg_of_geom, terrain_geom, forces, points, fn, touching
+    )
+    contact = np.empty(4, np.bool_)
+    for i in range(4):
+        contact[i] = fn[i] > contact_threshold_n
+    R, feet = np.empty((3, 3)), np.empty((4, 3))
+    pose_and_feet(qpos, R, feet)
+    x, y = np.empty(5), np.empty(5)
+    x[:4], y[:4] = feet[:, 0], feet[:, 1]
+    x[4], y[4] = qpos[0], qpos[1]
+    ground = np.empty(5)
+    heights_at(z, x0, y0, res, x, y, ground)
+    disp = np.empty(4)
+    stance_displacement(stance_planned, contact, points, first_point, swung, disp)
+    contact_point = points.copy()
+    for i in range(4):
+        if not contact[i]:
+            contact_point[i] = np.nan
+    return TickTruth(forces, contact_point, fn, contact, n_nonfoot, R, feet, ground, disp)
