@@ -264,11 +264,7 @@ class ScoutSim:
         qpos = d.qpos.copy()
         con, tz = d.contact, self.terrain
         tt = tick_truth(
-            con.geom,
-            con.efc_address,
-            con.frame,
-            con.pos,
-            d.efc_force,
+            (con.geom, con.efc_address, con.frame, con.pos, d.efc_force),
             self._leg_of_geom,
             self._terrain_geom,
             self._touching,

@@ -133,11 +133,7 @@ class TickTruth(NamedTuple):
 
 @njit(cache=True, nogil=True)
 def tick_truth(
-    geom: np.ndarray,
-    efc_address: np.ndarray,
-    frame: np.ndarray,
-    pos: np.ndarray,
-    efc_force: np.ndarray,
+    contacts: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray],
     leg_of_geom: np.ndarray,
     terrain_geom: int,
     touching: np.ndarray,
@@ -151,10 +147,11 @@ def tick_truth(
     first_point: np.ndarray,
     swung: np.ndarray,
 ) -> TickTruth:
-    """All of a tick's ground truth in one compiled pass: `foot_contacts` (MuJoCo's contact arrays, the
-    `touching` flags), `pose_and_feet` (qpos), the terrain (grid z, x0, y0, res) under the feet and the trunk,
+    """All of a tick's ground truth in one compiled pass: `foot_contacts` (MuJoCo's contact arrays `contacts`:
+    geom, efc_address, frame, pos, and efc_force; the `touching` flags), `pose_and_feet` (qpos), the terrain (grid z, x0, y0, res) under the feet and the trunk,
     and `stance_displacement` (its carried-over `first_point`, `swung`)."""
     forces, points, fn = np.empty((4, 3)), np.empty((4, 3)), np.empty(4)
+    geom, efc_address, frame, pos, efc_force = contacts
     n_nonfoot = foot_contacts(
         geom, efc_address, frame, pos, efc_force, leg_of_geom, terrain_geom, forces, points, fn, touching
     )
