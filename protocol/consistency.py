@@ -11,7 +11,7 @@ A delta's statistics are sums over samples; the server adds them. Two kinds of c
     a variance ≥ 0; with the plane-fit sums `sx sy sxx syy sxy sxz syz` the whole 4×4 Gram matrix, which also
     forbids sxy² > sxx·syy and a `sum` with n = 0);
   * where n > 0: min ≤ max, and min ≤ mean (= sum/n) ≤ max for the stats a layer has.
-  Rounding: the matrix is scaled to unit diagonal and may have eigenvalues down to -`GRAM_TOL`; the mean may
+  Rounding: the matrix is scaled to unit diagonal and may have eigenvalues down to -k·`GRAM_TOL`; the mean may
   leave [min, max] by `GRAM_TOL` of its scale.
 
 `bad_cells(layer, block)` flags cells (vectorised over a batch), `check_consistent` raises the ProtocolError
@@ -55,25 +55,21 @@ def _gram(layer: Layer, block: np.ndarray) -> list[list[np.ndarray]] | None:
 
 
 def _not_psd(g: list[list[np.ndarray]]) -> np.ndarray:
-    """Cells whose matrix is not positive semi-definite beyond rounding: the matrix scaled to unit diagonal,
-    then Gaussian elimination (an LDLᵀ, vectorised over cells); a pivot below -GRAM_TOL fails, a pivot within
-    ±GRAM_TOL counts as zero and needs its column (nearly) zero as well, as in any PSD matrix."""
+    """Cells whose matrix is not positive semi-definite beyond rounding: the matrix scaled to unit diagonal
+    (a zero diagonal entry is left unscaled: its row must then be zero), then its smallest eigenvalue
+    (`numpy.linalg.eigvalsh`, batched over cells) below -GRAM_TOL. Eigenvalues of a symmetric matrix move by
+    at most the rounding of its entries (≈ 1e-16 here), whatever its rank: two footholds at the same x make an
+    exactly singular moment matrix that an elimination with a tiny pivot would amplify into a false rejection."""
     k = len(g)
-    d = [g[i][i] for i in range(k)]
-    bad = np.logical_or.reduce([v < 0 for v in d])
-    inv = [1.0 / np.sqrt(np.where(v > 0, v, 1.0)) for v in d]  # a zero diagonal entry: its row must be zero
-    c = [[g[i][j] * inv[i] * inv[j] for j in range(k)] for i in range(k)]
-    for j in range(k):
-        p = c[j][j]
-        bad |= p < -GRAM_TOL
-        pivot = p > GRAM_TOL
-        room = np.maximum(p, 0.0) + GRAM_TOL
-        safe = np.where(pivot, p, 1.0)
-        for i in range(j + 1, k):
-            bad |= ~pivot & (c[i][j] ** 2 > room * (np.abs(c[i][i]) + GRAM_TOL))
-            f = np.where(pivot, c[i][j] / safe, 0.0)
-            for m in range(j + 1, k):
-                c[i][m] = c[i][m] - f * c[j][m]
+    m = np.stack([np.stack(row, axis=-1) for row in g], axis=-2)  # (N, k, k)
+    d = np.diagonal(m, axis1=-2, axis2=-1)
+    bad = (d < 0).any(axis=-1)
+    inv = 1.0 / np.sqrt(np.where(d > 0, d, 1.0))
+    scaled = m * inv[:, :, None] * inv[:, None, :]
+    if not np.isfinite(scaled).all():
+        bad |= ~np.isfinite(scaled).reshape(len(scaled), -1).all(axis=1)
+        scaled = np.where(np.isfinite(scaled), scaled, 0.0)
+    bad |= np.linalg.eigvalsh(scaled)[:, 0] < -GRAM_TOL * k
     return bad
 
 

@@ -25,7 +25,9 @@ def test_one_scouts_hazard_makes_the_planner_route_around_the_cell(served_map, r
         assert not s.fell and s.report["hazard_stops"] and s.all_acked
         assert s.report["map"]["hazard_reports"] == len(s.report["hazard_stops"])
         stop = s.report["hazard_stops"][0]
-        hx, hy = ((np.floor(np.array([stop["x"], stop["y"]]) / 0.4) + 0.5) * 0.4).tolist()  # its cell's centre
+        hx, hy = (
+            (np.floor(np.array([stop["x"], stop["y"]]) / 0.4) + 0.5) * 0.4
+        ).tolist()  # its cell's centre
 
         src = MapSource(map_id="hz", connect=(router,), margin_m=4.0)
         a, b = (2.8, 0.0), (5.2, 0.0)  # across the hazard, along the scout's own track
