@@ -12,7 +12,14 @@ A short trot on the ramps is simulated once and its samples recorded; then the w
 The EKF steps are numba kernels (`scout_agent/state_estimation/kernels.py`); numba compiles them on first use, so
 the warm-up walk that records the samples also loads them before anything is timed.
 
-    python benchmarks/estimators.py [--seconds 6] [--slope 10] [--repeats 5]
+The localizer (`scout_agent.localization`, issue 23): its per-tick bookkeeping (footholds into the track) on
+the recorded samples, one DEM match and one shared-map match of a 30 m / 10 m foothold track on a 100 m
+field's simulated orbital DEM and on a 0.4 m map of it, amortized over the ticks between two matches at the
+default cadence; and the scout loop on that field with the localizer and without it in the same run, the
+localizer matching against the DEM every `--loc-every` metres (default 2 m on a 6 m track: several times more
+often than the default 15 m, so the measured overhead bounds the default's; goal: within 15 %).
+
+    python benchmarks/estimators.py [--seconds 6] [--slope 10] [--repeats 5] [--loc-seconds 40]
 """
 
 from __future__ import annotations
@@ -31,9 +38,12 @@ from scout_agent.estimators import EstimatorPipeline, PipelineConfig, quat_to_ma
 from scout_agent.estimators.feet import PinocchioFeet
 from scout_agent.estimators.slip import SlipDetector
 from scout_agent.estimators.stability import margins_fast
+from scout_agent.localization import DemReference, Localizer, LocalizerConfig, map_reference, match_track
+from scout_agent.localization.localizer import SourceConfig
 from scout_agent.sensors import SensorTick
+from scout_agent.sim.dem import orbital_dem
 from scout_agent.sim.simulator import ScoutSim, SimConfig
-from scout_agent.sim.terrain import RampConfig, make_ramps
+from scout_agent.sim.terrain import LunarConfig, RampConfig, make_lunar, make_ramps
 from scout_agent.state_estimation import StateEstimator
 
 
@@ -50,6 +60,97 @@ def loop_cpu_seconds(state_source: str, seconds: float, slope: float) -> float:
         )
         sim.step(v, w)
     return time.process_time() - t0
+
+
+def localizer_loop_cpu(
+    terrain, dem: DemReference, seconds: float, every_m: float | None
+) -> tuple[float, dict]:
+    """CPU time [s] of `seconds` of the scout loop on the lunar `terrain` along its diagonal, with a localizer
+    matching against `dem` every `every_m` walked (None: no localizer), and the localizer's report."""
+    sim = ScoutSim(terrain)
+    follower = PathFollower([terrain.spawn[:2], terrain.goal])
+    loc = None
+    if every_m is not None:
+        base = LocalizerConfig()
+        cfg = replace(base, dem=SourceConfig(every_m, 3 * every_m, base.dem.match, base.dem.datum_m))
+        loc = Localizer(sim.estimator, cfg, dem=dem)
+    t0 = time.process_time()
+    for _ in range(int(round(seconds / sim.control_dt))):
+        st = sim.robot_state()
+        v, w = follower.command(
+            st.pos[:2], float(np.arctan2(st.R[1, 0], st.R[0, 0])), st.vel[:2], sim.control_dt
+        )
+        sample, _ = sim.step(v, w)
+        if loc is not None:
+            loc.on_tick(sample)
+    return time.process_time() - t0, (loc.report.to_json() if loc is not None else {})
+
+
+def localizer_costs(repeats: int, loc_seconds: float, every_m: float) -> dict:
+    """The localizer's cost: bookkeeping per tick, one match per source, amortized; the loop with vs without."""
+    terrain = make_lunar(LunarConfig(seed=3, size_m=100.0))
+    dem = DemReference(orbital_dem(terrain))
+    sim = ScoutSim(terrain)
+    samples = [sim.step(0.2)[0] for _ in range(600)]
+    n = len(samples)
+
+    def bookkeeping() -> None:  # the estimator is not advanced: no match is due, only the track is kept
+        loc = Localizer(StateEstimator(sim.launch, samples[0].q), LocalizerConfig(), dem=dem)
+        for smp in samples:
+            loc.on_tick(smp)
+
+    per_tick = best_per_tick(bookkeeping, n, repeats)
+    # a trot's footholds along the diagonal as the estimate would place them: 4 per 0.5 m, 0.3 m apart
+    base = LocalizerConfig()
+    s = np.arange(0.0, base.dem.track_m, 0.125)
+    side = np.where(np.arange(len(s)) % 2, 0.15, -0.15)
+    u = np.array([1.0, 1.0]) / np.sqrt(2.0)
+    xy = np.array([10.0, 10.0]) + s[:, None] * u + side[:, None] * np.array([-u[1], u[0]])
+    pts = np.column_stack([xy - 0.5, terrain.height(xy[:, 0], xy[:, 1])])
+    t0 = time.process_time()
+    for _ in range(repeats):
+        match_track(pts, dem, base.dem.match, pivot=pts[-1, :2])
+    dem_ms = (time.process_time() - t0) / repeats * 1e3
+    # the shared map of the same ground: 0.4 m cells, one plane per cell (elevation statistics of a dense walk)
+    res = 0.4
+    gx, gy = np.meshgrid(np.arange(0, 40, 0.1) + 0.05, np.arange(0, 40, 0.1) + 0.05)
+    z = terrain.height(gx, gy)
+    ix, iy = (gx // res).astype(int), (gy // res).astype(int)
+    stats = {
+        k: np.zeros((100, 100)) for k in ("n", "sum", "sumsq", "sx", "sy", "sxx", "syy", "sxy", "sxz", "syz")
+    }
+    dx, dy = gx - (ix + 0.5) * res, gy - (iy + 0.5) * res
+    for k, v in (("n", 1.0 + 0 * z), ("sum", z), ("sumsq", z * z), ("sx", dx), ("sy", dy), ("sxx", dx * dx),
+                 ("syy", dy * dy), ("sxy", dx * dy), ("sxz", dx * z), ("syz", dy * z)):  # fmt: skip
+        np.add.at(stats[k], (iy, ix), v)
+    ref = map_reference(stats, 0.0, 0.0, res)
+    short = pts[s >= base.dem.track_m - base.map.track_m]
+    t0 = time.process_time()
+    for _ in range(repeats):
+        match_track(short, ref, base.map.match, pivot=short[-1, :2])
+    map_ms = (time.process_time() - t0) / repeats * 1e3
+    ticks_per_m = 1.0 / (0.2 * sim.control_dt)  # at the default 0.2 m/s
+    amortized = per_tick + 1e3 * (
+        dem_ms / (base.dem.every_m * ticks_per_m) + map_ms / (base.map.every_m * ticks_per_m)
+    )
+    off, _ = localizer_loop_cpu(terrain, dem, loc_seconds, None)
+    on, report = localizer_loop_cpu(terrain, dem, loc_seconds, every_m)
+    return {
+        "bookkeeping_us_per_tick": round(per_tick, 2),
+        "dem_match_ms": round(dem_ms, 1),
+        "map_match_ms": round(map_ms, 1),
+        "amortized_us_per_tick_default_cadence": round(amortized, 2),
+        "scout_loop": {
+            "sim_seconds": loc_seconds,
+            "dem_every_m": every_m,
+            "report": report,
+            "real_time_factor_cpu_without": round(loc_seconds / off, 2),
+            "real_time_factor_cpu_with": round(loc_seconds / on, 2),
+            "with_vs_without_rtf_ratio": round(off / on, 3),
+            "goal_ratio": 0.85,
+            "meets_goal": off / on >= 0.85,
+        },
+    }
 
 
 def best_per_tick(fn, n: int, repeats: int) -> float:
@@ -70,6 +171,10 @@ def main() -> None:
     ap.add_argument(
         "--loop-seconds", type=float, default=8.0, help="simulated walk per scout-loop timing [s]"
     )
+    ap.add_argument(
+        "--loc-seconds", type=float, default=40.0, help="simulated walk per localizer loop timing [s]"
+    )
+    ap.add_argument("--loc-every", type=float, default=2.0, help="DEM match cadence in that loop [m]")
     args = ap.parse_args()
 
     sim = ScoutSim(make_ramps(RampConfig(slope_deg=args.slope)))
@@ -157,6 +262,7 @@ def main() -> None:
         "goal_ratio": 0.8,
     }
     out["scout_loop"]["meets_goal"] = out["scout_loop"]["estimate_vs_exact_rtf_ratio"] >= 0.8
+    out["localizer"] = localizer_costs(args.repeats, args.loc_seconds, args.loc_every)
     out["machine"] = {"python": platform.python_version(), "cpu": platform.processor() or platform.machine()}
     print(json.dumps(out))
 

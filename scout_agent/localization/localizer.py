@@ -64,7 +64,7 @@ class LocalizerConfig:
     # the DEM's vertical bias (OrbitalDemConfig, LOLA). Window limits: position ≤ 4 m, heading ≤ 6°.
     dem: SourceConfig = field(
         default_factory=lambda: SourceConfig(
-            15.0, 30.0, MatchConfig(window_m=4.0, step_m=0.25, yaw_window_deg=6.0, max_sigma_m=1.5), 0.03
+            15.0, 30.0, MatchConfig(window_m=4.0, step_m=0.5, yaw_window_deg=6.0, max_sigma_m=1.5), 0.03
         )
     )
     # the shared map: 0.4 m cells with cm-level scatter
