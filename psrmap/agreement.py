@@ -63,8 +63,8 @@ def map_elevation_rmse(grid: Any, terrain: Any) -> tuple[float | None, int]:
     elev = grid.layers.get("elevation")
     if elev is None:
         return None, 0
-    values = layer_value("elevation", elev)
-    ok = (elev["n"] > 0) & np.isfinite(values)
+    values = grid.value("elevation")  # from the raw stats when present, else the reply's value
+    ok = (np.nan_to_num(elev["n"]) > 0) & np.isfinite(values)
     if not ok.any():
         return None, 0
     iy, ix = np.nonzero(ok)
