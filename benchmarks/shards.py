@@ -113,15 +113,22 @@ def run(k: int, args: argparse.Namespace) -> dict:
     router = spawn("router", "--listen", ep)
     servers = []
     quotas: list[CpuQuota] = []
-    for i in range(k):
-        shard = ["--shards", str(k), "--shard", str(i)] if k > 1 else []
-        servers.append(
-            spawn("server", "--map", MAP, "--res", str(RES), "--tile", str(TILE), "--db", str(Path(tmp.name) / f"s{i}.db"),
-                  "--connect", ep, *shard, *FLEET_LIMITS, core=i % (psutil.cpu_count() or 1) if args.pin else None)
-        )  # fmt: skip
-        if args.cpu_quota:  # this shard, and only it, in a cgroup of its own with Q of a core
-            quotas.append(CpuQuota(args.cpu_quota, f"psrmap-bench-{os.getpid()}-k{k}-shard{i}"))
-            quotas[-1].add(servers[-1].pid)
+    try:
+        for i in range(k):
+            shard = ["--shards", str(k), "--shard", str(i)] if k > 1 else []
+            servers.append(
+                spawn("server", "--map", MAP, "--res", str(RES), "--tile", str(TILE), "--db", str(Path(tmp.name) / f"s{i}.db"),
+                      "--connect", ep, *shard, *FLEET_LIMITS, core=i % (psutil.cpu_count() or 1) if args.pin else None)
+            )  # fmt: skip
+            if args.cpu_quota:  # this shard, and only it, in a cgroup of its own with Q of a core
+                quotas.append(CpuQuota(args.cpu_quota, f"psrmap-bench-{os.getpid()}-k{k}-shard{i}"))
+                quotas[-1].add(servers[-1].pid)
+    except BaseException:  # (interrupted or failed while starting: stop what started, remove the cgroups)
+        shutdown([], [*servers, router])
+        for q in quotas:
+            q.close()
+        tmp.cleanup()
+        raise
     ctx = mp.get_context("spawn")
     ready = [ctx.Event() for _ in range(args.publishers)]
     go, stop, results = ctx.Event(), ctx.Event(), ctx.Queue()
