@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit
 
-from scout_agent.control.gait import GaitConfig, TrotGait
+from scout_agent.control.gait import GaitConfig, TrotGait, schedule
 from scout_agent.control.stance import StanceQP, StanceQPConfig
 from scout_agent.control.swing import swing_point_into
 from scout_agent.robot import constants as C
@@ -424,9 +424,9 @@ class TrotController:
     def step(self, s: RobotState, dt: float) -> ControlOutput:
         if not self._initialized:
             self.reset(s)
-        phase = self.gait.phase(s.t - self.t0)
-        sched = self.gait.stance(phase)
-        sw = self.gait.swing_progress(phase)
+        g = self.gait.config
+        phase, sched, sw = np.empty(4), np.empty(4, bool), np.empty(4)
+        schedule(s.t - self.t0, g.freq_hz, g.duty, self.gait.offsets, phase, sched, sw)
         J, feet_w, pv = self._J, self._feet_w, self._plane_v
         self._limits[0] = self.config.height + self.height_offset
         _trunk_wrench(
@@ -455,11 +455,7 @@ class TrotController:
             pv,
         )
         stance = self.in_stance.copy()
-        forces = np.zeros((4, 3))
-        idx = np.flatnonzero(stance)
-        if idx.size:
-            mu = None if self.mu_feet is None else self.mu_feet[idx]
-            forces[idx] = self.qp.solve(feet_w[idx] - s.pos, pv[3:6], pv[6:12], self.f_prev[idx], mu)
+        forces = self.qp.solve_feet(stance, feet_w, s.pos, pv[3:6], pv[6:12], self.f_prev, self.mu_feet)
         self.f_prev = forces
         tau, q_des, kp, kd = np.empty(12), np.empty(12), np.empty(12), np.empty(12)
         pos_des_b, vel_des_b = np.empty((4, 3)), np.empty((4, 3))

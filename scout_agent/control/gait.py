@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 
 @dataclass(frozen=True)
@@ -17,13 +18,13 @@ class GaitConfig:
 class TrotGait:
     def __init__(self, config: GaitConfig = GaitConfig()) -> None:
         self.config = config
-        self._offsets = np.asarray(config.offsets)
+        self.offsets = np.asarray(config.offsets)
         self.stance_s = config.duty / config.freq_hz  # stance duration [s]
         self.swing_s = (1.0 - config.duty) / config.freq_hz  # swing duration [s]
 
     def phase(self, t: float) -> np.ndarray:
         """(4,) phase in [0, 1); stance is [0, duty), swing [duty, 1)."""
-        return (t * self.config.freq_hz + self._offsets) % 1.0
+        return (t * self.config.freq_hz + self.offsets) % 1.0
 
     def stance(self, phase: np.ndarray) -> np.ndarray:
         return phase < self.config.duty
@@ -35,3 +36,22 @@ class TrotGait:
 
     def stance_progress(self, phase: np.ndarray) -> np.ndarray:
         return np.clip(phase / self.config.duty, 0.0, 1.0)
+
+
+@njit(cache=True, nogil=True)
+def schedule(
+    t: float,
+    freq_hz: float,
+    duty: float,
+    offsets: np.ndarray,
+    phase: np.ndarray,
+    stance: np.ndarray,
+    swing: np.ndarray,
+) -> None:
+    """`TrotGait.phase`, `stance` and `swing_progress` at time `t` [s] in one compiled pass (the controller's
+    tick), into `phase`, `stance` and `swing` (4,)."""
+    tf = t * freq_hz
+    for i in range(4):
+        phase[i] = (tf + offsets[i]) % 1.0
+        stance[i] = phase[i] < duty
+        swing[i] = min(max((phase[i] - duty) / (1.0 - duty), 0.0), 1.0)

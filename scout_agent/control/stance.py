@@ -34,6 +34,7 @@ class StanceQP:
         self.config = config
         c = config
         self._S = np.array([c.force_weight] * 3 + [c.moment_weight] * 3)
+        self._mu4 = np.full(4, c.mu)
 
     def solve(
         self,
@@ -60,12 +61,70 @@ class StanceQP:
             c.reg,
             c.smooth,
         )
-        try:
-            f = quadprog.solve_qp(G, a, Cm, b, 0)[0]
-        except ValueError:  # infeasible (should not happen with these box/cone constraints)
-            f = np.zeros(3 * k)
-            f[2::3] = wrench[2] / k
-        return f.reshape(k, 3)
+        return _solve((G, a, Cm, b), wrench, k)
+
+    def solve_feet(
+        self,
+        stance: np.ndarray,
+        feet_w: np.ndarray,
+        com: np.ndarray,
+        normal: np.ndarray,
+        wrench: np.ndarray,
+        f_prev: np.ndarray,
+        mu: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """`solve` for the feet in `stance` (4,) bool of all four: their world positions `feet_w` (4, 3) and
+        the CoM `com` (3,), last tick's forces `f_prev` (4, 3), each foot's friction `mu` (4,) or None;
+        forces (4, 3), zero on the other feet (the controller's tick: the selection is compiled)."""
+        c = self.config
+        forces = np.zeros((4, 3))
+        k = int(np.count_nonzero(stance))
+        if k == 0:
+            return forces
+        mu4 = self._mu4 if mu is None else np.asarray(mu, dtype=float)
+        problem = (normal, wrench, self._S, c.f_min, c.f_max, c.reg, c.smooth)
+        forces[stance] = _solve(stance_problem(stance, feet_w, com, f_prev, mu4, problem), wrench, k)
+        return forces
+
+
+def _solve(
+    qp: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray], wrench: np.ndarray, k: int
+) -> np.ndarray:
+    """quadprog on (G, a, C, b); forces (k, 3)."""
+    try:
+        f = quadprog.solve_qp(*qp, 0)[0]
+    except ValueError:  # infeasible (should not happen with these box/cone constraints)
+        f = np.zeros(3 * k)
+        f[2::3] = wrench[2] / k
+    return f.reshape(k, 3)
+
+
+@njit(cache=True, nogil=True)
+def stance_problem(
+    stance: np.ndarray,
+    feet_w: np.ndarray,
+    com: np.ndarray,
+    f_prev: np.ndarray,
+    mu: np.ndarray,
+    problem: tuple[np.ndarray, np.ndarray, np.ndarray, float, float, float, float],
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """`qp_problem` for the feet in `stance` of all four (positions relative to the CoM, their last forces
+    `f_prev` (4, 3) and friction `mu` (4,) selected here); `problem`: normal, wrench, S, f_min, f_max, reg,
+    smooth as `qp_problem` takes them."""
+    normal, wrench, S, f_min, f_max, reg, smooth = problem
+    k = 0
+    for i in range(4):
+        k += stance[i]
+    r, fp, m = np.empty((k, 3)), np.empty(3 * k), np.empty(k)
+    row = 0
+    for i in range(4):
+        if stance[i]:
+            for j in range(3):
+                r[row, j] = feet_w[i, j] - com[j]
+                fp[3 * row + j] = f_prev[i, j]
+            m[row] = mu[i]
+            row += 1
+    return qp_problem(r, normal, wrench, fp, S, m, f_min, f_max, reg, smooth)
 
 
 @njit(cache=True, nogil=True)
