@@ -42,22 +42,26 @@ def cgroup_version() -> int:
 
 
 class CpuQuota:
-    """One cgroup with `share` of a core (0 < share)."""
+    """One cgroup with at most `share` of a core (0 < share; None: no cap) and, with `weight`, a CFS weight
+    relative to the other groups and to the processes outside any (v1 `cpu.shares`, default 1024; v2
+    `cpu.weight` = weight / 1024 × 100): a quota caps, a weight makes the cap reachable on a loaded machine."""
 
-    def __init__(self, share: float, name: str) -> None:
-        if not share > 0:
+    def __init__(self, share: float | None, name: str, weight: int | None = None) -> None:
+        if share is not None and not share > 0:
             raise QuotaError(f"cpu quota {share}: need a share of a core > 0")
         if os.geteuid() != 0:
             raise QuotaError("cpu quotas need root (cgroups are written under /sys/fs/cgroup)")
         self.version = cgroup_version()
         self.share = share
-        quota = max(1000, int(round(share * PERIOD_US)))
+        quota = max(1000, int(round(share * PERIOD_US))) if share is not None else -1
         if self.version == 1:
             self.root = V1
             self.path = V1 / name
             self.path.mkdir(exist_ok=True)
             (self.path / "cpu.cfs_period_us").write_text(str(PERIOD_US))
             (self.path / "cpu.cfs_quota_us").write_text(str(quota))
+            if weight is not None:
+                (self.path / "cpu.shares").write_text(str(int(weight)))
         else:
             self.root = V2
             sub = V2 / "cgroup.subtree_control"
@@ -65,7 +69,9 @@ class CpuQuota:
                 sub.write_text("+cpu")
             self.path = V2 / name
             self.path.mkdir(exist_ok=True)
-            (self.path / "cpu.max").write_text(f"{quota} {PERIOD_US}")
+            (self.path / "cpu.max").write_text(f"{quota if quota > 0 else 'max'} {PERIOD_US}")
+            if weight is not None:
+                (self.path / "cpu.weight").write_text(str(max(1, min(10000, int(weight * 100 / 1024)))))
 
     def add(self, pid: int) -> None:
         """Move process `pid` (every thread of it) into this cgroup."""

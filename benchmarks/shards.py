@@ -11,7 +11,8 @@ how the machine's cores were shared. Prints one JSON object.
 
 With `--cpu-quota Q` (root; cgroup v1 or v2, benchmarks/cpu_quota.py) each shard server — and only the shards —
 runs in its own cgroup with Q of a core, as K separate hosts would; the router and the publishers (pre-encoded)
-stay outside the quotas. K = 1, 2, 3 then (default `--shards 1,2,3,1,2,3`); each run also reports every shard's
+stay outside the quotas (in an uncapped group). Every group gets the CFS weight `--cpu-weight` (default 8192, 8×
+a lone process's), so on a machine loaded by other work a shard still reaches its quota and the harness keeps up. K = 1, 2, 3 then (default `--shards 1,2,3,1,2,3`); each run also reports every shard's
 CPU use and how often its quota throttled it. Goal with Q = 0.3: K=2 ≥ 1.8× and K=3 ≥ 2.5× K=1's deltas/s.
 
     sudo python benchmarks/shards.py --cpu-quota 0.3 --max-rate 3000
@@ -121,7 +122,9 @@ def run(k: int, args: argparse.Namespace) -> dict:
                       "--connect", ep, *shard, *FLEET_LIMITS, core=i % (psutil.cpu_count() or 1) if args.pin else None)
             )  # fmt: skip
             if args.cpu_quota:  # this shard, and only it, in a cgroup of its own with Q of a core
-                quotas.append(CpuQuota(args.cpu_quota, f"psrmap-bench-{os.getpid()}-k{k}-shard{i}"))
+                quotas.append(
+                    CpuQuota(args.cpu_quota, f"psrmap-bench-{os.getpid()}-k{k}-shard{i}", args.cpu_weight)
+                )
                 quotas[-1].add(servers[-1].pid)
     except BaseException:  # (interrupted or failed while starting: stop what started, remove the cgroups)
         shutdown([], [*servers, router])
@@ -137,10 +140,15 @@ def run(k: int, args: argparse.Namespace) -> dict:
         ctx.Process(target=publisher, args=(p, ep, k, n, args.window, ready[p], go, stop, results))
         for p in range(args.publishers)
     ]
+    harness: CpuQuota | None = None
     out: dict = {"shards": k, "pinned": args.pin, "cpu_quota": args.cpu_quota}  # pinned: shard i on core i
     try:
         for p in procs:
             p.start()
+        if args.cpu_quota and args.cpu_weight:  # router + publishers: no cap, the same weight as a shard
+            harness = CpuQuota(None, f"psrmap-bench-{os.getpid()}-k{k}-harness", args.cpu_weight)
+            for pid in (router.pid, *(p.pid for p in procs)):
+                harness.add(pid)  # type: ignore[arg-type]
         for e in ready:
             e.wait(600)
         with zenoh.open(zenoh_config(connect=[ep], mode="client")) as s:
@@ -187,7 +195,7 @@ def run(k: int, args: argparse.Namespace) -> dict:
         stop.set()
         go.set()
         shutdown(procs, [*servers, router])
-        for q in quotas:
+        for q in [*quotas, *([harness] if harness is not None else [])]:
             q.close()
         tmp.cleanup()
     return out
@@ -207,6 +215,15 @@ def main() -> None:
         default=None,
         metavar="Q",
         help="run each shard server (only the shards) in its own cgroup with Q of a core (root; cgroup v1 or v2)",
+    )
+    ap.add_argument(
+        "--cpu-weight",
+        type=int,
+        default=8192,
+        metavar="W",
+        help="with --cpu-quota: the CFS weight of each shard's group and of the router + publishers' (uncapped) "
+        "group, against the machine's other processes (1024 each): so a shard gets its Q on a loaded machine "
+        "(default 8192; 0: leave the weights alone)",
     )
     ap.add_argument("--publishers", type=int, default=2)
     ap.add_argument("--seconds", type=float, default=8.0, help="measurement window per K [s]")
