@@ -7,7 +7,8 @@ while it slides the ground bears its kinetic friction, so the ratio filtered ove
 slip event (`ratio_tau_s`) is an observation of μ. A stance that ends without a slip proves the ground held
 at least the largest ratio it bore. So, per foot:
 
-- slip event: μ̂ ← clip(ρ_filtered, `floor_mu`, μ̂) (never raised by a slip);
+- slip event: μ̂ ← clip(largest ρ_filtered of the stance so far, `floor_mu`, μ̂) (never raised by a slip;
+  the ratio at the event tick itself read 0.06 on a μ 0.14 patch: the foot creeps on at a lower ratio);
 - stance ended without a slip: μ̂ ← max(μ̂ + `recover` · (prior − μ̂), the largest settled ρ of that stance),
   capped at the prior: the estimate recovers over a few clean stances once the ground grips again.
 
@@ -82,8 +83,10 @@ class FrictionEstimate:
                 prev = self._ratio[i]
                 self._ratio[i] = r if prev != prev else prev + a * (r - prev)
                 self._held[i] = max(self._held[i], self._ratio[i])
-            if slip_event[i] and self._ratio[i] == self._ratio[i]:
-                self.mu[i] = min(self.mu[i], max(c.floor_mu, float(self._ratio[i])))
+            if slip_event[i] and self._held[i] > 0:
+                # the largest ratio this stance bore before the event: where it started to slide (by the time
+                # the detector declares the slip, 2 cm later, a creeping foot bears less)
+                self.mu[i] = min(self.mu[i], max(c.floor_mu, float(self._held[i])))
                 self.observations += 1
             if stance_end[i]:
                 if not slipped[i]:
