@@ -70,7 +70,11 @@ class LocalizerConfig:
     # the shared map: 0.4 m cells with cm-level scatter
     map: SourceConfig = field(
         default_factory=lambda: SourceConfig(
-            3.0, 10.0, MatchConfig(window_m=1.0, step_m=0.1, yaw_window_deg=3.0, max_sigma_m=0.3), 0.01
+            3.0,
+            10.0,
+            # another scout's track covers part of ours where they cross or run alongside: a quarter will do
+            MatchConfig(window_m=1.0, step_m=0.1, yaw_window_deg=3.0, max_sigma_m=0.3, min_coverage=0.25),
+            0.01,
         )
     )
 

@@ -5,14 +5,16 @@ For every candidate offset on a grid (±`window` at `step`, yaw about `pivot`, t
 track's points are moved, the reference is read under them, and the vertical datum dz is fitted (a
 Huber-weighted mean: the estimate's height and a DEM's bias are unknown); the score is the Huber loss of the
 normalised residuals (r − dz)/σ, σ from the reference (its stated error, or the map cell's scatter), points
-the reference does not cover costing the loss's value at the Huber threshold. From the best grid point a
+the reference does not cover costing ½, what a well-fitting point costs on average (E[u²/2] = ½): neither
+covering more of another scout's track nor leaving it pays in itself, so a partial overlap (a crossing) is
+not pulled onto or off the others' data. From the best grid point a
 Nelder–Mead search refines the offset off the grid (a map's peak is narrower than a grid step), and a
 quadratic fitted to the scores on a stencil of half steps around it gives the Hessian; score ≈ ½χ², so the
 Laplace covariance is H⁻¹, inflated by the footholds per independent reference cell (a DEM pixel's error is
 shared by every foothold in it).
 
 Refused (`MatchResult.ok` False, `reason` says which):
-- "few": fewer than `min_points` footholds, or under `min_coverage` of them on the reference;
+- "few": fewer than `min_points` footholds on the reference, or under `min_coverage` of them;
 - "flat" (checked first): no offset in the window scores `min_separation_chi2` worse than the best;
 - "ambiguous": another place, farther than `exclusion_sigma` of the best's σ (and 3 steps),
   scores within `min_separation_chi2` of it (a periodic or repeated relief);
@@ -75,7 +77,7 @@ def _scores(
     m, n = len(cand), len(pts)
     S, DZ, COV = np.empty(m), np.empty(m), np.empty(m)
     rel = pts[:, :2] - pivot
-    cap = 0.5 * k * k
+    cap = 0.5  # an uncovered point: the expected cost of a covered one that fits
     for o in range(0, m, chunk):
         cd = cand[o : o + chunk]
         c, s = np.cos(cd[:, 2:3]), np.sin(cd[:, 2:3])
@@ -132,7 +134,7 @@ def match_track(
     cand = np.stack([X.ravel(), Y.ravel(), A.ravel()], 1)
     S, _, COVER = _scores(pts, ref, cand, piv, cfg.huber_k)
     b = int(np.argmin(S))
-    if COVER[b] < cfg.min_coverage:
+    if COVER[b] < cfg.min_coverage or COVER[b] * n < cfg.min_points:
         return MatchResult(False, "few", points=n, pivot=pv)
     # footholds per independent reference cell, at the best offset
     cell = max(ref.cell_m, 1e-3)

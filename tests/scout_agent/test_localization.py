@@ -132,3 +132,22 @@ def test_the_track_moves_with_a_correction() -> None:
     assert len(t) == 1
     t.shift(np.array([3.0, 0.0, 0.0]), np.array([3.5, 0.5, 0.1]), np.pi / 2)
     np.testing.assert_allclose(t.window(5.0, 12.0), [[3.5, 0.5, 0.3]])
+
+
+def test_a_partial_overlap_is_matched_without_being_pulled_onto_the_map() -> None:
+    z = _relief(4)
+    known = np.zeros(z.shape, bool)
+    known[:, :120] = True  # the map holds only x < 12 m: the track leaves it halfway
+    ref = GridReference(
+        np.where(known, z, np.nan), np.where(known, 0.01, np.nan), -RES / 2, -RES / 2, RES,
+        *(np.where(known, g, 0.0) for g in np.gradient(z, RES)[::-1]),
+    )  # fmt: skip
+    xy = _track(300, 12.0, 0.0) + (3.0, 0.0)  # x from 8 to 20 m along y = 5
+    h, _ = _ref(z).heights(xy[:, 0], xy[:, 1])
+    off = np.array([0.25, -0.15])
+    pts = np.column_stack([xy - off, h + np.random.default_rng(5).normal(0, 0.01, len(h))])
+    r = match_track(
+        pts, ref, MatchConfig(window_m=0.8, yaw_window_deg=0.0, min_coverage=0.25), pivot=xy[-1] - off
+    )
+    assert r.ok, r.reason
+    assert np.hypot(r.dx - off[0], r.dy - off[1]) < 0.05
