@@ -98,3 +98,16 @@ def test_evaluate_rejects_a_bad_resolution():
 
     with pytest.raises(SystemExit):
         main(["evaluate", "--res", "0", "--sim-seconds", "1", "--json"])
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [["--sensors", "perfect"], ["--launch", "gps"], ["--launch-sigma", "-1,1"], ["--launch-sigma", "0.1"]],
+)
+def test_evaluate_rejects_bad_sensor_and_launch_options(argv, capsys):
+    from psrmap.cli import main
+
+    with pytest.raises(SystemExit):
+        main(["evaluate", "--sim-seconds", "1", "--json", *argv])
+    err = capsys.readouterr().err
+    assert any(w in err for w in ("realistic", "survey", "launch-sigma", "launch survey"))

@@ -286,3 +286,34 @@ def test_the_height_is_anchored_to_the_launch_ground_once_the_feet_stand_on_it()
     assert sim.estimator.anchored
     assert abs(first[0].base.pos[2] - first[1].base.pos[2]) > 0.008  # before: the launch prior, 1 cm off
     assert abs(s.base.pos[2] - g.base.pos[2]) < 0.005  # after: on the ground it stands on
+
+
+def test_the_launch_height_comes_from_the_first_datum_source_that_has_one():
+    from scout_agent.errors import ScoutConfigError
+    from scout_agent.state_estimation.launch import initial_pose
+
+    def nowhere(x, y):
+        return None
+
+    def dem(x, y):
+        return (1.25, 0.3)
+
+    def shared_map(x, y):
+        return (1.10, 0.02)
+
+    rng = np.random.default_rng
+    got = initial_pose((0.0, 0.0, 0.0), LaunchSurvey(), rng(1), [("map", nowhere), ("dem", dem)])
+    assert (got.datum, got.ground_z, got.sigma_z_m) == ("dem", 1.25, 0.3)
+    got = initial_pose((0.0, 0.0, 0.0), LaunchSurvey(), rng(1), [("map", shared_map), ("dem", dem)])
+    assert (got.datum, got.ground_z, got.sigma_z_m) == ("map", 1.10, 0.02)
+    got = initial_pose((0.0, 0.0, 0.0), LaunchSurvey(declared_sigma_z_m=5.0), rng(1), [("map", nowhere)])
+    assert (got.datum, got.ground_z, got.sigma_z_m) == ("declared", 0.0, 5.0)
+    # the exact start only on request, and only with the exact height given
+    exact = initial_pose((1.0, 2.0, 0.5), LaunchSurvey(mode="exact"), rng(1), exact_ground_z=lambda: 0.7)
+    assert (exact.x, exact.y, exact.yaw, exact.ground_z, exact.datum) == (1.0, 2.0, 0.5, 0.7, "exact")
+    with pytest.raises(ScoutConfigError, match="exact ground height"):
+        initial_pose((1.0, 2.0, 0.5), LaunchSurvey(mode="exact"), rng(1))
+    with pytest.raises(ScoutConfigError, match="survey, exact"):
+        LaunchSurvey(mode="gps")
+    with pytest.raises(ScoutConfigError, match="sigma_xy_m"):
+        LaunchSurvey(sigma_xy_m=float("nan"))
