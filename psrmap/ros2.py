@@ -22,7 +22,11 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
-__all__ = ["BridgeConfig", "box_arg", "register", "run_bridge"]
+__all__ = ["TOPICS", "BridgeConfig", "box_arg", "register", "ros_keys", "run_bridge"]
+
+# under the prefix; run_bridge declares their publishers in this order (entity ids 1, 2, 3)
+TOPICS = ("grid_map", "cost", "plan")
+NODE = "psrmap_bridge"
 
 
 @dataclass(frozen=True)
@@ -33,7 +37,7 @@ class BridgeConfig:
     zenoh_config: str | None = None
     domain: int = 0
     prefix: str = "/psrmap"
-    node: str = "psrmap_bridge"
+    node: str = NODE
     frame: str = "map"
     rate_hz: float = 1.0
     plan_from: tuple[float, float] | None = None
@@ -77,6 +81,7 @@ def run_bridge(cfg: BridgeConfig, stop: threading.Event | None = None, log=print
     t_end = time.monotonic() + cfg.max_seconds if cfg.max_seconds else float("inf")
     with zenoh.open(conf) as session:
         node = RosNode(session, cfg.node, domain=cfg.domain)
+        # in TOPICS' order: the entity ids `ros_keys` grants (psrmap secure's bridge role)
         pubs = {"grid_map": node.publisher(f"{cfg.prefix}/grid_map", GRID_MAP),
                 "cost": node.publisher(f"{cfg.prefix}/cost", OCCUPANCY_GRID)}  # fmt: skip
         if cfg.plan_from and cfg.plan_to:
@@ -142,6 +147,28 @@ def run_bridge(cfg: BridgeConfig, stop: threading.Event | None = None, log=print
             "topics": {k: p.key for k, p in pubs.items()}}  # fmt: skip
 
 
+def ros_keys(domain: int = 0, prefix: str = "/psrmap", node: str = NODE) -> dict[str, list[str]]:
+    """The keys a bridge on `domain` under `prefix` puts and declares (for the router's ACL, `psrmap.secure`):
+    `<topic>` each topic's sample key, `<topic_token>` / `<node_token>` its publishers' and node's graph
+    tokens (any session id), `<ros_graph>` the domain's whole graph."""
+    from interop.rmw_zenoh import Qos, node_token, publisher_token, topic_key
+    from interop.ros2_messages import GRID_MAP, OCCUPANCY_GRID, PATH
+
+    topics = [
+        (f"{prefix.rstrip('/')}/{t}", ty)
+        for t, ty in zip(TOPICS, (GRID_MAP, OCCUPANCY_GRID, PATH), strict=True)
+    ]
+    return {
+        "<topic>": [topic_key(domain, t, ty) for t, ty in topics],
+        "<topic_token>": [
+            publisher_token(domain, "*", 0, eid, "/", node, t, ty, Qos())
+            for eid, (t, ty) in enumerate(topics, 1)
+        ],  # fmt: skip
+        "<node_token>": [node_token(domain, "*", 0, "/", node)],
+        "<ros_graph>": [f"@ros2_lv/{domain}/**"],
+    }
+
+
 def _pair(text: str) -> tuple[float, float]:
     try:
         x, y = (float(v) for v in text.split(","))
@@ -172,9 +199,10 @@ def register(sub: Any) -> None:
         "--connect",
         type=endpoint_arg,
         action="append",
-        required=True,
+        default=[],
         metavar="ENDPOINT",
-        help="the Zenoh router the map servers and the ROS 2 system (rmw_zenoh) share",
+        help="the Zenoh router the map servers and the ROS 2 system (rmw_zenoh) share (default: the one "
+        "--zenoh-config names)",
     )
     p.add_argument("--box", type=box_arg, metavar="X0,Y0,X1,Y1",
                    help="map area to publish [m] (default: the whole map, as far as it holds data)")  # fmt: skip
@@ -196,6 +224,15 @@ def register(sub: Any) -> None:
 
 
 def _cmd(args: argparse.Namespace) -> int:
+    from common.session import file_endpoints
+
+    if not args.connect and args.zenoh_config:  # the router its credentials are for (psrmap secure init)
+        try:
+            args.connect = list(file_endpoints(args.zenoh_config, "connect"))
+        except ValueError as exc:
+            args.parser.error(str(exc))
+    if not args.connect:
+        args.parser.error("give --connect ENDPOINT, or --zenoh-config FILE naming the router to connect to")
     if (args.plan_from is None) != (args.plan_to is None):
         args.parser.error("--plan-from and --plan-to go together")
     if args.rate <= 0:

@@ -8,8 +8,14 @@ Roles (`GRANTS`, the README's roles table; everything else is denied by the rout
 - a scout `S`: puts only `psr/<map>/delta/S` (sharded: `psr/<map>/shard/<i>/delta/S`), holds only the token
   `psr/<map>/alive/S`, receives its own acks, asks the partition, sees the servers' tokens, and reads the map
   as a reader does (queries `map`, `status`, follows tile changes: it localizes against the map);
-- a reader (a planner or a bridge): queries `map`, `status`, `partition` and receives the replies, subscribes to
-  tile changes, sees the tokens — nothing else.
+- a reader (a planner): queries `map`, `status`, `partition` and receives the replies, subscribes to tile
+  changes, sees the tokens; and reads the ROS 2 bridge's topics (subscribes to them, asks their publication cache
+  for the last sample, watches the ROS graph) — nothing else: a ROS 2 tool on rmw_zenoh (RViz, `ros2 topic echo`)
+  logs in with a planner's file; the graph tokens of its own node are refused, so it receives but is not listed;
+- a bridge (`psrmap ros2`): what a reader may, and puts exactly its ROS topics (`<domain>/<prefix>/{grid_map,
+  cost,plan}/<type>/<hash>`, rmw_zenoh's layout, `--ros-domain`/`--ros-prefix`), serves their publication cache
+  (`<topic>/@adv/pub/**`: queryable, heartbeat, publisher token) and holds its node's and publishers' graph
+  tokens (`@ros2_lv/...`) — nothing of the map's own keys.
 Whose replies to believe: each server start takes a fresh random Zenoh id and declares it in a `serverid` token,
 which only server credentials may; clients (`common.trust`) believe replies and notices only from the ids so
 declared. No id is pinned, so none can be squatted while its server is down: Zenoh's ACL can match a session's
@@ -50,11 +56,18 @@ class Grant:
     """One line of the roles table: `role` may `messages` in direction `flow` on `keys` (`<map>` and `<id>` are
     filled in per map and agent)."""
 
-    role: str  # server | scout | reader (planners, bridges)
+    role: str  # server | scout | reader (planners) | bridge (what a reader may, and its ROS topics)
     flow: str  # "ingress" (the agent sends) or "egress" (the router passes it to the agent)
     messages: tuple[str, ...]
-    keys: tuple[str, ...]
+    keys: tuple[str, ...]  # under psr/<map>/, except those starting with a `_ROS_KEYS` placeholder
     why: str
+
+
+# The ROS 2 bridge's keys, outside psr/<map>/ (`psrmap.ros2.ros_keys` fills them in): `<topic>` each of its
+# topics' sample keys (`<topic>/@adv/pub/**`: their publication caches' queryables, heartbeats and
+# publisher-detection tokens), `<topic_token>` / `<node_token>` its publishers' and its node's graph tokens,
+# `<ros_graph>` the ROS graph of its domain.
+_ROS_KEYS = ("<topic>", "<topic_token>", "<node_token>", "<ros_graph>")
 
 
 # The roles table (README "Security and limits" shows it): everything not listed is denied by the router.
@@ -87,11 +100,37 @@ GRANTS: tuple[Grant, ...] = (
     Grant("reader", "egress", ("put",), ("changes/**",), "receive tile changes"),
     Grant("reader", "ingress", ("declare_liveliness_subscriber", "liveliness_query"), ("alive/*", "serverid/*"),
           "see servers and scouts"),
+    Grant("reader", "ingress", ("declare_subscriber", "query"), ("<topic>", "<topic>/@adv/**"),
+          "ROS topics: subscribe, ask the cache"),
+    Grant("reader", "ingress", ("declare_liveliness_subscriber", "liveliness_query"),
+          ("<ros_graph>", "<topic>/@adv/**"), "the ROS graph, the topics' publishers"),
+    Grant("reader", "egress", ("put", "reply"), ("<topic>", "<topic>/@adv/**"), "ROS samples, cached ones"),
+    Grant("reader", "egress", (*_DECLARE, "reply"), ("<topic>", "<topic>/@adv/**", "<ros_graph>"),
+          "who publishes and subscribes; the ROS graph"),
+    Grant("bridge", "ingress", ("put",), ("<topic>", "<topic>/@adv/pub/**"), "its ROS topics; cache heartbeat"),
+    Grant("bridge", "ingress", ("declare_queryable", "reply"), ("<topic>", "<topic>/@adv/pub/**"),
+          "its topics' publication cache"),
+    Grant("bridge", "ingress", ("liveliness_token",), ("<node_token>", "<topic_token>", "<topic>/@adv/pub/**"),
+          "its node's and publishers' graph tokens"),
+    Grant("bridge", "egress", ("query",), ("<topic>", "<topic>/@adv/pub/**"), "late subscribers' cache queries"),
     *(Grant(r, "egress", tuple(_DECLARE), ("**",), "learn who subscribes, serves, is alive")
       for r in ("server", "scout", "reader")),
     *(Grant(r, "egress", ("reply",), ("alive/*", "serverid/*"), "liveliness answers")
       for r in ("server", "scout", "reader")),
 )  # fmt: skip
+
+
+# a role may also do all its base roles may
+_INHERITS = {"bridge": ("reader",)}
+
+
+def _expand(key: str, base: str, agent: str, ros: dict[str, list[str]]) -> list[str]:
+    """One roles-table key as the router's key expressions: a ROS placeholder becomes each key it stands for,
+    any other key lies under `base` with the agent's id for `<id>`."""
+    for ph in _ROS_KEYS:
+        if key.startswith(ph):
+            return [k + key.removeprefix(ph) for k in ros[ph]]
+    return [f"{base}/{key.replace('<id>', agent)}"]
 
 
 def acl(
@@ -100,25 +139,32 @@ def acl(
     planners: Sequence[str],
     servers: Sequence[str],
     tls: bool = False,
+    bridges: Sequence[str] = (),
+    ros_domain: int = 0,
+    ros_prefix: str = "/psrmap",
 ) -> dict[str, Any]:
     """The router's `access_control` section for one map: each agent gets its role's `GRANTS` (its own id in
-    `<id>`), matched on its user name — and, with `tls`, on its certificate's common name as well (Zenoh ANDs a
-    subject's fields: one agent's certificate with another's password matches no subject, so it may do nothing).
-    Planners and bridges are `reader`s."""
+    `<id>`; the ROS keys of a `psrmap ros2` on `ros_domain` under `ros_prefix`), matched on its user name — and,
+    with `tls`, on its certificate's common name as well (Zenoh ANDs a subject's fields: one agent's certificate
+    with another's password matches no subject, so it may do nothing). Planners are `reader`s."""
+    from psrmap.ros2 import ros_keys
+
     base = f"psr/{map_id}"
+    ros = ros_keys(ros_domain, ros_prefix)
     rules, subjects, policies = [], [], []
-    for role, names in (("server", servers), ("scout", scouts), ("reader", planners)):
+    for role, names in (("server", servers), ("scout", scouts), ("reader", planners), ("bridge", bridges)):
+        roles = (role, *_INHERITS.get(role, ()))
         for n in names:
             rid = f"{role}_{n}"
             ids = []
-            for i, g in enumerate(x for x in GRANTS if x.role == role):
+            for i, g in enumerate(x for x in GRANTS if x.role in roles):
                 ids.append(f"{rid}_{i}")
                 rules.append({
                     "id": ids[-1],
                     "messages": list(g.messages),
                     "flows": [g.flow],
                     "permission": "allow",
-                    "key_exprs": [f"{base}/{k.replace('<id>', n)}" for k in g.keys],
+                    "key_exprs": [e for k in g.keys for e in _expand(k, base, n, ros)],
                 })  # fmt: skip
             subject: dict[str, Any] = {"id": rid, "usernames": [n]}
             if tls:
@@ -146,10 +192,18 @@ def roles_table() -> str:
         )
 
     who = {"server": "server (`--servers`)", "scout": "scout `<id>` (`--scouts`)",
-           "reader": "planner, bridge (`--planners`)"}  # fmt: skip
-    lines = ["| role | may send (keys under `psr/<map>/`) | may receive |", "|---|---|---|"]
+           "reader": "planner (`--planners`)", "bridge": "ROS 2 bridge (`--bridges`)"}  # fmt: skip
+
+    def also(role: str) -> str:
+        return "".join(f"what a {r} may, and:<br>" for r in _INHERITS.get(role, ()))
+
+    lines = [
+        "| role | may send (keys under `psr/<map>/`; ROS keys absolute) | may receive |",
+        "|---|---|---|",
+    ]
     lines += [
-        f"| {who[r]} | {cell(r, 'ingress')} | {cell(r, 'egress')} |" for r in ("server", "scout", "reader")
+        f"| {who[r]} | {also(r)}{cell(r, 'ingress')} | {also(r)}{cell(r, 'egress')} |"
+        for r in ("server", "scout", "reader", "bridge")
     ]
     return "\n".join(lines)
 
@@ -252,11 +306,18 @@ def secure_init(
     endpoint: str = "tcp/127.0.0.1:7447",
     tls: bool = False,
     days: int = 365,
+    bridges: Sequence[str] = (),
+    ros_domain: int = 0,
+    ros_prefix: str = "/psrmap",
 ) -> SecureLayout:
     """Write the router's and every agent's Zenoh config into `folder` (created; files readable by the owner
-    only). Ids must be valid map/agent ids and distinct."""
+    only). Ids must be valid map/agent ids and distinct; `bridges` run `psrmap ros2 --domain ros_domain
+    --prefix ros_prefix`."""
     validate_id(map_id, "map")
-    names = [*scouts, *planners, *servers]
+    if not 0 <= ros_domain <= 232 or not ros_prefix.startswith("/"):
+        raise ValueError(f"ROS domain {ros_domain}, prefix {ros_prefix!r}: need a domain 0..232 and a prefix "
+                         "starting with '/' (as psrmap ros2 --domain/--prefix)")  # fmt: skip
+    names = [*scouts, *planners, *servers, *bridges]
     for n in names:
         validate_id(n, "agent")
     if len(set(names)) != len(names) or "router" in names:
@@ -285,7 +346,7 @@ def secure_init(
                 }
             }
         },
-        "access_control": acl(map_id, scouts, planners, servers, tls),
+        "access_control": acl(map_id, scouts, planners, servers, tls, bridges, ros_domain, ros_prefix),
     }
     if tls:
         router_conf["transport"]["link"] = {
@@ -345,6 +406,12 @@ def register(sub: Any) -> None:
     i.add_argument(
         "--servers", type=_ids, default=["server"], metavar="ID,...", help="server ids (default server)"
     )
+    i.add_argument("--bridges", type=_ids, default=[], metavar="ID,...",
+                   help="ROS 2 bridge ids (psrmap ros2: reads the map, publishes its ROS topics)")  # fmt: skip
+    i.add_argument("--ros-domain", type=int, default=0, metavar="N",
+                   help="the bridges' ROS_DOMAIN_ID (psrmap ros2 --domain; default 0)")  # fmt: skip
+    i.add_argument("--ros-prefix", default="/psrmap", metavar="NS",
+                   help="the bridges' topic namespace (psrmap ros2 --prefix; default /psrmap)")  # fmt: skip
     i.add_argument(
         "--endpoint",
         type=endpoint_arg,
@@ -361,7 +428,17 @@ def register(sub: Any) -> None:
 def _cmd_init(args: Any) -> int:
     try:
         lay = secure_init(
-            args.dir, args.map, args.scouts, args.planners, args.servers, args.endpoint, args.tls, args.days
+            args.dir,
+            args.map,
+            args.scouts,
+            args.planners,
+            args.servers,
+            args.endpoint,
+            args.tls,
+            args.days,
+            args.bridges,
+            args.ros_domain,
+            args.ros_prefix.rstrip("/") or "/",
         )
     except ValueError as exc:
         args._parser.error(str(exc))
