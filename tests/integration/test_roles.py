@@ -56,9 +56,10 @@ def _wait(pred, timeout_s: float = 10.0) -> bool:
 
 @pytest.fixture
 def secured(tmp_path):
-    """A router with the role ACL and a map server logged in as `server`; agents s1, s2 (scouts), p1, p2."""
+    """A router with the role ACL and a map server logged in as `server`; agents s1, s2 (scouts), p1, p2
+    (planners), b1 (a ROS 2 bridge)."""
     ep = free_endpoint()
-    lay = secure_init(tmp_path / "sec", MAP, ["s1", "s2"], ["p1", "p2"], endpoint=ep)
+    lay = secure_init(tmp_path / "sec", MAP, ["s1", "s2"], ["p1", "p2"], endpoint=ep, bridges=["b1"])
     with zenoh.open(zenoh_config(config_file=lay.router)):
         cfg = ServerConfig(map_id=MAP, res=RES, db=str(tmp_path / "m.db"), connect=(ep,),
                            zenoh_config=str(lay.agents["server"]))  # fmt: skip
@@ -465,7 +466,7 @@ def test_the_acl_grants_each_role_only_its_table_and_the_readme_shows_it(tmp_pat
 # ---------------------------------------------------------------------------------------- the ROS 2 bridge
 
 
-def test_a_secured_bridge_publishes_ros_topics_a_planner_reads_but_speaks_for_no_map(tmp_path):
+def test_a_secured_bridge_publishes_ros_topics_a_planner_reads_but_speaks_for_no_map(secured):
     """`psrmap ros2` with `secure init --bridges` credentials: its grid map reaches an independent subscriber
     logged in as a planner (live and, joining late, from the publication cache), and its graph tokens are seen;
     the same credentials cannot put a delta nor answer the map queryable (the router refuses both)."""
@@ -473,70 +474,59 @@ def test_a_secured_bridge_publishes_ros_topics_a_planner_reads_but_speaks_for_no
 
     from psrmap.ros2 import BridgeConfig, ros_keys, run_bridge
 
-    ep = free_endpoint()
-    lay = secure_init(tmp_path / "sec", MAP, ["s1"], ["p1", "p2"], endpoint=ep, bridges=["b1"])
+    ep, lay, service = secured
+    _feed(service, ep, lay)
     grid_key = ros_keys()["<topic>"][0]
-    with zenoh.open(zenoh_config(config_file=lay.router)):
-        cfg = ServerConfig(map_id=MAP, res=RES, db=str(tmp_path / "m.db"), connect=(ep,),
-                           zenoh_config=str(lay.agents["server"]))  # fmt: skip
-        with MapService(cfg) as service, _open(lay, "p1") as p1:
-            _feed(service, ep, lay)
-            live: list[bytes] = []
-            sub = p1.declare_subscriber(grid_key, lambda s: live.append(s.payload.to_bytes()))
-            stop = threading.Event()
-            done: list[dict] = []
-            bcfg = BridgeConfig(MAP, None, (ep,), zenoh_config=str(lay.agents["b1"]))
-            t = threading.Thread(target=lambda: done.append(run_bridge(bcfg, stop, log=lambda *a: None)),
-                                 daemon=True)  # fmt: skip
-            t.start()
-            try:
-                assert _wait(lambda: bool(live), 20.0), "the planner received no grid map"
-                tokens = [
-                    str(r.ok.key_expr) for r in p1.liveliness().get("@ros2_lv/0/**", timeout=3.0) if r.ok
-                ]
-                assert any("/NN/%/%/psrmap_bridge" in k for k in tokens), tokens
-                assert any("/MP/%/%/psrmap_bridge/%psrmap%grid_map/" in k for k in tokens), tokens
-                late: list[bytes] = []  # joins after the map was published: served from the bridge's cache
-                with _open(lay, "p2") as p2:
-                    asub = zext.declare_advanced_subscriber(
-                        p2, grid_key, lambda s: late.append(s.payload.to_bytes()),
-                        history=zext.HistoryConfig(detect_late_publishers=True, max_samples=1))  # fmt: skip
-                    assert _wait(lambda: bool(late), 10.0), "a late planner got nothing from the cache"
-                    asub.undeclare()
-                assert late[0] == live[0] and late[0][:4] == b"\x00\x01\x00\x00"  # CDR little endian
-                # the bridge's credentials speak for no map: a delta and a map queryable are refused
-                with _open(lay, "b1") as b1:
-                    d = make_delta(seq=0, scout="b1", layers=("slip",), cells=((5, 5),))
-                    b1.put(delta_key(MAP, "b1"), encode(d))
-                    b1.put(delta_key(MAP, "s1"), encode(make_delta(seq=7, scout="s1", layers=("slip",),
-                                                                   cells=((6, 6),))))  # fmt: skip
-                    q = b1.declare_queryable(map_key(MAP), lambda q: q.reply(map_key(MAP), b"fake"))
-                    _settle()
-                    replies = get_replies(p1, f"{map_key(MAP)}?x0=0;y0=0;x1=0.3;y1=0.3;stats=all", 3.0,
-                                          fan_out=True)  # fmt: skip
-                    assert len(replies.ok) == 1 and service.status().merged == 1
-                    q.undeclare()
-            finally:
-                stop.set()
-                t.join(timeout=20)
-                sub.undeclare()
+    live: list[bytes] = []
+    stop = threading.Event()
+    done: list[dict] = []
+    bcfg = BridgeConfig(MAP, None, (ep,), zenoh_config=str(lay.agents["b1"]))
+    t = threading.Thread(target=lambda: done.append(run_bridge(bcfg, stop, log=lambda *a: None)), daemon=True)
+    with _open(lay, "p1") as p1:
+        sub = p1.declare_subscriber(grid_key, lambda s: live.append(s.payload.to_bytes()))
+        t.start()
+        try:
+            assert _wait(lambda: bool(live), 20.0), "the planner received no grid map"
+            tokens = [str(r.ok.key_expr) for r in p1.liveliness().get("@ros2_lv/0/**", timeout=3.0) if r.ok]
+            assert any("/NN/%/%/psrmap_bridge" in k for k in tokens), tokens
+            assert any("/MP/%/%/psrmap_bridge/%psrmap%grid_map/" in k for k in tokens), tokens
+            late: list[bytes] = []  # joins after the map was published: served from the bridge's cache
+            with _open(lay, "p2") as p2:
+                asub = zext.declare_advanced_subscriber(
+                    p2, grid_key, lambda s: late.append(s.payload.to_bytes()),
+                    history=zext.HistoryConfig(detect_late_publishers=True, max_samples=1))  # fmt: skip
+                assert _wait(lambda: bool(late), 10.0), "a late planner got nothing from the cache"
+                asub.undeclare()
+            assert late[0] == live[0] and late[0][:4] == b"\x00\x01\x00\x00"  # CDR little endian
+            # the bridge's credentials speak for no map: a delta and a map queryable are refused
+            with _open(lay, "b1") as b1:
+                b1.put(delta_key(MAP, "b1"), encode(make_delta(seq=0, scout="b1", layers=("slip",),
+                                                               cells=((5, 5),))))  # fmt: skip
+                b1.put(delta_key(MAP, "s1"), encode(make_delta(seq=7, scout="s1", layers=("slip",),
+                                                               cells=((6, 6),))))  # fmt: skip
+                q = b1.declare_queryable(map_key(MAP), lambda q: q.reply(map_key(MAP), b"fake"))
+                _settle()
+                replies = get_replies(p1, f"{map_key(MAP)}?x0=0;y0=0;x1=0.3;y1=0.3;stats=all", 3.0,
+                                      fan_out=True)  # fmt: skip
+                assert len(replies.ok) == 1 and service.status().merged == 1
+                q.undeclare()
+        finally:
+            stop.set()
+            t.join(timeout=20)
+            sub.undeclare()
     assert done and done[0]["published"]["grid_map"] >= 1
 
 
-def test_a_bridge_logged_in_as_a_planner_is_refused_its_topics(tmp_path):
+def test_a_bridge_logged_in_as_a_planner_is_refused_its_topics(secured):
     """The reason for the bridge role: a planner's credentials may read ROS topics but not publish them."""
     from psrmap.ros2 import BridgeConfig, ros_keys, run_bridge
 
-    ep = free_endpoint()
-    lay = secure_init(tmp_path / "sec", MAP, ["s1"], ["p1", "p2"], endpoint=ep, bridges=["b1"])
-    with zenoh.open(zenoh_config(config_file=lay.router)):
-        cfg = ServerConfig(map_id=MAP, res=RES, db=str(tmp_path / "m.db"), connect=(ep,),
-                           zenoh_config=str(lay.agents["server"]))  # fmt: skip
-        with MapService(cfg) as service, _open(lay, "p1") as p1:
-            _feed(service, ep, lay)
-            live: list[bytes] = []
-            sub = p1.declare_subscriber(ros_keys()["<topic>"][0], lambda s: live.append(s.payload.to_bytes()))
-            bcfg = BridgeConfig(MAP, None, (ep,), zenoh_config=str(lay.agents["p2"]), once=True, linger_s=2.0)
-            out = run_bridge(bcfg, log=lambda *a: None)
-            sub.undeclare()
+    ep, lay, service = secured
+    _feed(service, ep, lay)
+    live: list[bytes] = []
+    with _open(lay, "p1") as p1:
+        sub = p1.declare_subscriber(ros_keys()["<topic>"][0], lambda s: live.append(s.payload.to_bytes()))
+        bcfg = BridgeConfig(MAP, None, (ep,), zenoh_config=str(lay.agents["p2"]), once=True, linger_s=2.0)
+        out = run_bridge(bcfg, log=lambda *a: None)
+        sub.undeclare()
     assert out["published"]["grid_map"] == 1 and not live
