@@ -30,13 +30,13 @@ KEYS = ("fell", "fall_xy", "reached_goal", "gave_up", "hazard_stops", "detour_m"
         "cot_whole_run_truth", "distance_m", "sim_seconds", "wall_seconds")  # fmt: skip
 
 
-def _jobs(kind: str, seeds: list[int], before: bool) -> list[dict]:
+def _jobs(kind: str, seeds: list[int], before: bool, angles=ANGLES, offsets=OFFSETS) -> list[dict]:
     modes = (True, False) if before else (True,)
     out = []
     for seed in seeds:
         if kind == "ramps":
-            for a in ANGLES:
-                for d in OFFSETS:
+            for d in offsets:
+                for a in angles:
                     mu = round(max(0.02, math.tan(math.radians(a)) + d), 4)
                     out += [
                         {"kind": kind, "seed": seed, "slope": a, "offset": d, "mu": mu, "on": m}
@@ -83,15 +83,26 @@ def _edge_distance(x: float, y: float, p: list[float]) -> float:
     return min(x - x0, x1 - x, y - y0, y1 - y)
 
 
+def _key(r: dict) -> str:
+    return json.dumps(
+        {k: r[k] for k in r if k in ("kind", "seed", "slope", "mu", "route", "on")}, sort_keys=True
+    )
+
+
 def _done(out: Path) -> set[str]:
     if not out.exists():
         return set()
-    return {json.dumps({k: r[k] for k in r if k in ("kind", "seed", "slope", "mu", "route", "on")}, sort_keys=True)
-            for r in map(json.loads, out.read_text().splitlines()) if r}  # fmt: skip
+    return {_key(r) for r in map(json.loads, out.read_text().splitlines()) if r}
 
 
-def summary(path: Path) -> dict:
-    rows = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+def summary(paths: list[Path]) -> dict:
+    unique: dict[str, dict] = {}  # the same walk measured twice (two runs of this script): the first counts
+    for path in paths:
+        for line in path.read_text().splitlines():
+            if line.strip():
+                r = json.loads(line)
+                unique.setdefault(_key(r), r)
+    rows = list(unique.values())
     res: dict = {}
     for kind in ("ramps", "lunar"):
         for on in (True, False):
@@ -152,7 +163,11 @@ def main() -> int:
         "--only", choices=("after", "before"), help="walk only with (after) or without (before) it"
     )
     p.add_argument("--workers", type=int, default=2)
-    p.add_argument("--summary", type=Path)
+    p.add_argument("--angles", default=",".join(f"{a:g}" for a in ANGLES), help="ramps: angles [deg]")
+    p.add_argument(
+        "--offsets", default=",".join(f"{d:g}" for d in OFFSETS), help="ramps: μ − tan α, in order"
+    )
+    p.add_argument("--summary", type=Path, nargs="+")
     a = p.parse_args()
     if a.summary:
         print(json.dumps(summary(a.summary), indent=1))
@@ -165,10 +180,11 @@ def main() -> int:
     else:
         seeds = [int(v) for v in a.seeds.split(",")]
     done = _done(a.out)
-    jobs = [j for j in _jobs(a.kind, seeds, a.before or a.only == "before")
+    angles = tuple(float(v) for v in a.angles.split(","))
+    offsets = tuple(float(v) for v in a.offsets.split(","))
+    jobs = [j for j in _jobs(a.kind, seeds, a.before or a.only == "before", angles, offsets)
             if a.only is None or j["on"] == (a.only == "after")
-            if json.dumps({k: j[k] for k in j if k in ("kind", "seed", "slope", "mu", "route", "on")}, sort_keys=True)
-            not in done]  # fmt: skip
+            if _key(j) not in done]  # fmt: skip
     a.out.parent.mkdir(parents=True, exist_ok=True)
     with mp.get_context("spawn").Pool(a.workers, maxtasksperchild=4) as pool, a.out.open("a") as f:
         for r in pool.imap_unordered(walk, jobs):
