@@ -110,7 +110,10 @@ def _run_config(spec: RunSpec):
         route=spec.route,
         slippery_mu=spec.slippery_mu,
         slippery_patches=spec.slippery_patches,
-        holdable_patches=True,  # the paper's experiments: every patch walkable
+        holdable_patches=True,  # the paper's experiments: every patch walkable ...
+        # ... walked by the paper-like fixed trot: on these holdable patches the hazard reflex reads creeping
+        # slips on shallow slopes as unholdable and stops (docs/results.md, issue 24), cutting the walks short
+        hazard_control=False,
         sim_seconds=spec.sim_seconds,
         scout_id=spec.label or "scout",
         sim=SimConfig(sensors=SensorConfig.named(spec.sensors), launch=LaunchSurvey(mode=spec.launch)),
