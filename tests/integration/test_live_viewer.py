@@ -115,7 +115,9 @@ def test_a_bad_viewer_url_is_refused_with_the_valid_form(tmp_path: Path) -> None
     assert "rerun+http://HOST:PORT/proxy" in res.stderr
 
 
-def test_mission_streams_every_component_live(tmp_path: Path) -> None:
+def test_mission_streams_every_component_live_and_prints_plain_lines(tmp_path: Path) -> None:
+    """A mission streams every component to a live viewer; its stdout, captured (a file/CI, not a TTY), is a few
+    plain lines: no progress-bar redraws, the scouts' status line, the report. (One mission walks for both.)"""
     rx = _Receiver(tmp_path / "live.rrd")
     res = subprocess.run(
         [
@@ -139,6 +141,11 @@ def test_mission_streams_every_component_live(tmp_path: Path) -> None:
         check=False,
     )
     assert res.returncode in (0, 1), res.stderr[-2000:]
+    lines = res.stdout.splitlines()
+    assert "\r" not in res.stdout
+    assert 5 <= len(lines) < 100, res.stdout
+    assert any(line.startswith("[scouts] ") and "sim-s" in line for line in lines), res.stdout
+    assert any(line.startswith("Mission finished") for line in lines)
     entities = rx.entities()
     for prefix in ("/world/terrain", "/world/scouts/scout1/", "/map/elevation/", "/map/cost", "/plans/"):
         assert any(e.startswith(prefix) for e in entities), (prefix, sorted(entities)[:30])

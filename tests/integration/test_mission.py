@@ -285,38 +285,6 @@ def test_map_layers_lie_under_the_trajectories(mission: tuple[dict, Path]) -> No
     assert np.median(d_mirror) > 2.0, np.median(d_mirror)
 
 
-def test_mission_output_off_a_terminal_is_a_few_plain_lines(tmp_path: Path) -> None:
-    """stdout to a file/CI (not a TTY): no progress-bar redraws, a periodic status line, the report."""
-    import sys
-
-    res = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "psrmap",
-            "mission",
-            "--scouts",
-            "1",
-            "--sim-seconds",
-            "25",
-            "--no-rrd",
-            "--no-secure",
-            "--run-dir",
-            str(tmp_path / "run"),
-        ],
-        capture_output=True,
-        text=True,
-        check=False,
-        timeout=600,
-    )
-    assert res.returncode in (0, 1), res.stderr[-2000:]
-    lines = res.stdout.splitlines()
-    assert "\r" not in res.stdout
-    assert 5 <= len(lines) < 100, res.stdout
-    assert any(line.startswith("[scouts] ") and "sim-s" in line for line in lines), res.stdout
-    assert any(line.startswith("Mission finished") for line in lines)
-
-
 def test_a_mission_on_a_sharded_map(tmp_path: Path) -> None:
     """`psrmap mission --shards 2`: two map-server shards (secured, each its own credentials and file); every
     scout delta lands exactly once over the shards, the plan queries both, and the shards' files together
