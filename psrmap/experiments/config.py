@@ -33,6 +33,7 @@ class ExperimentConfig:
     no_slippery: bool = False
     # lunar / utility
     slippery_patches: int = 4
+    lunar_seconds: float | None = None  # cap on the lunar scouts' simulated time (None: sim_seconds)
     scouts: str = "west,east"
     utility_from: tuple[float, float] = (1.5, 1.5)
     utility_to: tuple[float, float] = (18.5, 18.5)

@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from common.cli_parser import positive_float
 from psrmap.experiments.common import MAP_RES, RunPool, RunSpec, estimation_summary, fmean, fstd, jitter_start
 from psrmap.experiments.config import ExperimentConfig
 from psrmap.experiments.maps import merged_grid, merged_local_map
@@ -31,6 +32,7 @@ __all__ = [
     "analyse",
     "compare_on_merged",
     "route_specs",
+    "scout_seconds",
     "run",
     "specs",
     "trajectory_row",
@@ -57,6 +59,19 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         metavar="N",
         help="seeded slippery patches on the lunar field (default 4)",
     )
+    g.add_argument(
+        "--lunar-seconds",
+        type=positive_float,
+        metavar="S",
+        help="cap on each lunar scout's simulated time (reduced sets; default --sim-seconds): a reduced set "
+        "can cut the lunar routes short while the ramp runs still cross their testbed",
+    )
+
+
+def scout_seconds(cfg: ExperimentConfig) -> float | None:
+    """The cap on a lunar scout's simulated time [s]: `--lunar-seconds`, else `--sim-seconds` (None: the
+    whole route)."""
+    return cfg.lunar_seconds if cfg.lunar_seconds is not None else cfg.sim_seconds
 
 
 def route_specs(
@@ -80,7 +95,7 @@ def route_specs(
                     route=route,
                     start=jitter_start(LUNAR_ROUTES[route][0], noise, 0.1, 0.1),
                     slippery_patches=cfg.slippery_patches,
-                    sim_seconds=cfg.sim_seconds,
+                    sim_seconds=scout_seconds(cfg),
                     sensors=cfg.sensors,
                     launch=cfg.launch,
                     label=f"lunar{seed}-{route}-n{noise}",
@@ -198,7 +213,7 @@ def analyse(cfg: ExperimentConfig, runs: list[dict], out_dir: Path) -> dict[str,
             "merged_from": "LocalMap merge of every run of the seed → npz → consumer_planner LayerGrid → "
             "compare.evaluate_route on the nominal route polyline (CostConfig defaults, raw slip layer: "
             "slip_spread_m 0)",
-            "sim_seconds_cap": cfg.sim_seconds,
+            "sim_seconds_cap": scout_seconds(cfg),
         },
         "table": table,
         "merged_map_table": merged_mean,

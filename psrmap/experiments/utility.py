@@ -356,6 +356,7 @@ def run(cfg: ExperimentConfig, pool: RunPool, out_dir: Path) -> dict[str, Any]:
             "fresh_noise_seed": f"seed·100 + {FRESH_NOISE_OFFSET} + run (scouts: seed·100)",
             "energy": "Σ E/(m·g) over the walk [m] = whole-walk CoT × distance",
             "sim_seconds_cap": cfg.sim_seconds,
+            "scouts_sim_seconds_cap": lunar.scout_seconds(cfg),
         },
         "summary": summary,
         "per_seed": per_seed,

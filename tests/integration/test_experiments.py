@@ -1,8 +1,9 @@
 """The experiments' reduced set: one run, one angle, short walks, through the real CLI and spawn pool.
 
-`psrmap experiment all --angles 10 --runs 1 --seeds 0 --sim-seconds 55 --to 3.5,3.5` walks one 10° ramp with
-and without its slippery patch, the three lunar routes for 55 s each (so the scouts map the field's corner),
-and the fresh robot's two short routes to a goal inside the mapped corner. Every experiment must leave its
+`psrmap experiment all --angles 10 --runs 1 --seeds 0 --sim-seconds 55 --lunar-seconds 20 --to 3.5,3.5` walks
+one 10° ramp with and without its slippery patch (each crosses the testbed in about 50 s), the three lunar routes
+for 20 s each (about 4 m: the scouts have crossed the field's corner (1.5..3.5 m)² after 2 m), and the fresh
+robot's two short routes to a goal inside the mapped corner. Every experiment must leave its
 results.json and figures; a second call must read its runs from the cache.
 """
 
@@ -41,7 +42,7 @@ def _cli(*args: str, timeout: float = 240.0) -> subprocess.CompletedProcess:
 def reduced(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, float]:
     out = tmp_path_factory.mktemp("experiments")
     t0 = time.perf_counter()
-    proc = _cli("all", *REDUCED, "--to", "3.5,3.5", "--out", str(out))
+    proc = _cli("all", *REDUCED, "--lunar-seconds", "20", "--to", "3.5,3.5", "--out", str(out))
     wall = time.perf_counter() - t0
     assert proc.returncode == 0, proc.stderr[-3000:]
     return out, wall
@@ -68,6 +69,7 @@ def test_every_experiment_writes_results_and_figures(reduced: tuple[Path, float]
 
 def test_ramps_scores_three_resolutions_and_both_state_inputs(reduced: tuple[Path, float]) -> None:
     res = _load(reduced[0], "ramps")
+    assert min(r["sim_seconds"] for r in res["runs"]) > 20.05  # --lunar-seconds 20 does not cap the ramps
     a10 = res["by_angle"]["10"]
     for cond in ("plain", "slippery"):
         elev = a10[cond]["elevation"]
@@ -96,6 +98,9 @@ def test_lunar_table_and_merged_map_compare(reduced: tuple[Path, float]) -> None
         merged = res["merged_map_table"][route]
         assert merged["overall_cot"] is not None and merged["avg_giim"] is not None
     assert res["paper_table"]["total_slips"]["direct"] == 21
+    # --lunar-seconds caps the lunar scouts only (the ramps walked past it, to their goal)
+    assert res["protocol"]["sim_seconds_cap"] == 20.0
+    assert all(r["sim_seconds"] <= 20.05 for r in res["runs"]), res["runs"]
 
 
 def test_utility_plans_on_the_scouts_map_and_walks_both_routes(reduced: tuple[Path, float]) -> None:
