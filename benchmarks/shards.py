@@ -15,7 +15,10 @@ stay outside the quotas (in an uncapped group). Every group gets the CFS weight 
 a lone process's), so on a machine loaded by other work a shard still reaches its quota and the harness keeps up. K = 1, 2, 3 then (default `--shards 1,2,3,1,2,3`); each run also reports every shard's
 CPU use and how often its quota throttled it. Goal with Q = 0.3: K=2 ≥ 1.8× and K=3 ≥ 2.5× K=1's deltas/s.
 
-    sudo python benchmarks/shards.py --cpu-quota 0.3 --max-rate 3000
+    sudo python benchmarks/shards.py --cpu-quota 0.3 --publishers 6 --max-rate 9000
+
+(Enough publishers that every shard has work at once — a publisher sweeps one tile, so one shard, at a time — and
+enough pre-encoded deltas to last the window at K=3.)
 """
 
 from __future__ import annotations
@@ -182,6 +185,9 @@ def run(k: int, args: argparse.Namespace) -> dict:
                     "deltas_per_s": round((m1 - m0) / dt, 1),
                     "window_s": round(dt, 2),
                     "parts_prepared": sum(g[2] for g in got),
+                    # a delta split over K shards is K parts (each merged and counted by its shard): the merged
+                    # rate above counts parts; in scouts' deltas it is this much lower
+                    "parts_per_delta": round(sum(g[2] for g in got) / (n * args.publishers), 4),
                     "cpu_cores_used": {name: round((cpu1[name] - cpu0[name]) / dt, 2) for name in ps},
                 }
             )
