@@ -13,9 +13,9 @@ import argparse
 import difflib
 import math
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, NoReturn
 
-__all__ = ["Parser", "non_negative_int", "positive_float", "positive_int"]
+__all__ = ["Parser", "command_parser", "usage_exit", "non_negative_int", "positive_float", "positive_int"]
 
 
 class Parser(argparse.ArgumentParser):
@@ -41,6 +41,29 @@ class Parser(argparse.ArgumentParser):
                 if close:
                     return f" (did you mean {close[0]}?)"
         return ""
+
+
+def command_parser(parser: argparse.ArgumentParser, argv: Sequence[str]) -> argparse.ArgumentParser:
+    """The (sub)parser of the command `argv` names (`psrmap secure init ...` -> the `init` parser): the one whose
+    usage a `common.errors.UsageError` of that command is shown with."""
+    words = iter(a for a in argv if not a.startswith("-"))
+    while True:
+        sub = next((a for a in parser._actions if isinstance(a, argparse._SubParsersAction)), None)
+        word = next(words, None) if sub is not None else None
+        if sub is None or word not in sub.choices:
+            return parser
+        parser = sub.choices[word]
+
+
+def usage_exit(
+    parser: argparse.ArgumentParser, argv: Sequence[str], message: str, usage: bool = True
+) -> NoReturn:
+    """Exit 2 with `message` as the command `argv` names reports it: with its usage (argparse's `error`), or
+    (`usage=False`) one line `<prog>: error: <message>`."""
+    p = command_parser(parser, argv)
+    if usage:
+        p.error(message)
+    p.exit(2, f"{p.prog}: error: {message}\n")
 
 
 def positive_float(text: str) -> float:

@@ -18,7 +18,8 @@ import math
 from dataclasses import asdict, replace
 
 from common.cli_parser import positive_float
-from common.session import endpoint_arg, file_endpoints
+from common.errors import UsageError
+from common.link import add_link_arguments, link_from_args
 from consumer_planner import component
 from consumer_planner.compare import Route
 from consumer_planner.component import CompareConfig, MapSource, PlanConfig, PlanSummary
@@ -65,24 +66,12 @@ def _spread(text: str) -> float:
 def _common(p: argparse.ArgumentParser) -> None:
     src = p.add_argument_group("map source (one of --connect, --npz)")
     src.add_argument("--map", metavar="ID", type=id_arg("map"), help="map id (with --connect)")
-    src.add_argument(
-        "--connect",
-        type=endpoint_arg,
-        metavar="ENDPOINT",
-        action="append",
-        default=[],
-        help="Zenoh endpoint of a router or map server, e.g. tcp/127.0.0.1:7447 (repeatable)",
-    )
+    add_link_arguments(src)
     src.add_argument(
         "--npz", metavar="FILE", help="a saved map (.npz, map_region layout) instead of a server"
     )
     src.add_argument(
         "--timeout", type=positive_float, default=5.0, help="seconds to wait for map servers (default 5)"
-    )
-    src.add_argument(
-        "--zenoh-config",
-        metavar="FILE",
-        help="Zenoh config with this planner's credentials (`psrmap secure init`)",
     )
     src.add_argument(
         "--trust-servers",
@@ -173,7 +162,7 @@ def register(subparsers) -> None:
     w.add_argument(
         "--max-seconds", type=float, default=None, metavar="S", help="with --watch: stop after S s"
     )
-    p.set_defaults(func=_run_plan, _parser=p)
+    p.set_defaults(func=_run_plan)
     c = subparsers.add_parser(
         "compare",
         help="breakdowns of given routes on the shared map",
@@ -189,12 +178,12 @@ def register(subparsers) -> None:
         metavar="NAME",
         help="name of each --route, in order (default route0, route1, ...)",
     )
-    c.set_defaults(func=_run_compare, _parser=c)
+    c.set_defaults(func=_run_compare)
 
 
 def _config(args: argparse.Namespace) -> CostConfig:
     if args.unknown not in UNKNOWN_POLICIES:
-        args._parser.error(f"--unknown {args.unknown!r}; choose one of: {', '.join(UNKNOWN_POLICIES)}")
+        raise UsageError(f"--unknown {args.unknown!r}; choose one of: {', '.join(UNKNOWN_POLICIES)}")
     try:
         return replace(
             CostConfig(),
@@ -205,22 +194,17 @@ def _config(args: argparse.Namespace) -> CostConfig:
             hazard_penalty=args.hazard_penalty,
         )
     except PlannerError as exc:
-        args._parser.error(f"--weights/--hazard-penalty: {exc}")
-        raise  # unreachable: error() exits
+        raise UsageError(f"--weights/--hazard-penalty: {exc}") from None
 
 
 def _source(args: argparse.Namespace) -> MapSource:
-    if args.npz is None and not args.connect and args.zenoh_config:  # the router its credentials are for
-        try:
-            args.connect = list(file_endpoints(args.zenoh_config, "connect"))
-        except ValueError as exc:
-            args._parser.error(str(exc))
-    if (args.npz is None) == (not args.connect):
-        args._parser.error("give either --connect ENDPOINT (with --map ID) or --npz FILE")
-    if args.connect and not args.map:
-        args._parser.error("--connect needs --map ID")
-    return MapSource(map_id=args.map, connect=tuple(args.connect), npz=args.npz, timeout_s=args.timeout,
-                     zenoh_config=args.zenoh_config, trust_servers=args.trust_servers, margin_m=args.margin)  # fmt: skip
+    link = link_from_args(args, required=False)
+    if (args.npz is None) == (not link.connect):
+        raise UsageError("give either --connect ENDPOINT (with --map ID) or --npz FILE")
+    if link.connect and not args.map:
+        raise UsageError("--connect needs --map ID")
+    return MapSource(map_id=args.map, connect=link.connect, npz=args.npz, timeout_s=args.timeout,
+                     zenoh_config=link.zenoh_config, trust_servers=args.trust_servers, margin_m=args.margin)  # fmt: skip
 
 
 def _table(routes: list[Route]) -> str:
@@ -243,7 +227,7 @@ def _print(args: argparse.Namespace, summary: PlanSummary) -> int:
 
 def _run_plan(args: argparse.Namespace) -> int:
     if args.goal_tolerance < 0:
-        args._parser.error(f"--goal-tolerance {args.goal_tolerance}: need >= 0 metres")
+        raise UsageError(f"--goal-tolerance {args.goal_tolerance}: need >= 0 metres")
     cfg = PlanConfig(_source(args), args.start, args.goal, _config(args), args.goal_tolerance, args.rrd,
                      args.sim_time)  # fmt: skip
     if args.watch:
@@ -259,11 +243,11 @@ def _watch(args: argparse.Namespace, cfg: PlanConfig) -> int:
     import threading
 
     if args.npz is not None:
-        args._parser.error("--watch follows map servers: give --connect and --map, not --npz")
+        raise UsageError("--watch follows map servers: give --connect and --map, not --npz")
     if not args.resync_s > 0:
-        args._parser.error(f"--resync-s {args.resync_s}: need a period > 0 seconds")
+        raise UsageError(f"--resync-s {args.resync_s}: need a period > 0 seconds")
     if args.max_seconds is not None and not args.max_seconds > 0:
-        args._parser.error(f"--max-seconds {args.max_seconds}: need a duration > 0 seconds")
+        raise UsageError(f"--max-seconds {args.max_seconds}: need a duration > 0 seconds")
     stop = threading.Event()
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, lambda *_: stop.set())
@@ -293,7 +277,7 @@ def _watch(args: argparse.Namespace, cfg: PlanConfig) -> int:
 
 def _run_compare(args: argparse.Namespace) -> int:
     if len(args.name) > len(args.route):
-        args._parser.error(
+        raise UsageError(
             f"{len(args.name)} --name for {len(args.route)} --route: give at most one name per route"
         )
     names = [*args.name, *(f"route{i}" for i in range(len(args.name), len(args.route)))]

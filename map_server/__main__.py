@@ -1,4 +1,4 @@
-"""`python -m map_server router|server|status|query`."""
+"""`python -m map_server router|server|remove`."""
 
 import sys
 

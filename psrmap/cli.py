@@ -18,7 +18,8 @@ import os
 import sys
 from collections.abc import Sequence
 
-from common.cli_parser import Parser
+from common.cli_parser import Parser, usage_exit
+from common.errors import UsageError
 from psrmap.errors import exit_code_for
 
 # command -> (module whose `register` adds it, its one-line help), in `psrmap --help` order
@@ -29,8 +30,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "map_server.cli",
         "remove one scout's (or epoch's) contributions from a stopped server's --db, exactly",
     ),
-    "status": ("map_server.cli", "print a map server's status"),
-    "query": ("map_server.cli", "query a box of the map"),
+    "status": ("psrmap.client_cli", "print a map server's status"),
+    "query": ("psrmap.client_cli", "query a box of the map"),
     "scout": ("scout_agent.cli", "walk a simulated Aliengo (ramps or lunar terrain)"),
     "evaluate": ("scout_agent.cli", "run one scout and score its map and detectors against ground truth"),
     "plan": ("consumer_planner.cli", "cheapest path on the shared map, with its breakdown"),
@@ -81,6 +82,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         result = args.func(args)
         sys.stdout.flush()
+    except UsageError as exc:  # the arguments do not go together: that command's usage, exit 2
+        usage_exit(parser, sys.argv[1:] if argv is None else argv, str(exc), exc.usage)
     except BrokenPipeError:  # output piped into `head` and the reader left: not an error of ours
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0

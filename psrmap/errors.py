@@ -21,6 +21,7 @@ class MissionRunError(PsrmapError, RuntimeError):
 # sys.modules only: an exception of a package that was never imported cannot have been raised, and the
 # command stays quick to start.
 EXIT_CODES: tuple[tuple[str, str, int], ...] = (
+    ("common.errors", "UsageError", 2),
     ("common.errors", "InsecureListen", 2),
     ("common.errors", "ViewerUnavailable", 2),
     ("common.errors", "SessionError", 1),

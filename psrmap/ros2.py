@@ -22,6 +22,9 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
+from common.errors import UsageError
+from common.link import link_from_args
+
 __all__ = ["TOPICS", "BridgeConfig", "box_arg", "register", "ros_keys", "run_bridge"]
 
 # under the prefix; run_bridge declares their publishers in this order (entity ids 1, 2, 3)
@@ -189,24 +192,15 @@ def box_arg(text: str) -> tuple[float, float, float, float]:
 
 
 def register(sub: Any) -> None:
-    from common.session import endpoint_arg
+    from common.link import add_link_arguments
     from protocol.keys import id_arg
 
     p = sub.add_parser("ros2", help="publish the shared map, cost grid and plan to ROS 2 (rmw_zenoh)",
                        description=__doc__.split("\n\n")[0])  # fmt: skip
     p.add_argument("--map", required=True, type=id_arg("map"), help="map id")
-    p.add_argument(
-        "--connect",
-        type=endpoint_arg,
-        action="append",
-        default=[],
-        metavar="ENDPOINT",
-        help="the Zenoh router the map servers and the ROS 2 system (rmw_zenoh) share (default: the one "
-        "--zenoh-config names)",
-    )
+    add_link_arguments(p)
     p.add_argument("--box", type=box_arg, metavar="X0,Y0,X1,Y1",
                    help="map area to publish [m] (default: the whole map, as far as it holds data)")  # fmt: skip
-    p.add_argument("--zenoh-config", metavar="FILE", help="Zenoh config with this bridge's credentials")
     p.add_argument("--domain", type=int, default=0, help="ROS_DOMAIN_ID (default 0)")
     p.add_argument("--prefix", default="/psrmap", help="topic namespace (default /psrmap)")
     p.add_argument("--frame", default="map", help="frame_id of every message (default map)")
@@ -220,30 +214,22 @@ def register(sub: Any) -> None:
     )  # fmt: skip
     p.add_argument("--once", action="store_true", help="publish the current map once and exit")
     p.add_argument("--max-seconds", type=float, help="stop after this long")
-    p.set_defaults(func=_cmd, parser=p)
+    p.set_defaults(func=_cmd)
 
 
 def _cmd(args: argparse.Namespace) -> int:
-    from common.session import file_endpoints
-
-    if not args.connect and args.zenoh_config:  # the router its credentials are for (psrmap secure init)
-        try:
-            args.connect = list(file_endpoints(args.zenoh_config, "connect"))
-        except ValueError as exc:
-            args.parser.error(str(exc))
-    if not args.connect:
-        args.parser.error("give --connect ENDPOINT, or --zenoh-config FILE naming the router to connect to")
+    link = link_from_args(args)  # --connect, else the router --zenoh-config names
     if (args.plan_from is None) != (args.plan_to is None):
-        args.parser.error("--plan-from and --plan-to go together")
+        raise UsageError("--plan-from and --plan-to go together")
     if args.rate <= 0:
-        args.parser.error(f"--rate {args.rate}: need a positive number of updates per second")
+        raise UsageError(f"--rate {args.rate}: need a positive number of updates per second")
     if not args.resync_s > 0:
-        args.parser.error(f"--resync-s {args.resync_s}: need a period > 0 seconds")
+        raise UsageError(f"--resync-s {args.resync_s}: need a period > 0 seconds")
     if not 0 <= args.domain <= 232:
-        args.parser.error(f"--domain {args.domain}: ROS 2 domain ids are 0..232")
+        raise UsageError(f"--domain {args.domain}: ROS 2 domain ids are 0..232")
     if not args.prefix.startswith("/"):
-        args.parser.error(f"--prefix {args.prefix!r}: a ROS namespace starts with '/'")
-    cfg = BridgeConfig(args.map, args.box, tuple(args.connect), args.zenoh_config, args.domain,
+        raise UsageError(f"--prefix {args.prefix!r}: a ROS namespace starts with '/'")
+    cfg = BridgeConfig(args.map, args.box, link.connect, link.zenoh_config, args.domain,
                        args.prefix.rstrip("/"), frame=args.frame, rate_hz=args.rate, plan_from=args.plan_from,
                        plan_to=args.plan_to, once=args.once, max_seconds=args.max_seconds,
                        resync_s=args.resync_s)  # fmt: skip

@@ -41,6 +41,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from common.errors import UsageError
 from common.session import endpoint_arg
 from protocol.keys import validate_id
 
@@ -422,7 +423,7 @@ def register(sub: Any) -> None:
         "--tls", action="store_true", help="also require mutual TLS (writes a CA and certificates)"
     )
     i.add_argument("--days", type=int, default=365, help="certificate lifetime with --tls (default 365)")
-    i.set_defaults(func=_cmd_init, _parser=i)
+    i.set_defaults(func=_cmd_init)
 
 
 def _cmd_init(args: Any) -> int:
@@ -441,7 +442,7 @@ def _cmd_init(args: Any) -> int:
             args.ros_prefix.rstrip("/") or "/",
         )
     except ValueError as exc:
-        args._parser.error(str(exc))
+        raise UsageError(str(exc)) from None
     print(
         json.dumps(
             {

@@ -17,7 +17,7 @@ from dataclasses import replace
 
 from common.cli_parser import non_negative_int, positive_float
 from common.defaults import DEFAULT_SEED
-from common.errors import ViewerUnavailable
+from common.errors import UsageError, ViewerUnavailable
 from common.recording import use_viewer
 from protocol.keys import id_arg
 from scout_agent import component
@@ -25,7 +25,7 @@ from scout_agent.component import ScoutConfig
 from scout_agent.errors import ScoutConfigError, ScoutLinkError
 from scout_agent.evaluate import register_evaluate
 from scout_agent.localization import LOCALIZE_MODES
-from scout_agent.mapping import add_mapping_arguments, link_from_args
+from scout_agent.mapping import add_mapping_arguments, publish_link
 from scout_agent.run import SCENES, ScoutRunConfig, build_world
 from scout_agent.sensors import IMU_PRESETS, SENSOR_PROFILES, SensorConfig
 from scout_agent.sensors.foot_pressure import CONTACT_SOURCES
@@ -207,42 +207,42 @@ def _sim_config(
     return replace(base, state_source=state, sensors=prof, launch=launch or LaunchSurvey())
 
 
-def _launch(args: argparse.Namespace, parser: argparse.ArgumentParser) -> LaunchSurvey:
+def _launch(args: argparse.Namespace) -> LaunchSurvey:
     if args.launch_sigma is None:
         return LaunchSurvey(mode=args.launch)
     xy, yaw = args.launch_sigma
     if not (0.0 <= xy <= 100.0 and 0.0 <= yaw <= 180.0):
-        parser.error(f"--launch-sigma {xy},{yaw}: need 0 ≤ xy ≤ 100 m and 0 ≤ yaw ≤ 180 deg")
+        raise UsageError(f"--launch-sigma {xy},{yaw}: need 0 ≤ xy ≤ 100 m and 0 ≤ yaw ≤ 180 deg")
     return LaunchSurvey(mode=args.launch, sigma_xy_m=xy, sigma_yaw_deg=yaw)
 
 
-def config_from_args(args: argparse.Namespace, parser: argparse.ArgumentParser) -> ScoutRunConfig:
+def config_from_args(args: argparse.Namespace) -> ScoutRunConfig:
     if not 0.0 <= args.slope <= 25.0:
-        parser.error(f"--slope {args.slope}: valid range is 0–25 degrees")
+        raise UsageError(f"--slope {args.slope}: valid range is 0–25 degrees")
     if not 0.0 < args.speed <= 0.5:
-        parser.error(f"--speed {args.speed}: valid range is 0 < speed ≤ 0.5 m/s")
+        raise UsageError(f"--speed {args.speed}: valid range is 0 < speed ≤ 0.5 m/s")
     if args.slippery is not None and args.scene != "ramps":
-        parser.error("--slippery applies to --scene ramps; on lunar use --slippery-patches N or --patch")
+        raise UsageError("--slippery applies to --scene ramps; on lunar use --slippery-patches N or --patch")
     if args.slippery is not None and not 0.0 < args.slippery <= 2.0:
-        parser.error(f"--slippery {args.slippery}: valid range is 0 < MU ≤ 2")
+        raise UsageError(f"--slippery {args.slippery}: valid range is 0 < MU ≤ 2")
     if args.slippery_patches and args.scene != "lunar":
-        parser.error("--slippery-patches applies to --scene lunar; on ramps use --slippery MU or --patch")
+        raise UsageError("--slippery-patches applies to --scene lunar; on ramps use --slippery MU or --patch")
     if args.holdable_patches and not args.slippery_patches:
-        parser.error("--holdable-patches applies to --slippery-patches N (lunar)")
+        raise UsageError("--holdable-patches applies to --slippery-patches N (lunar)")
     if args.slippery_patches < 0:
-        parser.error("--slippery-patches must be ≥ 0")
+        raise UsageError("--slippery-patches must be ≥ 0")
     if args.field != PAPER_FIELD_M and args.scene != "lunar":
-        parser.error("--field applies to --scene lunar")
+        raise UsageError("--field applies to --scene lunar")
     if not 5.0 <= args.field <= 400.0:
-        parser.error(f"--field {args.field:g}: valid lunar field sides are 5–400 m")
+        raise UsageError(f"--field {args.field:g}: valid lunar field sides are 5–400 m")
     if args.route and args.scene != "lunar":
-        parser.error(f"--route applies to --scene lunar (routes: {', '.join(LUNAR_ROUTES)})")
+        raise UsageError(f"--route applies to --scene lunar (routes: {', '.join(LUNAR_ROUTES)})")
     ramp = RampConfig()
     if args.ramp_lengths is not None:
         if args.scene != "ramps":
-            parser.error("--ramp-lengths applies to --scene ramps")
+            raise UsageError("--ramp-lengths applies to --scene ramps")
         if min(args.ramp_lengths) < 0.5:
-            parser.error(f"--ramp-lengths {args.ramp_lengths}: each segment must be ≥ 0.5 m")
+            raise UsageError(f"--ramp-lengths {args.ramp_lengths}: each segment must be ≥ 0.5 m")
         a, u, pl, d, e = args.ramp_lengths
         ramp = RampConfig(approach_m=a, up_m=u, platform_m=pl, down_m=d, exit_m=e)
     cfg = ScoutRunConfig(
@@ -263,25 +263,25 @@ def config_from_args(args: argparse.Namespace, parser: argparse.ArgumentParser) 
         holdable_patches=args.holdable_patches,
         patches=tuple(args.patch),
         scout_id=args.scout_id,
-        sim=_sim_config(args.state, args.contact, args.imu, args.sensors, _launch(args, parser)),
-        dem=_dem(args, parser),
+        sim=_sim_config(args.state, args.contact, args.imu, args.sensors, _launch(args)),
+        dem=_dem(args),
         hazard_control=not args.no_hazard_control,
         localize=args.localize,
     )
     try:
         build_world(cfg)
     except ValueError as exc:
-        parser.error(str(exc))
+        raise UsageError(str(exc)) from None
     return cfg
 
 
-def _dem(args: argparse.Namespace, parser: argparse.ArgumentParser) -> DemWindow | None:
+def _dem(args: argparse.Namespace) -> DemWindow | None:
     if args.dem is None:
         if args.dem_window is not None:
-            parser.error("--dem-window needs --dem FILE.tif")
+            raise UsageError("--dem-window needs --dem FILE.tif")
         return None
     if args.scene != "lunar":
-        parser.error("--dem builds the lunar scene: add --scene lunar")
+        raise UsageError("--dem builds the lunar scene: add --scene lunar")
     if args.dem_window is not None:
         x, y = args.dem_window
         return DemWindow(args.dem, x, y, size_m=args.field)
@@ -291,7 +291,7 @@ def _dem(args: argparse.Namespace, parser: argparse.ArgumentParser) -> DemWindow
         with rasterio.open(args.dem) as ds:
             b = ds.bounds
     except Exception as exc:  # rasterio raises its own error types for unreadable files
-        parser.error(f"--dem {args.dem}: cannot read it as a GeoTIFF ({exc})")
+        raise UsageError(f"--dem {args.dem}: cannot read it as a GeoTIFF ({exc})") from None
     h = args.field / 2
     return DemWindow(args.dem, (b.left + b.right) / 2 - h, (b.bottom + b.top) / 2 - h, size_m=args.field)
 
@@ -305,18 +305,13 @@ def _compile_notice(args: argparse.Namespace) -> None:
         print(f"psrmap scout: {COMPILE_NOTICE}", file=sys.stderr, flush=True)
 
 
-def scout_config(args: argparse.Namespace, parser: argparse.ArgumentParser) -> ScoutConfig:
+def scout_config(args: argparse.Namespace) -> ScoutConfig:
     """The parsed options as a ScoutConfig, or a usage error naming what would be valid."""
-    run_cfg = config_from_args(args, parser)
-    try:
-        link = link_from_args(args)
-    except ScoutConfigError as exc:
-        parser.error(str(exc))
     return ScoutConfig(
-        run=run_cfg,
+        run=config_from_args(args),
         res=args.res,
         delta_hz=args.delta_hz,
-        link=link,
+        link=publish_link(args),
         save_map=args.save_map,
         mapping=not args.no_map,
         rrd=args.rrd,
@@ -328,21 +323,19 @@ def scout_config(args: argparse.Namespace, parser: argparse.ArgumentParser) -> S
 
 
 def cmd_scout(args: argparse.Namespace) -> int:
-    cfg = scout_config(args, args._parser)
+    cfg = scout_config(args)
     try:  # the viewer before the compile notice: a bad place for a viewer is the one line said
         use_viewer(cfg.viewer, cfg.connect_viewer)
     except ViewerUnavailable as exc:  # one line: nothing is wrong with the command, only the place
-        args._parser.exit(2, f"psrmap scout: error: {exc}\n")
-    except ValueError as exc:
-        args._parser.error(str(exc))
+        raise UsageError(str(exc), usage=False) from None
+    except ValueError as exc:  # a bad --connect-viewer URL
+        raise UsageError(str(exc)) from None
     cfg = replace(cfg, viewer=False, connect_viewer=None)  # streams go to the viewer use_viewer named
     _compile_notice(args)
     try:
         result = component.run(cfg)
-    except ScoutConfigError as exc:
-        args._parser.error(str(exc))
-    except ScoutLinkError as exc:
-        args._parser.error(str(exc))
+    except (ScoutConfigError, ScoutLinkError) as exc:
+        raise UsageError(str(exc)) from None
     summary = result.report
     if args.json:
         print(json.dumps(summary))
@@ -393,7 +386,7 @@ def register(subparsers) -> argparse.ArgumentParser:
     )
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p.set_defaults(func=cmd_scout, _parser=p)
+    p.set_defaults(func=cmd_scout)
     register_evaluate(subparsers)
     return p
 

@@ -47,6 +47,7 @@ from typing import Any
 import numpy as np
 
 from common.defaults import DEFAULT_DELTA_HZ, DEFAULT_RES_M
+from common.errors import UsageError
 from protocol.layers import cell_center, elevation_slope_deg, layer_value
 from scout_agent.estimators import EstimatorPipeline, TickEstimates
 from scout_agent.estimators.elevation import plane_from_moments, slope_deg
@@ -364,10 +365,9 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     from scout_agent.cli import config_from_args
     from scout_agent.run import build_world, run_scout
 
-    parser = args._parser
     if not args.res > 0:
-        parser.error(f"--res {args.res}: need a cell size > 0 [m]")
-    cfg = config_from_args(args, parser)
+        raise UsageError(f"--res {args.res}: need a cell size > 0 [m]")
+    cfg = config_from_args(args)
     world = build_world(cfg)
     ev = Evaluator(res=args.res)
     summary = run_scout(
@@ -434,5 +434,5 @@ def register_evaluate(subparsers: Any) -> argparse.ArgumentParser:
     )
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p.set_defaults(func=cmd_evaluate, _parser=p)
+    p.set_defaults(func=cmd_evaluate)
     return p

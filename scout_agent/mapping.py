@@ -6,7 +6,7 @@ and every `1/delta_hz` seconds of scout time flushes them as one delta: merged i
 cell for cell, what a server merges from the same deltas.
 
 `open_mapping(...)` (with a `LinkConfig` to publish) is what `scout_agent.component.run` calls; the CLI's
-`--map ID --connect ENDPOINT` (`add_mapping_arguments`, `link_from_args`) publishes while walking; without
+`--map ID --connect ENDPOINT` (`add_mapping_arguments`, `publish_link`) publishes while walking; without
 `--connect` the scout keeps a local map, `--save-map PATH.npz` writes it (`mapcore.npz` reads it back).
 """
 
@@ -21,7 +21,8 @@ from typing import Any
 import numpy as np
 
 from common.defaults import DEFAULT_DELTA_HZ, DEFAULT_RES_M
-from common.session import endpoint_arg, file_endpoints
+from common.errors import UsageError
+from common.link import add_link_arguments, link_from_args
 from protocol.keys import id_arg
 from protocol.layers import HAZARD_REASONS
 from scout_agent.cells import CellAccumulator, LocalMap
@@ -36,7 +37,7 @@ __all__ = [
     "MappingSession",
     "LinkConfig",
     "add_mapping_arguments",
-    "link_from_args",
+    "publish_link",
     "open_mapping",
     "default_pipeline_config",
 ]
@@ -166,14 +167,7 @@ def _placement_sigma(sim: Any) -> float | None:
 def add_mapping_arguments(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("mapping")
     g.add_argument("--map", metavar="ID", type=id_arg("map"), help="map id to publish to (with --connect)")
-    g.add_argument(
-        "--connect",
-        type=endpoint_arg,
-        action="append",
-        default=[],
-        metavar="ENDPOINT",
-        help="Zenoh endpoint of the map service's router, e.g. tcp/127.0.0.1:7447 (repeatable)",
-    )
+    add_link_arguments(g)
     g.add_argument(
         "--res",
         type=float,
@@ -188,11 +182,6 @@ def add_mapping_arguments(p: argparse.ArgumentParser) -> None:
         metavar="PATH.db",
         help="SQLite outbox keeping each delta until acked (default "
         "$XDG_STATE_HOME/psrmap/outbox-<map>-<scout>.db; 'none': memory only)",
-    )
-    g.add_argument(
-        "--zenoh-config",
-        metavar="FILE",
-        help="Zenoh config with this scout's credentials (`psrmap secure init`)",
     )
     g.add_argument(
         "--resume",
@@ -305,23 +294,15 @@ def open_mapping(
     return MappingSession(mapper, publisher, save_map, on_tick, on_estimates)
 
 
-def link_from_args(args: argparse.Namespace) -> LinkConfig | None:
-    """The `--map/--connect/--outbox/--resume/--zenoh-config` options as a LinkConfig (None: no --connect);
-    raises ScoutConfigError when they do not go together."""
-    if (
-        args.map and not args.connect and getattr(args, "zenoh_config", None)
-    ):  # the router it holds credentials for
-        try:
-            args.connect = list(file_endpoints(args.zenoh_config, "connect"))
-        except ValueError as exc:
-            raise ScoutConfigError(str(exc)) from None
-    if args.connect and not args.map:
-        raise ScoutConfigError("--connect needs --map ID (the map to publish to)")
-    if args.map and not args.connect:
-        raise ScoutConfigError(
-            "--map needs --connect ENDPOINT (the map service's router), e.g. tcp/127.0.0.1:7447"
-        )
-    if not args.connect:
+def publish_link(args: argparse.Namespace) -> LinkConfig | None:
+    """The `--map/--connect/--outbox/--resume/--zenoh-config` options as a LinkConfig (None: no --connect and no
+    router in --zenoh-config); raises UsageError when they do not go together."""
+    link = link_from_args(args, required=False)
+    if link.connect and not args.map:
+        raise UsageError("--connect needs --map ID (the map to publish to)")
+    if args.map and not link.connect:
+        raise UsageError("--map needs --connect ENDPOINT (the map service's router), e.g. tcp/127.0.0.1:7447")
+    if not link.connect:
         return None
-    return LinkConfig(args.map, tuple(args.connect), getattr(args, "outbox", None), getattr(args, "resume", False),
-                      getattr(args, "zenoh_config", None))  # fmt: skip
+    return LinkConfig(args.map, link.connect, getattr(args, "outbox", None), getattr(args, "resume", False),
+                      link.zenoh_config)  # fmt: skip

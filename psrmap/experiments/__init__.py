@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import Any
 
 from common.cli_parser import positive_int
+from common.errors import UsageError
 from psrmap.experiments import lunar, ramps, slopes, utility
 from psrmap.experiments.common import RunPool, write_json
 from psrmap.experiments.config import ExperimentConfig, ExperimentError, from_args
@@ -119,7 +120,7 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
         _add_common(q)
         for m in EXPERIMENTS.values() if name == "all" else OPTIONS_FROM[name]:
             m.add_arguments(q)
-        q.set_defaults(func=_cmd, _parser=q)
+        q.set_defaults(func=_cmd)
     return p
 
 
@@ -156,15 +157,14 @@ def _command(args: argparse.Namespace) -> str:
 
 def _cmd(args: argparse.Namespace) -> int:
     if args.sim_seconds is not None and not args.sim_seconds > 0:
-        args._parser.error(f"--sim-seconds {args.sim_seconds}: need > 0")
+        raise UsageError(f"--sim-seconds {args.sim_seconds}: need > 0")
     out = Path(args.out or f"runs/{time.strftime('%Y%m%d-%H%M%S')}-{args.experiment}")
     cache = Path(args.cache) if args.cache else out / "runs"
     pool = RunPool(cache, workers=args.workers, progress=not args.quiet, fresh=args.fresh)
     try:
         return _run(args, out, pool)
     except ExperimentError as exc:
-        args._parser.error(str(exc))
-        raise  # unreachable: error() exits
+        raise UsageError(str(exc)) from None
 
 
 def _run(args: argparse.Namespace, out: Path, pool: RunPool) -> int:

@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from common.cli_parser import non_negative_int, positive_float
+from common.errors import UsageError
 from common.recording import ViewerUnavailable, use_viewer
 from psrmap.mission.config import MissionError, load_config, validate, with_scouts
 from psrmap.mission.run import run_mission
@@ -68,7 +69,7 @@ def register(sub: Any) -> None:
         help="stream the mission live to a running Rerun viewer, e.g. rerun+http://127.0.0.1:9876/proxy",
     )
     p.add_argument("--quiet", action="store_true", help="no progress output, only the final JSON path")
-    p.set_defaults(func=_cmd_mission, parser=p)
+    p.set_defaults(func=_cmd_mission)
 
 
 def _interrupted(signum: int, frame: object) -> None:
@@ -103,9 +104,9 @@ def _cmd_mission(args: argparse.Namespace) -> int:
             raise MissionError("--viewer/--connect-viewer stream the recordings: drop --no-rrd")
         use_viewer(args.viewer, args.connect_viewer)  # the components inherit PSRMAP_VIEWER_URL
     except ViewerUnavailable as exc:  # one line: nothing is wrong with the command, only the place
-        args.parser.exit(2, f"psrmap mission: error: {exc}\n")
+        raise UsageError(str(exc), usage=False) from None
     except (MissionError, ValueError) as exc:
-        args.parser.error(str(exc))
+        raise UsageError(str(exc)) from None
     # SIGTERM (a supervisor, `kill`) unwinds like Ctrl-C: run_mission's cleanup stops every component it started
     signal.signal(signal.SIGTERM, _interrupted)
     summary = run_mission(cfg, Path(args.run_dir) if args.run_dir else None, progress=not args.quiet)

@@ -89,5 +89,5 @@ def test_mission_builds_scout_configs_as_the_cli_does(tmp_path):
             "--goal=" + ",".join(map(str, s.goal)), *("--via=" + ",".join(map(str, v)) for v in s.via)]  # fmt: skip
     parser = build_parser(argv)
     args = parser.parse_args(argv)
-    theirs = cli_scout_config(args, args._parser)
+    theirs = cli_scout_config(args)
     assert dataclasses.replace(theirs, rrd_terrain=False, rrd=ours.rrd) == ours

@@ -221,9 +221,13 @@ def test_query_out_writes_geotiff_and_mcap(router, served_map, tmp_path, capsys)
         elev = ds.read(bands["elevation value"])[::-1]  # back to row = iy (south first)
         np.testing.assert_allclose(elev, grid.value("elevation"), equal_nan=True, rtol=1e-6)
         assert "South Polar" in ds.crs.to_wkt()
-    with Reader(tmp_path / "bag") as reader:
-        ((conn, _, raw),) = list(reader.messages())
-        layers = grid_map_layers(typestore().deserialize_cdr(raw, conn.msgtype))
+    with Reader(
+        tmp_path / "bag"
+    ) as reader:  # the one writer psrmap export uses: the map and the planner's cost
+        msgs = {c.topic: (c, raw) for c, _, raw in reader.messages()}
+    assert set(msgs) == {"/psrmap/grid_map", "/psrmap/cost"}
+    conn, raw = msgs["/psrmap/grid_map"]
+    layers = grid_map_layers(typestore().deserialize_cdr(raw, conn.msgtype))
     np.testing.assert_allclose(layers["cot"], grid.value("cot"), equal_nan=True, rtol=1e-6)
 
 

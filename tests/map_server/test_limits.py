@@ -271,7 +271,7 @@ def test_psrmap_query_refuses_a_reply_far_outside_its_box_without_allocating_it(
     import zenoh
 
     from common.session import zenoh_config
-    from map_server.cli import main
+    from psrmap.cli import main
 
     with zenoh.open(zenoh_config(connect=[router], mode="client")) as fake:
         replies = [_fake_region(0, 0), _fake_region(*far)]

@@ -30,10 +30,10 @@ def _parser():
     ],
 )
 def test_errors_name_valid_values(argv, message, capsys):
-    p = _parser()
+    from psrmap.cli import main
+
     with pytest.raises(SystemExit) as exc:
-        args = p.parse_args(["scout", *argv])
-        args.func(args)
+        main(["scout", *argv])
     assert exc.value.code == 2
     assert message in capsys.readouterr().err
 
