@@ -196,8 +196,9 @@ def _live(samples: list[tuple[str, bytes]]) -> dict:
     merge of the same stream."""
     import zenoh
 
+    from common.query import wait_for_server
     from common.session import zenoh_config
-    from map_server.service import MapService, ServerConfig, free_endpoint, wait_for_server
+    from map_server.service import MapService, ServerConfig, free_endpoint
     from protocol.keys import status_key
 
     ep = free_endpoint()

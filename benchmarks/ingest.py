@@ -187,8 +187,9 @@ def run_load(n: int, endpoint: str, rate_total: float, seconds: float, offset: i
 def main() -> None:
     import zenoh
 
+    from common.query import wait_for_server
     from common.session import zenoh_config
-    from map_server.service import free_endpoint, wait_for_server
+    from map_server.service import free_endpoint
     from protocol import decode, encode
     from protocol.keys import ack_key, delta_key, map_key, status_key
     from protocol.messages import CellDelta, RegionQuery

@@ -27,9 +27,9 @@ MAPS = ("paged", "whole")
 def main() -> None:
     import zenoh
 
-    from common.query import get_replies, get_status
+    from common.query import get_replies, get_status, wait_for_server
     from common.session import zenoh_config
-    from map_server.service import free_endpoint, wait_for_server
+    from map_server.service import free_endpoint
     from mapcore import TiledMap
     from protocol import decode
     from protocol.keys import map_key

@@ -23,8 +23,9 @@ import psutil
 import zenoh
 from ingest import shutdown, spawn
 
+from common.query import wait_for_server
 from common.session import zenoh_config
-from map_server.service import free_endpoint, wait_for_server
+from map_server.service import free_endpoint
 from protocol import decode, encode
 from protocol.keys import delta_key, status_key
 from protocol.layers import LAYERS

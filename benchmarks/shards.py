@@ -108,9 +108,9 @@ def publisher(pid: int, endpoint: str, shards: int, n: int, window: int, ready, 
 def run(k: int, args: argparse.Namespace) -> dict:
     import zenoh
 
-    from common.query import aggregate_status, get_statuses
+    from common.query import aggregate_status, get_statuses, wait_for_server
     from common.session import zenoh_config
-    from map_server.service import free_endpoint, wait_for_server
+    from map_server.service import free_endpoint
 
     ep = free_endpoint()
     tmp = tempfile.TemporaryDirectory()

@@ -228,9 +228,9 @@ def main() -> None:
     rec = record(args.record_seconds)
     import zenoh
 
-    from common.query import aggregate_status, get_statuses
+    from common.query import aggregate_status, get_statuses, wait_for_server
     from common.session import zenoh_config
-    from map_server.service import free_endpoint, wait_for_server
+    from map_server.service import free_endpoint
 
     ep = free_endpoint()
     tmp = tempfile.TemporaryDirectory()

@@ -19,10 +19,10 @@ from pathlib import Path
 def main() -> None:
     import zenoh
 
-    from common.query import get_statuses
+    from common.query import get_statuses, wait_for_server
     from common.session import zenoh_config
     from common.trust import Trust
-    from map_server.service import MapService, ServerConfig, free_endpoint, wait_for_server
+    from map_server.service import MapService, ServerConfig, free_endpoint
     from psrmap.secure import secure_init
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])

@@ -11,7 +11,8 @@ planner's client and the mission all query through here.
 from __future__ import annotations
 
 import logging
-from collections.abc import Iterable
+import time
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -36,6 +37,7 @@ __all__ = [
     "get_status",
     "get_statuses",
     "map_extent",
+    "wait_for_server",
 ]
 
 log = logging.getLogger(__name__)
@@ -210,3 +212,31 @@ def map_extent(statuses: list[Status], map_id: str) -> tuple[float, float, float
     if box is None:
         raise QueryError(f"map {map_id!r} holds no data yet: its extent is empty")
     return box
+
+
+def wait_for_server(
+    session: zenoh.Session,
+    map_id: str,
+    timeout_s: float = 10.0,
+    shard: int | None = None,
+    *,
+    shards: int = 1,
+    trusted: Trust | Iterable[str] = (),
+    check: Callable[[], None] | None = None,
+) -> Status | None:
+    """Block until the map's servers answer a status query: every one of `shards` shards, or (`shard`) that
+    shard; returns their aggregate status, None after `timeout_s`. `check` runs between attempts and may raise
+    to stop waiting (a server process that died). The one wait for a server: tests, benchmarks, the mission."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        left = deadline - time.monotonic()
+        parts = get_statuses(session, map_id, max(0.05, min(1.0, left)), trusted)
+        if shard is not None:
+            parts = [p for p in parts if p.shard == shard]
+        if parts and (shard is not None or len({p.shard for p in parts}) >= shards):
+            return aggregate_status(parts)
+        if check is not None:
+            check()
+        if time.monotonic() + 0.05 >= deadline:
+            return None
+        time.sleep(0.05)

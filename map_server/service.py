@@ -678,18 +678,3 @@ def free_endpoint(host: str = "127.0.0.1") -> str:
     with socket.socket() as s:
         s.bind((host, 0))
         return f"tcp/{host}:{s.getsockname()[1]}"
-
-
-def wait_for_server(session: Any, map_id: str, timeout_s: float = 10.0, shard: int | None = None) -> bool:
-    """Block until the server's liveliness token of `map_id` (of its shard `shard`) is visible from `session`."""
-    seen = threading.Event()
-
-    def on(sample: zenoh.Sample) -> None:
-        if sample.kind == zenoh.SampleKind.PUT:
-            seen.set()
-
-    sub = session.liveliness().declare_subscriber(alive_key(map_id, server_who(shard)), on, history=True)
-    try:
-        return seen.wait(timeout_s)
-    finally:
-        sub.undeclare()

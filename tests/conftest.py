@@ -10,8 +10,9 @@ from pathlib import Path
 import pytest
 import zenoh
 
+from common.query import wait_for_server
 from common.session import zenoh_config
-from map_server.service import MapService, ServerConfig, free_endpoint, wait_for_server
+from map_server.service import MapService, ServerConfig, free_endpoint
 
 
 @pytest.fixture(autouse=True)

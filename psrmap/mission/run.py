@@ -39,22 +39,23 @@ def _status(session: Any, map_id: str, timeout: float = 2.0, trust: Any = ()) ->
     return get_status(session, map_id, timeout, trust)
 
 
-def _wait_for_server(
+def _wait_for_servers(
     session: Any, map_id: str, procs: Sequence[Proc], deadline: float, shards: int = 1, trust: Any = ()
-) -> Any:
-    from common.query import aggregate_status, get_statuses
+) -> None:
+    """Until every shard's server answers (common.query.wait_for_server); MissionRunError if one died first or
+    the deadline passed."""
+    from common.query import wait_for_server
 
-    while time.monotonic() < deadline:
-        parts = get_statuses(session, map_id, 1.0, trust)
-        if len({p.shard for p in parts}) >= shards:  # every shard answers
-            return aggregate_status(parts)
+    def alive() -> None:
         for p in procs:
             if not p.proc.is_alive():
                 raise MissionRunError(f"{p.name} exited early with code {p.proc.exitcode}; see {p.log}")
-        time.sleep(0.2)
-    raise MissionRunError(
-        f"the map server(s) did not all answer within the mission's start-up time; see {procs[0].log}"
-    )
+
+    left = deadline - time.monotonic()
+    if wait_for_server(session, map_id, left, shards=shards, trusted=trust, check=alive) is None:
+        raise MissionRunError(
+            f"the map server(s) did not all answer within the mission's start-up time; see {procs[0].log}"
+        )
 
 
 def run_mission(cfg: MissionConfig, run_dir: Path | None = None, progress: bool = True) -> dict[str, Any]:
@@ -127,7 +128,7 @@ def run_mission(cfg: MissionConfig, run_dir: Path | None = None, progress: bool 
                     shard=i if sharded else None,
                 )
                 servers.append(spawn(ctx, name, run_server, server_cfg, run_dir, env))
-            _wait_for_server(
+            _wait_for_servers(
                 session, cfg.map, servers, min(deadline, time.monotonic() + 60), cfg.shards, trust
             )
             where = (

@@ -15,8 +15,9 @@ from pathlib import Path
 import numpy as np
 import zenoh
 
+from common.query import wait_for_server
 from common.session import zenoh_config
-from map_server.service import free_endpoint, wait_for_server
+from map_server.service import free_endpoint
 from mapcore import TiledMap
 from protocol import decode, encode
 from protocol.keys import delta_key, map_key, status_key

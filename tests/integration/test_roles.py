@@ -18,11 +18,11 @@ import numpy as np
 import pytest
 import zenoh
 
-from common.query import get_partition, get_replies, get_statuses
+from common.query import get_partition, get_replies, get_statuses, wait_for_server
 from common.session import zenoh_config
 from common.trust import Trust
 from consumer_planner.client import ClientConfig, RegionWatch, query_region
-from map_server.service import MapService, ServerConfig, free_endpoint, wait_for_server
+from map_server.service import MapService, ServerConfig, free_endpoint
 from protocol import encode
 from protocol.keys import (
     alive_key,

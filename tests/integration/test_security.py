@@ -12,11 +12,12 @@ import numpy as np
 import pytest
 import zenoh
 
+from common.query import wait_for_server
 from common.session import zenoh_config
 from common.trust import Trust, load_trust
 from consumer_planner.client import ClientConfig, query_region
 from consumer_planner.errors import PlannerError
-from map_server.service import MapService, ServerConfig, free_endpoint, wait_for_server
+from map_server.service import MapService, ServerConfig, free_endpoint
 from protocol import encode
 from protocol.keys import ack_key, delta_key, map_key
 from protocol.messages import Ack, RegionQuery

@@ -14,11 +14,11 @@ import pytest
 import zenoh
 from test_map_service import spawn, wait_line
 
-from common.query import aggregate_status, get_partition, get_status, get_statuses
+from common.query import aggregate_status, get_partition, get_status, get_statuses, wait_for_server
 from common.session import zenoh_config
 from consumer_planner.client import ClientConfig, RegionWatch, query_region
 from map_server.merge import Merger
-from map_server.service import MapService, ServerConfig, free_endpoint, wait_for_server
+from map_server.service import MapService, ServerConfig, free_endpoint
 from mapcore import TiledMap
 from protocol import encode
 from protocol.keys import delta_key

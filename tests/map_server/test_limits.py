@@ -216,8 +216,8 @@ def test_default_budget_is_sized_for_the_machine_and_bounds_a_memory_only_map():
 def test_a_full_query_budget_answers_busy_and_deltas_are_still_merged(router, tmp_path):
     import zenoh
 
+    from common.query import wait_for_server
     from common.session import zenoh_config
-    from map_server.service import wait_for_server
 
     cfg = ServerConfig(
         map_id=MAP, res=RES, db=str(tmp_path / "q.db"), connect=(router,), max_queries_in_flight=2

@@ -7,9 +7,10 @@ import numpy as np
 import pytest
 import zenoh
 
+from common.query import wait_for_server
 from common.session import zenoh_config
 from map_server.errors import MapServerConfigError
-from map_server.service import MapService, ServerConfig, wait_for_server
+from map_server.service import MapService, ServerConfig
 from mapcore import TiledMap
 from protocol.messages import RegionQuery
 from protocol.testing import MAP, RES, make_delta

@@ -10,7 +10,8 @@ import signal
 import numpy as np
 import pytest
 
-from map_server.service import MapService, ServerConfig, wait_for_server
+from common.query import wait_for_server
+from map_server.service import MapService, ServerConfig
 from protocol.testing import MAP, RES, make_delta
 from scout_agent.delivery import DeltaPublisher, InMemoryTransport
 from scout_agent.outbox import SQLiteOutbox
