@@ -15,7 +15,15 @@ import math
 from collections.abc import Sequence
 from typing import Any, NoReturn
 
-__all__ = ["Parser", "command_parser", "usage_exit", "non_negative_int", "positive_float", "positive_int"]
+__all__ = [
+    "Parser",
+    "command_parser",
+    "run_command",
+    "usage_exit",
+    "non_negative_int",
+    "positive_float",
+    "positive_int",
+]
 
 
 class Parser(argparse.ArgumentParser):
@@ -64,6 +72,20 @@ def usage_exit(
     if usage:
         p.error(message)
     p.exit(2, f"{p.prog}: error: {message}\n")
+
+
+def run_command(parser: argparse.ArgumentParser, argv: Sequence[str] | None = None) -> int:
+    """Parse `argv` and run the command's `func`: its exit code, or exit 2 with that command's usage for a
+    `UsageError` (the component packages' own `python -m ...` entry points; `psrmap` adds its error table)."""
+    import sys
+
+    from common.errors import UsageError
+
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except UsageError as exc:
+        usage_exit(parser, sys.argv[1:] if argv is None else argv, str(exc), exc.usage)
 
 
 def positive_float(text: str) -> float:

@@ -4,15 +4,14 @@ from __future__ import annotations
 
 import sys
 
-from common.cli_parser import Parser
+from common.cli_parser import Parser, run_command
 from consumer_planner.cli import register
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = Parser(prog="consumer_planner")
     register(parser.add_subparsers(dest="command", metavar="COMMAND", required=True))
-    args = parser.parse_args(argv)
-    return int(args.func(args) or 0)
+    return run_command(parser, argv)
 
 
 if __name__ == "__main__":

@@ -11,7 +11,7 @@ from collections.abc import Sequence
 from dataclasses import replace
 from typing import Any
 
-from common.cli_parser import Parser, non_negative_int, positive_int, usage_exit
+from common.cli_parser import Parser, non_negative_int, positive_int, run_command
 from common.defaults import DEFAULT_RES_M
 from common.errors import UsageError
 from common.link import Link, add_link_arguments, link_from_args, open_link, split_endpoints
@@ -249,8 +249,4 @@ def register(subparsers: Any) -> None:
 def main(argv: Sequence[str] | None = None) -> int:
     parser = Parser(prog="python -m map_server")
     register(parser.add_subparsers(dest="command", metavar="COMMAND", required=True))
-    args = parser.parse_args(argv)
-    try:
-        return int(args.func(args) or 0)
-    except UsageError as exc:  # the arguments do not go together: that command's usage, exit 2
-        usage_exit(parser, sys.argv[1:] if argv is None else argv, str(exc), exc.usage)
+    return run_command(parser, argv)

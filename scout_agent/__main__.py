@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import sys
 
-from common.cli_parser import Parser
+from common.cli_parser import Parser, run_command
 from scout_agent.cli import register
 
 
@@ -12,8 +12,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = Parser(prog="python -m scout_agent")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     register(sub)
-    args = parser.parse_args(argv)
-    return int(args.func(args) or 0)
+    return run_command(parser, argv)
 
 
 if __name__ == "__main__":
