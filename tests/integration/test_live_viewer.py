@@ -3,6 +3,7 @@ server as they run (a real `rerun --serve-grpc` that saves what it receives, sta
 
 from __future__ import annotations
 
+import os
 import signal
 import socket
 import subprocess
@@ -43,6 +44,7 @@ class _Receiver:
             ],
             stdout=subprocess.DEVNULL,
             stderr=subprocess.DEVNULL,
+            start_new_session=True,  # `rerun` runs the viewer binary as a child: stop() ends both
         )
         deadline = time.monotonic() + 20
         while time.monotonic() < deadline:
@@ -50,15 +52,24 @@ class _Receiver:
                 if s.connect_ex(("127.0.0.1", self.port)) == 0:
                     return
             time.sleep(0.1)
-        self.proc.kill()
+        self.stop()
         raise RuntimeError("rerun --serve-grpc did not start")
+
+    def stop(self) -> None:
+        """Kill the receiver and its viewer child if they are still running (no process outlives the test)."""
+        if self.proc.poll() is None:
+            os.killpg(self.proc.pid, signal.SIGKILL)
+            self.proc.wait()
 
     def entities(self) -> set[str]:
         from rerun.chunk import RrdReader
 
         time.sleep(1.0)
         self.proc.send_signal(signal.SIGINT)  # flushes and closes the file
-        self.proc.wait(timeout=20)
+        try:
+            self.proc.wait(timeout=20)
+        finally:
+            self.stop()
         with warnings.catch_warnings():  # `--save` writes a stream without the footer of a finished file
             warnings.simplefilter("ignore")
             return {c.entity_path for c in RrdReader(self.path).stream()}
