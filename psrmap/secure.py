@@ -37,12 +37,12 @@ from __future__ import annotations
 import json
 import secrets
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from common.errors import UsageError
-from common.session import endpoint_arg
+from common.session import check_endpoint, endpoint_arg
 from protocol.keys import validate_id
 
 __all__ = ["GRANTS", "Grant", "SecureLayout", "acl", "register", "roles_table", "secure_init"]
@@ -143,16 +143,25 @@ def acl(
     bridges: Sequence[str] = (),
     ros_domain: int = 0,
     ros_prefix: str = "/psrmap",
+    robots: dict[str, Sequence[str]] | None = None,
+    upstream: str | None = None,
 ) -> dict[str, Any]:
     """The router's `access_control` section for one map: each agent gets its role's `GRANTS` (its own id in
     `<id>`; the ROS keys of a `psrmap ros2` on `ros_domain` under `ros_prefix`), matched on its user name — and,
     with `tls`, on its certificate's common name as well (Zenoh ANDs a subject's fields: one agent's certificate
-    with another's password matches no subject, so it may do nothing). Planners are `reader`s."""
+    with another's password matches no subject, so it may do nothing). Planners are `reader`s.
+
+    Robot routers (`robots`: name -> the agents that connect to it) log in to this router as `<name>-router` and
+    may do what their agents may, together: no more. On a robot router itself (`upstream`: the base router's
+    Zenoh id), the link to the base may carry what its agents may send and receive, the other way round."""
     from psrmap.ros2 import ros_keys
 
     base = f"psr/{map_id}"
     ros = ros_keys(ros_domain, ros_prefix)
-    rules, subjects, policies = [], [], []
+    rules: list[dict[str, Any]] = []
+    subjects: list[dict[str, Any]] = []
+    policies: list[dict[str, Any]] = []
+    agent_rules: dict[str, list[str]] = {}
     for role, names in (("server", servers), ("scout", scouts), ("reader", planners), ("bridge", bridges)):
         roles = (role, *_INHERITS.get(role, ()))
         for n in names:
@@ -172,6 +181,21 @@ def acl(
                 subject["cert_common_names"] = [n]
             subjects.append(subject)
             policies.append({"rules": ids, "subjects": [rid]})
+            agent_rules[n] = ids
+    for robot, agents in (robots or {}).items():
+        ids = [i for a in agents for i in agent_rules[a]]
+        if upstream is None:  # the base: the robot router's session speaks for its agents
+            subjects.append({"id": f"robot_{robot}", "usernames": [robot_router_user(robot)]})
+        else:  # the robot router: its link to the base carries its agents' traffic, each way
+            flip = {"ingress": "egress", "egress": "ingress"}
+            by_id = {r["id"]: r for r in rules}
+            for rule in list(ids):
+                rules.append(
+                    {**by_id[rule], "id": f"{rule}_up", "flows": [flip[f] for f in by_id[rule]["flows"]]}
+                )
+            ids = [f"{rule}_up" for rule in ids]
+            subjects.append({"id": f"robot_{robot}", "zids": [upstream]})
+        policies.append({"rules": ids, "subjects": [f"robot_{robot}"]})
     return {
         "enabled": True,
         "default_permission": "deny",
@@ -218,6 +242,12 @@ class SecureLayout:
     agents: dict[str, Path]  # agent id -> its Zenoh config
     credentials: Path
     servers: Path  # servers.json: the map's server names; clients believe only attested servers
+    robot_routers: dict[str, Path] = field(default_factory=dict)  # robot router name -> its Zenoh config
+
+
+def robot_router_user(robot: str) -> str:
+    """The user name a robot's router logs in to the base router with."""
+    return f"{robot}-router"
 
 
 def _agent_config(user: str, password: str, mode: str, endpoint: str) -> dict[str, Any]:
@@ -310,10 +340,16 @@ def secure_init(
     bridges: Sequence[str] = (),
     ros_domain: int = 0,
     ros_prefix: str = "/psrmap",
+    robots: dict[str, Sequence[str]] | None = None,
+    robot_listen: str = "tcp/127.0.0.1:7447",
 ) -> SecureLayout:
     """Write the router's and every agent's Zenoh config into `folder` (created; files readable by the owner
     only). Ids must be valid map/agent ids and distinct; `bridges` run `psrmap ros2 --domain ros_domain
-    --prefix ros_prefix`."""
+    --prefix ros_prefix`. Each robot router (`robots`: name -> the agents on that robot) gets
+    `<name>-router.json5`: a router listening on `robot_listen` for its agents (whose files connect there),
+    checking their passwords (`<name>-credentials.txt`: theirs only) and the role ACL, and connecting to the
+    base router at `endpoint` as user `<name>-router`; the base router's ACL gives that session what its agents
+    may, together."""
     validate_id(map_id, "map")
     if not 0 <= ros_domain <= 232 or not ros_prefix.startswith("/"):
         raise ValueError(f"ROS domain {ros_domain}, prefix {ros_prefix!r}: need a domain 0..232 and a prefix "
@@ -323,10 +359,23 @@ def secure_init(
         validate_id(n, "agent")
     if len(set(names)) != len(names) or "router" in names:
         raise ValueError(f"agent ids must be distinct and not 'router'; got {names}")
+    robots = {r: list(a) for r, a in (robots or {}).items()}
+    placed = [a for agents in robots.values() for a in agents]
+    for r in robots:
+        validate_id(r, "robot router")
+    if unknown := sorted(set(placed) - set(names)):
+        raise ValueError(f"robot routers name agents {unknown} that are none of {names}")
+    if len(set(placed)) != len(placed) or {robot_router_user(r) for r in robots} & set(names):
+        raise ValueError(f"each agent connects to at most one robot router, and no agent is called <robot>-router; "
+                         f"got {robots}")  # fmt: skip
+    if robots and tls:
+        raise ValueError("robot routers with --tls: not supported yet (user/password only)")
+    check_endpoint(robot_listen)
     out = Path(folder)
     out.mkdir(parents=True, exist_ok=True)
     out.chmod(0o700)
-    passwords = {n: secrets.token_urlsafe(24) for n in [*names, "router"]}
+    passwords = {n: secrets.token_urlsafe(24) for n in [*names, "router", *map(robot_router_user, robots)]}
+    base_zid = _zid()  # robot routers know the base's link by it
     certs: dict[str, tuple[Path, Path]] = {}
     if tls:
         proto, _, addr = endpoint.partition("/")
@@ -334,21 +383,28 @@ def secure_init(
         certs = _write_tls(out / "tls", names, addr.rsplit(":", 1)[0].strip("[]"), days)
     cred = out / "credentials.txt"
     cred.write_text("".join(f"{n}:{pw}\n" for n, pw in passwords.items()))
-    router_conf: dict[str, Any] = {
-        "mode": "router",
-        "listen": {"endpoints": [endpoint]},
-        "scouting": {"multicast": {"enabled": False}},
-        "transport": {
-            "auth": {
-                "usrpwd": {
-                    "user": "router",
-                    "password": passwords["router"],
-                    "dictionary_file": str(cred.resolve()),
+
+    def router(user: str, dictionary: Path, upstream: str | None) -> dict[str, Any]:
+        return {
+            "mode": "router",
+            "listen": {"endpoints": [endpoint if upstream is None else robot_listen]},
+            "connect": {"endpoints": [] if upstream is None else [endpoint]},
+            "scouting": {"multicast": {"enabled": False}},
+            "transport": {
+                "auth": {
+                    "usrpwd": {
+                        "user": user,
+                        "password": passwords[user],
+                        "dictionary_file": str(dictionary.resolve()),
+                    }
                 }
-            }
-        },
-        "access_control": acl(map_id, scouts, planners, servers, tls, bridges, ros_domain, ros_prefix),
-    }
+            },
+            "access_control": acl(
+                map_id, scouts, planners, servers, tls, bridges, ros_domain, ros_prefix, robots, upstream
+            ),  # fmt: skip
+        }
+
+    router_conf = {"id": base_zid, **router("router", cred, None)}
     if tls:
         router_conf["transport"]["link"] = {
             "tls": {
@@ -360,10 +416,18 @@ def secure_init(
         }
     files = {"router": out / "router.json5"}
     files["router"].write_text(json.dumps(router_conf, indent=2))
+    robot_files = {}
+    for r, local in robots.items():
+        rcred = out / f"{r}-credentials.txt"
+        rcred.write_text("".join(f"{n}:{passwords[n]}\n" for n in local))
+        robot_files[r] = out / f"{r}-router.json5"
+        robot_files[r].write_text(json.dumps(router(robot_router_user(r), rcred, base_zid), indent=2))
+        files[f"{r}-credentials"] = rcred
+    on_robot = {a: robot_listen for agents in robots.values() for a in agents}
     agents = {}
     for n in names:
         agents[n] = out / f"{n}.json5"
-        conf = _agent_config(n, passwords[n], "client", endpoint)
+        conf = _agent_config(n, passwords[n], "client", on_robot.get(n, endpoint))
         if tls:
             conf["transport"]["link"] = {
                 "tls": {
@@ -376,9 +440,9 @@ def secure_init(
         agents[n].write_text(json.dumps(conf, indent=2))
     trust = out / "servers.json"
     trust.write_text(json.dumps({"map": map_id, "servers": list(servers), "trust": "attested"}, indent=2))
-    for p in [cred, *files.values(), *agents.values()]:
+    for p in [cred, *files.values(), *agents.values(), *robot_files.values()]:
         p.chmod(0o600)
-    return SecureLayout(out, files["router"], agents, cred, trust)
+    return SecureLayout(out, files["router"], agents, cred, trust, robot_files)
 
 
 def _zid() -> str:
@@ -390,6 +454,12 @@ def _zid() -> str:
 
 def _ids(text: str) -> list[str]:
     return [t for t in (v.strip() for v in text.split(",")) if t]
+
+
+def _robot(text: str) -> tuple[str, list[str]]:
+    """argparse type of `--robot-router NAME[=ID,...]`."""
+    name, _, agents = text.partition("=")
+    return name, _ids(agents) if agents else [name]
 
 
 def register(sub: Any) -> None:
@@ -413,6 +483,12 @@ def register(sub: Any) -> None:
                    help="the bridges' ROS_DOMAIN_ID (psrmap ros2 --domain; default 0)")  # fmt: skip
     i.add_argument("--ros-prefix", default="/psrmap", metavar="NS",
                    help="the bridges' topic namespace (psrmap ros2 --prefix; default /psrmap)")  # fmt: skip
+    i.add_argument("--robot-router", type=_robot, action="append", default=[], metavar="NAME[=ID,...]",
+                   help="also write NAME-router.json5: a robot's own router, meshed to the router at --endpoint "
+                   "with its own credentials; the agents ID,... (default: the agent NAME) connect to it "
+                   "(repeatable)")  # fmt: skip
+    i.add_argument("--robot-listen", type=endpoint_arg, default="tcp/127.0.0.1:7447", metavar="ENDPOINT",
+                   help="where each robot router listens for its agents (default tcp/127.0.0.1:7447)")  # fmt: skip
     i.add_argument(
         "--endpoint",
         type=endpoint_arg,
@@ -440,6 +516,8 @@ def _cmd_init(args: Any) -> int:
             args.bridges,
             args.ros_domain,
             args.ros_prefix.rstrip("/") or "/",
+            dict(args.robot_router),
+            args.robot_listen,
         )
     except ValueError as exc:
         raise UsageError(str(exc)) from None
@@ -450,6 +528,7 @@ def _cmd_init(args: Any) -> int:
                 "agents": {k: str(v) for k, v in lay.agents.items()},
                 "credentials": str(lay.credentials),
                 "servers": str(lay.servers),
+                "robot_routers": {k: str(v) for k, v in lay.robot_routers.items()},
             },
             indent=2,
         )

@@ -210,3 +210,60 @@ def test_a_sharded_map_works_under_the_acl(tmp_path):
             assert st is not None and st.merged == 2 and st.cells == 2 and st.health["shards_answered"] == 2
             grid = query_region(p1, MAP, (0.0, 0.0, 4.0, 0.3), ClientConfig(connect=(ep,)))
             assert int(np.count_nonzero(grid.layers["slip"]["n"] > 0)) == 2
+
+
+def test_robot_routers_mesh_to_the_base_with_their_own_credentials(tmp_path):
+    """`secure init --robot-router s1 --robot-router rover=p1`: a base router (two shards on it), robot routers
+    connected to it as `s1-router` / `rover-router`. The scout on its robot's router merges into the base's
+    shards and is acked; the planner on the rover's router reads the map; an anonymous client on a robot router
+    is refused; the robot router's link may carry only what its own agents may (the base refuses a delta of
+    s2 coming through s1's router), and a robot router's password is not an agent's."""
+    from common.query import get_status
+    from protocol.partition import Partition
+
+    base_ep, s1_ep, rover_ep = free_endpoint(), free_endpoint(), free_endpoint()
+    lay = secure_init(tmp_path / "sec", MAP, ["s1", "s2"], ["p1"], servers=["m0", "m1"], endpoint=base_ep,
+                      robots={"s1": ["s1"], "rover": ["p1"]})  # fmt: skip
+    assert json.loads(lay.agents["s1"].read_text())["connect"]["endpoints"] == ["tcp/127.0.0.1:7447"]
+    assert sorted(p.name for p in lay.robot_routers.values()) == ["rover-router.json5", "s1-router.json5"]
+
+    def robot(name: str, ep: str):  # listens on a free port here, instead of the file's 7447
+        return zenoh.open(zenoh_config(listen=[ep], config_file=lay.robot_routers[name]))
+
+    with zenoh.open(zenoh_config(config_file=lay.router)):
+        cfgs = [ServerConfig(map_id=MAP, res=RES, tile=8, connect=(base_ep,), shards=2, shard=i,
+                             zenoh_config=str(lay.agents[f"m{i}"])) for i in range(2)]  # fmt: skip
+        with MapService(cfgs[0]) as m0, MapService(cfgs[1]), robot("s1", s1_ep), robot("rover", rover_ep):
+            with pytest.raises(zenoh.ZError):  # anonymous on a robot router
+                zenoh.open(zenoh_config(connect=[s1_ep], mode="client"))
+            for who in ("s2", "p1"):  # agents of another robot (or of the base) cannot log in to s1's router
+                with pytest.raises(zenoh.ZError):
+                    zenoh.open(zenoh_config(connect=[s1_ep], config_file=lay.agents[who]))
+            with ScoutPublisher(MAP, "s1", RES, [s1_ep], outbox=None,
+                                zenoh_config_file=str(lay.agents["s1"])) as pub:  # fmt: skip
+                assert pub.link.server_up.wait(20) and pub.partition == Partition(2, 8)
+                d = make_delta(seq=0, scout="s1", layers=("slip",), cells=((0, 0), (9, 0)))  # both shards
+                assert pub.send(d.layers, d.t) == 2
+                assert pub.wait_acked(20)
+            with zenoh.open(zenoh_config(connect=[rover_ep], config_file=lay.agents["p1"])) as p1:
+                st = get_status(p1, MAP)
+                assert st is not None and st.merged == 2 and st.health["shards_answered"] == 2
+                grid = query_region(p1, MAP, (0.0, 0.0, 4.0, 0.3),
+                                    ClientConfig(connect=(rover_ep,), zenoh_config=str(lay.agents["p1"])))  # fmt: skip
+                assert int(np.count_nonzero(grid.layers["slip"]["n"] > 0)) == 2
+                # s1 (on its router) writes as s2: s1's router refuses it, and so would the base
+                with zenoh.open(zenoh_config(connect=[s1_ep], config_file=lay.agents["s1"])) as s1:
+                    s1.put(delta_key(MAP, "s2"), encode(make_delta(seq=0, scout="s2", layers=("slip",),
+                                                                   cells=((1, 1),))))  # fmt: skip
+                    threading.Event().wait(1.0)
+                assert get_status(p1, MAP).merged == 2
+            # the robot router's own user, logged in to the base as a client, may do what s1 may: not write as s2
+            rconf = json.loads(lay.robot_routers["s1"].read_text())["transport"]["auth"]["usrpwd"]
+            conf = zenoh_config(connect=[base_ep], mode="client")
+            conf.insert_json5("transport/auth/usrpwd", json.dumps({"user": rconf["user"],
+                                                                   "password": rconf["password"]}))  # fmt: skip
+            with zenoh.open(conf) as imp:
+                imp.put(f"psr/{MAP}/shard/0/delta/s2", encode(make_delta(seq=0, scout="s2", layers=("slip",),
+                                                                         cells=((2, 2),))))  # fmt: skip
+                threading.Event().wait(1.0)
+            assert m0.status().merged == 1
