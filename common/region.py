@@ -27,7 +27,7 @@ from common.query import get_replies, get_statuses
 from common.trust import Trust, TrustedIds
 from mapcore import LayerGrid, MapCoreError, stitch
 from protocol.codec import INDEX_LIMIT, decode
-from protocol.errors import ProtocolError
+from protocol.errors import MAX_CLIENT_CELLS, ProtocolError
 from protocol.keys import changes_pattern, map_key
 from protocol.layers import cell_index
 from protocol.messages import MapRegion, RegionQuery, TileChanges
@@ -55,9 +55,11 @@ def fetch_region(
     x0: float = 0.0,
     y0: float = 0.0,
     max_bytes: int = 256 * 1024 * 1024,
+    max_cells: int = MAX_CLIENT_CELLS,
 ) -> LayerGrid:
     """The map box (x0, y0, x1, y1) [m, inclusive] from every shard that answers, stitched; (x0, y0) keyword
-    arguments: the map frame's origin [m]."""
+    arguments: the map frame's origin [m]; a reply larger than `max_bytes`, outside the box or spanning more
+    than `max_cells` cells is refused before anything is allocated for it."""
     q = RegionQuery(*box, layers=tuple(layers) if layers is not None else None, stats=tuple(stats))
     key = map_key(map_id)
     regions: list[MapRegion] = []
@@ -76,9 +78,9 @@ def fetch_region(
             raise QueryError(f"map servers refused {key!r}: {'; '.join(errors)}")
         raise NoAnswer(f"no map server answered {key!r} within {timeout_s:g} s")
     try:
-        return stitch(regions, x0, y0, box_m=box)
+        return stitch(regions, x0, y0, box_m=box, max_cells=max_cells)
     except MapCoreError as exc:  # replies that cannot be one map (ids, cell sizes, outside the box asked)
-        raise QueryError(str(exc)) from None
+        raise QueryError(f"bad reply: {exc}") from None
 
 
 # ---------------------------------------------------------------------------------------------- changes

@@ -71,41 +71,24 @@ def _box(args: argparse.Namespace, link: Link, trust: Any) -> tuple[float, float
 
 
 def _region(args: argparse.Namespace, link: Link, trust: Any, box: tuple[float, float, float, float]) -> Any:
-    """The box from every server (shard) that answers, each reply checked and the shards' replies stitched;
-    None (said why) when there is none or a reply is bad."""
-    from common.query import get_replies
-    from mapcore import MapCoreError, check_replies, stitch
-    from protocol.codec import decode
-    from protocol.errors import ProtocolError
-    from protocol.keys import map_key
-    from protocol.messages import MapRegion, RegionQuery
+    """The box from every server (shard) that answers, stitched (`common.region.fetch_region`, as the planner
+    and the bridge fetch it: each reply's size and box checked before anything is allocated); None (said why)
+    when there is none or a reply is bad."""
+    from common.errors import QueryError
+    from common.region import NoAnswer, fetch_region
 
     layers = tuple(args.layers.split(",")) if args.layers else None
-    rq = RegionQuery(*box, layers, tuple(args.stats.split(",")))
-    selector = f"{map_key(args.map)}?{rq.to_parameters()}"
     with open_link(link) as s:
-        replies = get_replies(s, selector, args.timeout, fan_out=True, trusted=trust)
-    if not replies.ok:
-        why = (
-            "; ".join(replies.errors) or f"no reply within {args.timeout:g} s (is a server for this map up?)"
-        )
-        print(f"error: {selector!r}: {why}", file=sys.stderr)
-        return None
-    try:
-        regions = []
-        for payload in replies.ok:
-            r = decode(payload, expected_type="map_region", max_bytes=args.max_reply_mib << 20)
-            assert isinstance(r, MapRegion)
-            regions.append(r)
-        # each reply's box and the union's size checked before anything is allocated for them
-        check_replies(regions, box, args.max_cells)
-        if len(regions) == 1:
-            return regions[0]
-        g = stitch(regions, box_m=box, max_cells=args.max_cells)  # a sharded map: each shard owns its tiles
-        return MapRegion(g.map, g.res, g.ix0, g.iy0, g.w, g.h, sum(r.version for r in regions), g.layers)
-    except (ProtocolError, MapCoreError) as exc:
-        print(f"error: map {args.map!r}: bad reply: {exc}", file=sys.stderr)
-        return None
+        try:
+            return fetch_region(s, args.map, box, args.timeout, trusted=trust, layers=layers,
+                                stats=tuple(args.stats.split(",")), max_bytes=args.max_reply_mib << 20,
+                                max_cells=args.max_cells)  # fmt: skip
+        except NoAnswer:
+            why = f"no reply within {args.timeout:g} s (is a server for this map up?)"
+        except QueryError as exc:
+            why = str(exc)
+    print(f"error: map {args.map!r}: {why}", file=sys.stderr)
+    return None
 
 
 def _layer_summary(stats: dict[str, Any]) -> dict[str, Any]:
@@ -138,10 +121,8 @@ def cmd_query(args: argparse.Namespace) -> int:
         "layers": {name: _layer_summary(stats) for name, stats in region.layers.items()},
     }
     if args.out:
-        from mapcore import LayerGrid
-
         fmt = format_of(args.out, args.format)
-        summary["out"] = str(write_export(LayerGrid.from_region(region), args.out, fmt, origin))
+        summary["out"] = str(write_export(region, args.out, fmt, origin))
         summary["format"] = fmt
     print(json.dumps(summary, indent=2))
     return 0
