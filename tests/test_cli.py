@@ -102,3 +102,20 @@ def test_every_client_command_has_the_same_link_flags() -> None:
     clients = {"status", "query", "plan", "compare", "export", "ros2", "scout", "router", "server"}
     assert clients <= set(have), sorted(clients - set(have))
     assert all(flags == {"--connect", "--zenoh-config"} for flags in have.values()), have
+
+
+def test_a_usage_error_is_shown_with_its_own_commands_usage(capsys: pytest.CaptureFixture[str]) -> None:
+    """A command raises `UsageError` (no parser reach-in); the entry point finds that command's parser, nested
+    ones included, and exits 2 with its usage, like argparse's own errors; the packages' `python -m` too."""
+    from common.cli_parser import command_parser
+    from map_server.cli import main as map_server_main
+    from psrmap.cli import main
+
+    parser = build_parser([], full=True)
+    assert command_parser(parser, ["secure", "init", "d", "--map", "m"]).prog == "psrmap secure init"
+    assert command_parser(parser, ["--help"]).prog == "psrmap"
+    for run, prog in ((main, "psrmap server"), (map_server_main, "python -m map_server server")):
+        with pytest.raises(SystemExit) as exc:
+            run(["server", "--map", "m1"])
+        err = capsys.readouterr().err
+        assert exc.value.code == 2 and f"usage: {prog} " in err and f"{prog}: error: give --connect" in err
