@@ -1,7 +1,9 @@
 """Across hosts: a base host (router + two map shards), a scout host (its own router meshed to the base, a
 scout publishing deltas) and a rover host (`psrmap query`), each a Linux network namespace joined to the base
 by a veth link. The scout host's link is cut for 10 s mid-walk and restored: the scout keeps measuring,
-buffers, resends; the map the rover reads holds every delta exactly once.
+buffers, resends; the map the rover reads holds every delta exactly once. Run twice: on a lab network
+(`--insecure`), and secured as the README's sharded section is (`psrmap secure init --robot-router s1`: every
+agent logs in, the scout host's router logs in to the base as `s1-router`, the ACL at each router).
 
 Needs root and `ip netns` (CI and the development machine run as root); skips with the reason otherwise."""
 
@@ -36,10 +38,10 @@ sys.path.insert(0, {tests!r})
 from test_shards import walk
 from protocol.partition import Partition
 from scout_agent.publisher import ScoutPublisher
-ep, n, flag = sys.argv[1], int(sys.argv[2]), sys.argv[3]
+ep, n, conf = sys.argv[1], int(sys.argv[2]), sys.argv[3] or None
 unacked = []
 with ScoutPublisher({map!r}, "s1", {res!r}, [ep], outbox=None, resend_after_s=1.0,
-                    partition=Partition(2, {tile})) as pub:
+                    partition=Partition(2, {tile}), zenoh_config_file=conf) as pub:
     print("scout up", flush=True)
     for i, d in enumerate(walk(n)):
         assert pub.send(d.layers, d.t)
@@ -109,36 +111,42 @@ def in_ns(ns: str, *args: str) -> subprocess.Popen:
     )
 
 
-def test_scout_host_link_cut_for_10s_loses_and_doubles_nothing(hosts, procs, tmp_path):
+@pytest.mark.parametrize("secured", [False, True], ids=["insecure", "secured"])
+def test_scout_host_link_cut_for_10s_loses_and_doubles_nothing(hosts, procs, tmp_path, secured):
     ns, links = hosts
     base_scout, base_rover = "tcp/10.77.1.1:7447", "tcp/10.77.2.1:7447"
-    router = in_ns(
-        ns["base"], "-m", "psrmap", "router", "--listen", base_scout, "--listen", base_rover, "--insecure"
-    )
+    robot_ep = "tcp/10.77.1.2:7447"
+    if secured:  # the README's secured deployment: credentials for every agent and the scout host's router
+        from psrmap.secure import secure_init
+
+        lay = secure_init(tmp_path / "sec", MAP, ["s1"], ["p1"], servers=["m0", "m1"], endpoint=base_scout,
+                          robots={"s1": ["s1"]}, robot_listen=robot_ep)  # fmt: skip
+        cred = {n: ["--zenoh-config", str(f)] for n, f in [*lay.agents.items(), ("router", lay.router),
+                                                            ("s1-router", lay.robot_routers["s1"])]}  # fmt: skip
+    else:
+        cred = {n: ["--insecure"] for n in ("router", "s1-router")}
+    router = in_ns(ns["base"], "-m", "psrmap", "router", "--listen", base_scout, "--listen", base_rover,
+                   *cred["router"])  # fmt: skip
     procs.append(router)
     wait_line(router, "router")
     for i in range(2):
         p = in_ns(ns["base"], "-m", "psrmap", "server", "--map", MAP, "--res", str(RES), "--tile", str(TILE),
                   "--db", str(tmp_path / f"s{i}.db"), "--connect", base_scout,
-                  "--shards", "2", "--shard", str(i))  # fmt: skip
+                  "--shards", "2", "--shard", str(i), *cred.get(f"m{i}", []))  # fmt: skip
         procs.append(p)
         wait_line(p, "server")
-    scout_router = in_ns(
-        ns["scout"],
-        "-m",
-        "psrmap",
-        "router",
-        "--listen",
-        "tcp/10.77.1.2:7447",
-        "--connect",
-        base_scout,
-        "--insecure",
-    )
+    scout_router = in_ns(ns["scout"], "-m", "psrmap", "router", "--listen", robot_ep, "--connect", base_scout,
+                         *cred["s1-router"])  # fmt: skip
     procs.append(scout_router)
     wait_line(scout_router, "router")
+    if secured:  # an anonymous client on the scout host's router, and one on the base, are refused
+        for ep, host in ((robot_ep, "scout"), (base_rover, "rover")):
+            anon = in_ns(ns[host], "-m", "psrmap", "status", "--map", MAP, "--connect", ep)
+            procs.append(anon)
+            assert anon.wait(60) != 0
     script = tmp_path / "scout.py"
     script.write_text(SCOUT.format(tests=str(ROOT / "tests" / "integration"), map=MAP, res=RES, tile=TILE))
-    scout = in_ns(ns["scout"], str(script), "tcp/10.77.1.2:7447", str(N_DELTAS), "x")
+    scout = in_ns(ns["scout"], str(script), robot_ep, str(N_DELTAS), cred["s1"][1] if secured else "")
     procs.append(scout)
     wait_line(scout, "scout up", 30)
     time.sleep(CUT_AT * 0.2)
@@ -153,7 +161,7 @@ def test_scout_host_link_cut_for_10s_loses_and_doubles_nothing(hosts, procs, tmp
     # the rover host reads the map over its own link
     out = tmp_path / "rover.npz"
     rover = in_ns(ns["rover"], "-m", "psrmap", "query", "--map", MAP, "--connect", base_rover, "--box",
-                  "0,0,90,5", "--stats", "all", "--out", str(out))  # fmt: skip
+                  "0,0,90,5", "--stats", "all", "--out", str(out), *cred.get("p1", []))  # fmt: skip
     procs.append(rover)
     assert rover.wait(60) == 0
     grid = read_npz(out)
@@ -167,7 +175,8 @@ def test_scout_host_link_cut_for_10s_loses_and_doubles_nothing(hosts, procs, tmp
                 grid.layers[layer][stat], want, equal_nan=True, err_msg=f"{layer}.{stat}"
             )
     sent = stats["sent_per_shard"]
-    status = in_ns(ns["rover"], "-m", "psrmap", "status", "--map", MAP, "--connect", base_rover)
+    status = in_ns(ns["rover"], "-m", "psrmap", "status", "--map", MAP, "--connect", base_rover,
+                   *cred.get("p1", []))  # fmt: skip
     procs.append(status)
     st = json.loads(status.communicate(timeout=60)[0])
     assert st["merged"] == sum(sent) and st["rejected"] == {}, st  # nothing lost, nothing doubled
