@@ -23,7 +23,8 @@ id (`zids` subjects) but cannot refuse a session, so a pinned id held by an impo
 out (its session is refused as a duplicate). The files: `credentials.txt` (the router's `user:password`
 dictionary), `router.json5`, one `<agent>.json5` per agent holding its user name and password, and
 `servers.json` ({"map", "servers": names, "trust": "attested"}) whose presence beside an agent's file tells its
-clients to believe attested servers only. With `--tls` the router listens on a `tls/`
+clients to believe attested servers only; per robot router (`--robot-router NAME`) `NAME-router.json5` (a router
+meshed to the base, logging in as `NAME-router`) and `NAME-credentials.txt` (its own agents' passwords only). With `--tls` the router listens on a `tls/`
 endpoint and requires mutual TLS as well: `tls/ca.pem` signs the router's certificate (valid for `localhost`,
 127.0.0.1 and the endpoint's host) and one client certificate per agent (common name = the agent id), ECDSA P-256,
 valid `--days`; a client without a certificate from that CA cannot connect, whatever its password, and the ACL
