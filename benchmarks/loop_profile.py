@@ -10,13 +10,9 @@ from __future__ import annotations
 import argparse
 import collections
 import importlib
-import sys
 import time
 from collections.abc import Callable
-from pathlib import Path
 from typing import Any
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import mujoco  # noqa: E402
 

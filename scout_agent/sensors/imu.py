@@ -28,7 +28,7 @@ what a real part on a real robot also does, each drawn once per run from the run
   axis's offset moves by its temperature coefficient (TCO), drawn N(0, datasheet TCO²) per axis (Bosch gives
   typical values as 1σ). BMI088 datasheet: gyro TCO ±0.015 °/s/K, accelerometer TCO < 0.2 mg/K;
 - **scale factor** and **cross-axis sensitivity** (off-diagonal terms): gyro 1 % each (BMI088 sensitivity
-  tolerance ±1 %; REFERENCE.md "≈ 1 % class"; a rate table is needed to calibrate them, so they stay);
+  tolerance ±1 %; the ≈ 1 % class of MEMS IMUs; a rate table is needed to calibrate them, so they stay);
   accelerometer 0.1 % each, the residual of the same six-position bench calibration that leaves its 1 mg bias
   (assumed: that calibration fits scale and cross-axis along with the offset);
 - **mounting misalignment** of the sensor frame on the trunk: σ 0.1° about roll and pitch (the residual of a

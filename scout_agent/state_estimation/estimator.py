@@ -44,7 +44,7 @@ can do, from what the robot knows:
 - the IMU's bias drifts with temperature by a coefficient the robot does not know, but the thermometer tells it
   the temperature change ΔT since the power-on calibration: the bias variances grow by TCO² · d(ΔT²), TCO the
   datasheet's (BMI088 0.015 °/s/K, 0.2 mg/K), so σ_b = TCO·|ΔT|, what the sensor model draws;
-- leg odometry's along-track error is a fraction of the distance (1–2 % in the literature, REFERENCE.md; foot
+- leg odometry's along-track error is a fraction of the distance (1–2 % in the literature, docs/physics.md; foot
   rolling, compliance, link lengths): the horizontal position variance grows along the velocity by
   2 k² d·|v| dt, so σ = k·d with k = `odometry_scale_std` (1 %);
 - the gyro's scale and cross-axis error turn heading by a fraction of the angle turned: the heading variance

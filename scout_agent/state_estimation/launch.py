@@ -5,7 +5,7 @@ degree of heading), and nobody hands it the ground height under its feet. `initi
 
 - x, y, heading: the true spawn pose plus an error drawn from the run seed with σ `sigma_xy_m` (per axis) and
   `sigma_yaw_deg` (`LaunchSurvey`; defaults 0.15 m and 1°, a lander's survey of its rover, assumed from the
-  decimetre/degree class REFERENCE.md gives); the estimator starts with exactly that covariance;
+  decimetre/degree class of a lander survey; docs/physics.md); the estimator starts with exactly that covariance;
 - the ground height under it (the height datum of everything it maps): the first of `datum_sources` that has a
   value there, each a `HeightDatum` callable returning (height, σ) or None — issue 23's localizer adds the
   orbital DEM and the shared map here. With none, the start height is **declared** 0 with σ
