@@ -135,10 +135,10 @@ def summary(paths: list[Path]) -> dict:
                 "slip_precision_mean": round(sum(prec) / len(prec), 3) if prec else None,
                 "slip_recall_mean": round(sum(rec) / len(rec), 3) if rec else None,
             }
-    # CoT on holdable ground: the same ramps walks (μ ≥ tan α + 0.05), after vs before, where both finished
+    # CoT on holdable ground: the same ramps walks (μ ≥ tan α + 0.05), after vs before, where both reached the goal
     pairs = {}
     for r in rows:
-        if r["kind"] == "ramps" and r["offset"] >= 0.05 and not r["fell"] and r["cot_whole_run_truth"]:
+        if r["kind"] == "ramps" and r["offset"] >= 0.05 and r["reached_goal"] and r["cot_whole_run_truth"]:
             pairs.setdefault((r["slope"], r["offset"], r["seed"]), {})[r["on"]] = r["cot_whole_run_truth"]
     both = [(v[True], v[False]) for v in pairs.values() if True in v and False in v]
     if both:
