@@ -166,7 +166,10 @@ def dem_reference(cfg: ScoutRunConfig, world: World) -> DemReference | None:
     the simulated orbiter's DEM of the scene, written as a GeoTIFF and read back through the same reader a
     real tile takes; none for the ramps testbed (a 3 m wide bench is below a DEM's pixel)."""
     if cfg.dem is not None:
-        return DemReference(read_dem_grid(cfg.dem))
+        # the scene's heights are the DEM's minus the window's mean (read_dem_window): the map frame's
+        # vertical datum, so the DEM the scout reads is expressed in it too (a mission states its datum once)
+        grid = read_dem_grid(cfg.dem)
+        return DemReference(replace(grid, z=grid.z - float(world.terrain.info.get("dem_datum_m", 0.0))))
     if cfg.scene != "lunar":
         return None
     with tempfile.TemporaryDirectory(prefix="psrmap-dem-") as tmp:

@@ -60,9 +60,11 @@ def read_dem_window(win: DemWindow, res: float) -> tuple[np.ndarray, dict]:
     z_dem, col, row, (px, py), crs = _read_block(win, xs, ys)
     R, C = np.meshgrid(row, col, indexing="ij")  # (n, n): row iy along y, column ix along x
     z = map_coordinates(z_dem, [R, C], order=3, mode="nearest")
-    z -= z.mean()
+    datum = float(z.mean())
+    z -= datum
+    # dem_datum_m: the DEM height the scene's z = 0 stands for (the map frame's vertical datum)
     info = {"dem": str(win.path), "crs": crs, "dem_pixel_m": [px, py], "window_xy": [win.x, win.y],
-            "size_m": win.size_m, "dem_relief_m": float(np.ptp(z))}  # fmt: skip
+            "size_m": win.size_m, "dem_relief_m": float(np.ptp(z)), "dem_datum_m": datum}  # fmt: skip
     return z, info
 
 

@@ -61,7 +61,11 @@ def test_scout_walks_a_dem_scene_and_evaluate_scores_it(dem: Path, capsys) -> No
     assert main(argv) == 0
     out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert out["terrain"] == "dem0" and not out["fell"] and out["reached_goal"]
-    assert 0.0 < out["elevation_rmse_m"] < 0.2 and out["elevation_cells"] > 50
+    # the height datum is the DEM's at the surveyed start (never the simulator's): the map's shape is right to
+    # the same 0.2 m as before, and its offset lies within 3σ of the datum's stated uncertainty
+    assert out["launch"]["datum"] == "dem" and out["localization"] != "off"
+    assert 0.0 < out["elevation_rmse_relative_m"] < 0.2 and out["elevation_cells"] > 50
+    assert abs(out["elevation_bias_m"]) <= 3 * out["launch"]["sigma_z_m"]
 
 
 @pytest.mark.parametrize(
