@@ -14,9 +14,9 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-import mujoco  # noqa: E402
+import mujoco
 
-from scout_agent.run import ScoutRunConfig, build_world, run_scout  # noqa: E402
+from scout_agent.run import ScoutRunConfig, build_world, run_scout
 
 PARTS = (  # (module, attribute path, part)
     ("mujoco", "mj_step", "physics (mj_step)"),
