@@ -34,6 +34,7 @@ def scout_config(
         speed=cfg.speed,
         sim_seconds=cfg.sim_seconds,
         slippery_patches=cfg.slippery_patches if lunar else 0,
+        holdable_patches=cfg.holdable_patches,
         scout_id=s.id,
     )
     link = LinkConfig(cfg.map, (endpoint,), str(run_dir / f"{s.id}_outbox.db"), zenoh_config=zenoh_file)

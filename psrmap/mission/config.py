@@ -90,6 +90,9 @@ class MissionConfig:
     seed: int = DEFAULT_SEED
     slope: float = 15.0  # ramps scene only [deg]
     slippery_patches: int = 4
+    holdable_patches: bool = (
+        False  # lunar: patches keep μ ≥ tan(slope) + 0.02 (the paper's field); default: regolith draw
+    )
     scouts: tuple[ScoutPlan, ...] = ()
     plan_from: tuple[float, float] = (2.0, 2.0)
     plan_to: tuple[float, float] = (18.0, 18.0)
@@ -168,7 +171,7 @@ def route_seconds(scouts: tuple[ScoutPlan, ...], speed: float) -> float:
     return round(1.5 * longest / speed + 30.0, 1)
 
 
-_TERRAIN_KEYS = ("scene", "seed", "slope", "slippery_patches")
+_TERRAIN_KEYS = ("scene", "seed", "slope", "slippery_patches", "holdable_patches")
 
 
 _PLANNER_KEYS = ("from", "to", "unknown", "weights")
@@ -317,6 +320,7 @@ def load_config(path: str | Path | None = None) -> MissionConfig:
         seed=tt.integer("seed", base.seed),
         slope=tt.number("slope", base.slope),
         slippery_patches=tt.integer("slippery_patches", base.slippery_patches),
+        holdable_patches=tt.flag("holdable_patches", base.holdable_patches),
         field_m=field_m,
         scouts=field_scouts(field_m) if scaled else tuple(_scout(s, i) for i, s in enumerate(scouts)),
         plan_from=_pair(

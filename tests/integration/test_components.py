@@ -79,13 +79,15 @@ def test_mission_builds_scout_configs_as_the_cli_does(tmp_path):
     from scout_agent.cli import scout_config as cli_scout_config
 
     cfg = load_config()
+    assert cfg.holdable_patches  # the default mission maps the paper's field (holdable patches)
     s = cfg.scouts[0]
     ours = scout_config(cfg, s, "tcp/127.0.0.1:7447", tmp_path, None)
     argv = ["scout", "--scout-id", s.id, "--map", cfg.map, "--res", str(cfg.res), "--connect", "tcp/127.0.0.1:7447",
             "--scene", cfg.scene, "--speed", str(cfg.speed), "--sim-seconds", str(cfg.sim_seconds),
             "--delta-hz", str(cfg.rate_hz), "--save-map", str(tmp_path / f"{s.id}_local.npz"),
             "--outbox", str(tmp_path / f"{s.id}_outbox.db"), "--seed", str(cfg.seed),
-            "--slippery-patches", str(cfg.slippery_patches), "--start=" + ",".join(map(str, s.start)),
+            "--slippery-patches", str(cfg.slippery_patches), *(["--holdable-patches"] if cfg.holdable_patches else []),
+            "--start=" + ",".join(map(str, s.start)),
             "--goal=" + ",".join(map(str, s.goal)), *("--via=" + ",".join(map(str, v)) for v in s.via)]  # fmt: skip
     parser = build_parser(argv)
     args = parser.parse_args(argv)
