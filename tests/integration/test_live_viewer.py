@@ -31,6 +31,9 @@ class _Receiver:
     def __init__(self, path: Path) -> None:
         self.path, self.port = path, _free_port()
         self.url = f"rerun+http://127.0.0.1:{self.port}/proxy"
+        # SIGINT stops it (entities()); a suite started in the background has SIGINT ignored, which a child
+        # would inherit: a handler here instead makes the child start with the default action
+        prev = signal.signal(signal.SIGINT, signal.default_int_handler)
         self.proc = subprocess.Popen(
             [
                 *rerun_exe(),
@@ -46,6 +49,7 @@ class _Receiver:
             stderr=subprocess.DEVNULL,
             start_new_session=True,  # `rerun` runs the viewer binary as a child: stop() ends both
         )
+        signal.signal(signal.SIGINT, prev)
         deadline = time.monotonic() + 20
         while time.monotonic() < deadline:
             with socket.socket() as s:
