@@ -74,7 +74,9 @@ def test_ramps_scores_three_resolutions_and_both_state_inputs(reduced: tuple[Pat
     for cond in ("plain", "slippery"):
         elev = a10[cond]["elevation"]
         for r in ("0.4", "0.2", "0.1"):
-            assert 0 < elev[r]["rmse_m"] < 0.1, (cond, r, elev[r])
+            # realistic sensors (the default): joint zero offsets and the surveyed start put ramp maps at
+            # 0.05 m RMSE on average, up to ~0.1 m on one walk (docs/results.md); the paper's figure is 0.088 m
+            assert 0 < elev[r]["rmse_m"] < 0.15, (cond, r, elev[r])
         assert set(a10[cond]["slip"]) >= {"honest", "exact", "paper"}
         assert len(a10[cond]["profile"]["x"]) > 20  # the walk crossed the testbed
     patch = a10["slippery"]["slip"]["honest"]
