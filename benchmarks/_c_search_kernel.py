@@ -1,6 +1,6 @@
 """The planner's previous search kernel (C, compiled at run time with the system compiler, loaded with
 ctypes), kept only as the baseline of `benchmarks/plan.py`: the packaged numba kernels in
-`common/pathsearch/kernels.py` replaced it (no compiler at run time, no segfault on bad input) and must
+`psrmap_common/pathsearch/kernels.py` replaced it (no compiler at run time, no segfault on bad input) and must
 stay within 1.5x of it. Needs `cc`; `load()` returns None without one.
 """
 

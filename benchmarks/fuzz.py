@@ -25,11 +25,11 @@ import numpy as np
 
 from map_server.limits import Limits
 from map_server.merge import Merger
-from mapcore import TiledMap
 from protocol import decode, encode
 from protocol.keys import delta_key
 from protocol.messages import CellDelta
 from protocol.testing import MAP, RES, layer_cells
+from psrmap_mapcore import TiledMap
 
 MUTATIONS = (
     "valid",
@@ -196,10 +196,10 @@ def _live(samples: list[tuple[str, bytes]]) -> dict:
     merge of the same stream."""
     import zenoh
 
-    from common.query import wait_for_server
-    from common.session import zenoh_config
     from map_server.service import MapService, ServerConfig, free_endpoint
     from protocol.keys import status_key
+    from psrmap_common.query import wait_for_server
+    from psrmap_common.session import zenoh_config
 
     ep = free_endpoint()
     ref = Merger(TiledMap(RES), MAP, limits=Limits(max_new_tiles_per_delta=8))

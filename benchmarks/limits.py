@@ -23,11 +23,11 @@ def _run(limits_on: bool, deltas: int, cells: int, max_tiles: int, q: mp.Queue) 
 
     from map_server.limits import Limits
     from map_server.merge import Merger
-    from mapcore import TiledMap
     from protocol import encode
     from protocol.keys import delta_key
     from protocol.messages import CellDelta
     from protocol.testing import layer_cells
+    from psrmap_mapcore import TiledMap
 
     logging.disable(logging.WARNING)  # one warning per rejected delta otherwise
     big = 1 << 40

@@ -28,11 +28,11 @@ import time
 import numpy as np
 
 from map_server.merge import Merger
-from mapcore import TiledMap
 from protocol import LAYERS, encode
 from protocol.keys import delta_key
 from protocol.messages import CellDelta
 from protocol.testing import layer_cells
+from psrmap_mapcore import TiledMap
 
 LAYERS5 = ("elevation", "slip", "cot", "giim", "giam")
 RES = 0.4

@@ -28,9 +28,9 @@ from _c_search_kernel import load as load_c_kernel
 from scipy import ndimage
 from skimage.graph import route_through_array
 
-from common.pathsearch.search import plan_path
 from consumer_planner.costs import CostConfig, build_costs
-from mapcore import LayerGrid
+from psrmap_common.pathsearch.search import plan_path
+from psrmap_mapcore import LayerGrid
 
 
 def terrain_costs(n: int, seed: int = 0) -> np.ndarray:

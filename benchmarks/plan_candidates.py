@@ -19,7 +19,7 @@ import time
 import numpy as np
 from plan import terrain_costs
 
-from common.pathsearch.search import plan_path
+from psrmap_common.pathsearch.search import plan_path
 
 
 def _median(fn, repeat: int):

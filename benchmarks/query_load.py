@@ -29,10 +29,10 @@ def scouts(endpoint: str, n: int, rate: float, seconds: float, phase2, results) 
     """Publish for 2 × `seconds`; each ack latency is labelled with the phase its delta was sent in."""
     import zenoh
 
-    from common.session import zenoh_config
     from protocol import decode, encode
     from protocol.keys import ack_key, delta_key
     from protocol.messages import Ack, CellDelta
+    from psrmap_common.session import zenoh_config
 
     rng = np.random.default_rng(0)
     per = int(rate * 2 * seconds / n) + 2
@@ -91,9 +91,9 @@ def queries(endpoint: str, burst: int, phase2, stop, results) -> None:
     """Once phase 2 starts: keep `burst` region queries in flight at once until `stop`."""
     import zenoh
 
-    from common.session import zenoh_config
     from protocol.keys import map_key
     from protocol.messages import RegionQuery
+    from psrmap_common.session import zenoh_config
 
     sel = f"{map_key(MAP)}?{RegionQuery(0.0, 0.0, 40.0, 40.0, None, ('all',)).to_parameters()}"
     ok = busy = other = lost = bursts = 0

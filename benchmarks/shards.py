@@ -45,11 +45,11 @@ def publisher(pid: int, endpoint: str, shards: int, n: int, window: int, ready, 
     """Pre-encode n deltas (split by shard), then send them as fast as acks allow until `stop`."""
     import zenoh
 
-    from common.session import zenoh_config
     from protocol import decode, encode
     from protocol.keys import ack_key, delta_key
     from protocol.messages import CellDelta
     from protocol.partition import Partition
+    from psrmap_common.session import zenoh_config
 
     part = Partition(shards, TILE)
     rng = np.random.default_rng(pid)
@@ -108,9 +108,9 @@ def publisher(pid: int, endpoint: str, shards: int, n: int, window: int, ready, 
 def run(k: int, args: argparse.Namespace) -> dict:
     import zenoh
 
-    from common.query import aggregate_status, get_statuses, wait_for_server
-    from common.session import zenoh_config
     from map_server.service import free_endpoint
+    from psrmap_common.query import aggregate_status, get_statuses, wait_for_server
+    from psrmap_common.session import zenoh_config
 
     ep = free_endpoint()
     tmp = tempfile.TemporaryDirectory()

@@ -123,10 +123,10 @@ def host(
     """One process of virtual scouts: replays the recording for each scout at `rate_hz` with jitter."""
     import zenoh
 
-    from common.session import zenoh_config
     from protocol import decode
     from protocol.keys import ack_pattern
     from protocol.partition import Partition
+    from psrmap_common.session import zenoh_config
     from scout_agent.delivery import DeltaPublisher
     from scout_agent.publisher import ZenohTransport
 
@@ -228,9 +228,9 @@ def main() -> None:
     rec = record(args.record_seconds)
     import zenoh
 
-    from common.query import aggregate_status, get_statuses, wait_for_server
-    from common.session import zenoh_config
     from map_server.service import free_endpoint
+    from psrmap_common.query import aggregate_status, get_statuses, wait_for_server
+    from psrmap_common.session import zenoh_config
 
     ep = free_endpoint()
     tmp = tempfile.TemporaryDirectory()

@@ -1,6 +1,6 @@
 """What believing only attested servers costs a client: status queries through a secured router (`psrmap secure
 init` credentials and role ACL, a map server, a planner), each `--n` times with open trust (any replier) and with
-attested trust (common.trust: one liveliness query for the `serverid` tokens, then the query), interleaved in
+attested trust (psrmap_common.trust: one liveliness query for the `serverid` tokens, then the query), interleaved in
 rounds. Prints one JSON object: median and p95 per mode [ms].
 
     python benchmarks/trust.py [--n 200] [--rounds 2]
@@ -19,11 +19,11 @@ from pathlib import Path
 def main() -> None:
     import zenoh
 
-    from common.query import get_statuses, wait_for_server
-    from common.session import zenoh_config
-    from common.trust import Trust
     from map_server.service import MapService, ServerConfig, free_endpoint
     from psrmap.secure import secure_init
+    from psrmap_common.query import get_statuses, wait_for_server
+    from psrmap_common.session import zenoh_config
+    from psrmap_common.trust import Trust
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--n", type=int, default=200, help="queries per mode and round (default 200)")

@@ -2,10 +2,10 @@
 
 from __future__ import annotations
 
-from common.pathsearch import GridPath, plan_path
 from consumer_planner.compare import Breakdown, Route, breakdown, evaluate_route, plan_route
 from consumer_planner.costs import CostConfig, CostMap, Limits, Weights, build_costs, parse_weights
 from consumer_planner.errors import PlannerError
+from psrmap_common.pathsearch import GridPath, plan_path
 
 __all__ = [
     "Breakdown",

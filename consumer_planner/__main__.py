@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import sys
 
-from common.cli_parser import Parser, run_command
 from consumer_planner.cli import register
+from psrmap_common.cli_parser import Parser, run_command
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -17,9 +17,6 @@ import json
 import math
 from dataclasses import asdict, replace
 
-from common.cli_parser import positive_float
-from common.errors import UsageError
-from common.link import add_link_arguments, link_from_args
 from consumer_planner import component
 from consumer_planner.compare import Route
 from consumer_planner.component import CompareConfig, MapSource, PlanConfig, PlanSummary
@@ -28,6 +25,9 @@ from consumer_planner.costs import TERMS, UNKNOWN_POLICIES, CostConfig, parse_we
 from consumer_planner.errors import PlannerError
 from consumer_planner.table import route_table, term_lines
 from protocol.keys import id_arg
+from psrmap_common.cli_parser import positive_float
+from psrmap_common.errors import UsageError
+from psrmap_common.link import add_link_arguments, link_from_args
 
 __all__ = ["register"]
 

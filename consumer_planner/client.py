@@ -1,6 +1,6 @@
 """The planner's only Zenoh module: region queries of the `map` queryable, fanned out to every shard, and
 region change notifications (`RegionWatch`) and when to re-query a box because of them (`RegionFollower`) —
-the last two and the query itself from `common.region`, which the scouts use too.
+the last two and the query itself from `psrmap_common.region`, which the scouts use too.
 
 Raw stats (`all`) are asked for so the planner recomputes values and the elevation plane-fit slope itself.
 """
@@ -13,14 +13,14 @@ from dataclasses import dataclass, replace
 
 import zenoh
 
-from common.errors import QueryError
-from common.query import get_statuses, map_extent
-from common.region import Box, NoAnswer, RegionChange, RegionFollower, RegionWatch, fetch_region
-from common.session import SessionError, open_session, zenoh_config
-from common.trust import Trust, load_trust
 from consumer_planner.errors import PlannerError
-from mapcore import LayerGrid
 from protocol.keys import map_key
+from psrmap_common.errors import QueryError
+from psrmap_common.query import get_statuses, map_extent
+from psrmap_common.region import Box, NoAnswer, RegionChange, RegionFollower, RegionWatch, fetch_region
+from psrmap_common.session import SessionError, open_session, zenoh_config
+from psrmap_common.trust import Trust, load_trust
+from psrmap_mapcore import LayerGrid
 
 __all__ = [
     "ClientConfig",
@@ -47,7 +47,7 @@ class ClientConfig:
     trust: Trust | None = None  # whom to believe; None: the servers.json beside zenoh_config, if any
 
     def believed(self) -> Trust:
-        """The trust the client applies (common.trust): `trust`, else what the files beside the Zenoh config ask
+        """The trust the client applies (psrmap_common.trust): `trust`, else what the files beside the Zenoh config ask
         for, and the `trusted_servers` ids; PlannerError for an unreadable servers.json."""
         try:
             base = self.trust if self.trust is not None else load_trust(None, self.zenoh_config)
@@ -65,7 +65,7 @@ def query_region(
     stats: Sequence[str] = ("all",),
 ) -> LayerGrid:
     """The map box (x0, y0, x1, y1) [m, inclusive] from every shard that answers, stitched
-    (`common.region.fetch_region`).
+    (`psrmap_common.region.fetch_region`).
 
     Raises PlannerError when no server answers within `timeout_s` or every answer is an error."""
     try:

@@ -23,10 +23,10 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from skimage.draw import line
 
-from common.pathsearch import Method, PathSearchError, nearest_passable, plan_path, step_lengths
 from consumer_planner.costs import CostMap
 from consumer_planner.errors import PlannerError
-from mapcore import LayerGrid
+from psrmap_common.pathsearch import Method, PathSearchError, nearest_passable, plan_path, step_lengths
+from psrmap_mapcore import LayerGrid
 
 __all__ = ["Breakdown", "Route", "breakdown", "cell_weights", "evaluate_route", "plan_route", "route_cells"]
 

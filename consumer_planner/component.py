@@ -19,7 +19,7 @@ import numpy as np
 from consumer_planner.compare import Route, evaluate_route, plan_route
 from consumer_planner.costs import CostConfig, CostMap, build_costs
 from consumer_planner.errors import PlannerError
-from mapcore import LayerGrid, MapFileError, read_npz
+from psrmap_mapcore import LayerGrid, MapFileError, read_npz
 
 __all__ = [
     "CompareConfig",
@@ -130,8 +130,8 @@ def _box(source: MapSource, points: list[Point]) -> tuple[float, float, float, f
 
 
 def _client_config(source: MapSource) -> Any:
-    from common.trust import load_trust
     from consumer_planner.client import ClientConfig
+    from psrmap_common.trust import load_trust
 
     try:
         trust = load_trust(source.trust_servers, source.zenoh_config)

@@ -72,7 +72,7 @@ from consumer_planner.cost_config import (
 )
 from consumer_planner.infer import FillBox, fill_box, fill_into, kernel_radius, smoothed_mask
 from consumer_planner.spread import spread_cells, spread_finite, spread_max
-from mapcore import LayerGrid
+from psrmap_mapcore import LayerGrid
 
 __all__ = [
     "METRICS",

@@ -1,6 +1,6 @@
 """Rerun logging of the cost grid and routes (the only module of consumer_planner that imports rerun).
 
-Entities, all at the plan's mission time on `sim_time` (see `common.recording`):
+Entities, all at the plan's mission time on `sim_time` (see `psrmap_common.recording`):
 - `map/cost`: the cost grid as an RGBA GridMap — viridis over this plan's cost range (cheapest passable
   cell dark, dearest bright), impassable cells red, cells outside the fetched map transparent. Rerun puts
   the translation at the image's lower-left corner with row 0 drawn at the top, so rows are flipped.
@@ -17,10 +17,10 @@ from collections.abc import Sequence
 import numpy as np
 import rerun as rr
 
-from common.recording import TIMELINE, Scale, colorize, open_stream, scout_color
 from consumer_planner.compare import Route
 from consumer_planner.costs import CostMap
-from mapcore import LayerGrid
+from psrmap_common.recording import TIMELINE, Scale, colorize, open_stream, scout_color
+from psrmap_mapcore import LayerGrid
 
 __all__ = ["breakdown_markdown", "cost_image", "drape", "log_plan", "open_recording"]
 

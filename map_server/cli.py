@@ -11,13 +11,13 @@ from collections.abc import Sequence
 from dataclasses import replace
 from typing import Any
 
-from common.cli_parser import Parser, non_negative_int, positive_int, run_command
-from common.defaults import DEFAULT_RES_M
-from common.errors import UsageError
-from common.link import Link, add_link_arguments, link_from_args, open_link, split_endpoints
-from common.session import endpoint_arg
 from map_server.limits import Limits
 from protocol.keys import id_arg
+from psrmap_common.cli_parser import Parser, non_negative_int, positive_int, run_command
+from psrmap_common.defaults import DEFAULT_RES_M
+from psrmap_common.errors import UsageError
+from psrmap_common.link import Link, add_link_arguments, link_from_args, open_link, split_endpoints
+from psrmap_common.session import endpoint_arg
 
 __all__ = ["main", "register"]
 
@@ -26,7 +26,7 @@ log = logging.getLogger("map_server")
 
 def _file_endpoints(args: argparse.Namespace, kind: str) -> tuple[str, ...]:
     """The endpoints of kind `connect`/`listen` named in `--zenoh-config`, or a usage error if unreadable."""
-    from common.session import file_endpoints
+    from psrmap_common.session import file_endpoints
 
     try:
         return file_endpoints(getattr(args, "zenoh_config", None), kind)

@@ -23,12 +23,12 @@ import xxhash
 
 from map_server.decode import DeltaBatch, DeltaDecoder
 from map_server.limits import Limits
-from mapcore import TiledMap
 from protocol.codec import DEFAULT_MAX_BYTES, decode
 from protocol.errors import ProtocolError
 from protocol.layers import pack_pair, unpack_pair
 from protocol.messages import Ack, CellDelta
 from protocol.partition import Partition
+from psrmap_mapcore import TiledMap
 
 __all__ = ["Accepted", "IngestResult", "MergeBook", "Merger", "SeqState", "payload_digest"]
 

@@ -24,8 +24,8 @@ from collections.abc import Iterable, Sequence
 import numpy as np
 
 from map_server.store import MapStore
-from mapcore import TiledMap
 from protocol.layers import pack_pair, unpack_pair
+from psrmap_mapcore import TiledMap
 
 __all__ = ["TilePager"]
 

@@ -36,8 +36,8 @@ import numpy as np
 
 from map_server.decode import DeltaDecoder
 from map_server.errors import MapServerError
-from mapcore import TiledMap
 from protocol.messages import CellDelta
+from psrmap_mapcore import TiledMap
 
 __all__ = ["RemovalError", "RemovalSummary", "hold_lock", "remove_contributions"]
 

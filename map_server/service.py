@@ -20,15 +20,12 @@ import msgpack
 import numpy as np
 import zenoh
 
-from common.defaults import DEFAULT_MAP_ID, DEFAULT_RES_M, DEFAULT_TILE
-from common.session import open_session, zenoh_config
 from map_server.errors import MapServerConfigError
 from map_server.limits import Limits, default_tile_budget_mib, tile_bytes
 from map_server.merge import Merger
 from map_server.paging import TilePager
 from map_server.removal import RemovalError, hold_lock
 from map_server.store import MapStore
-from mapcore import TiledMap
 from protocol.codec import INDEX_LIMIT, encode
 from protocol.errors import ProtocolError
 from protocol.keys import (
@@ -48,6 +45,9 @@ from protocol.keys import (
 from protocol.layers import cell_index
 from protocol.messages import MapRegion, RegionQuery, ScoutStatus, Status, TileChanges
 from protocol.partition import Partition
+from psrmap_common.defaults import DEFAULT_MAP_ID, DEFAULT_RES_M, DEFAULT_TILE
+from psrmap_common.session import open_session, zenoh_config
+from psrmap_mapcore import TiledMap
 
 __all__ = ["MapService", "ServerConfig"]
 
@@ -269,7 +269,7 @@ class MapService:
         # a delta waiting for the GIL behind a query's reply encoding waits one switch interval at most
         sys.setswitchinterval(min(sys.getswitchinterval(), SWITCH_INTERVAL_S))
         s = self._session
-        # first: clients believe this session's replies and notices only once its id is attested (common.trust)
+        # first: clients believe this session's replies and notices only once its id is attested (psrmap_common.trust)
         self._entities.append(s.liveliness().declare_token(server_id_key(c.map_id, str(s.info.zid()))))
         self._sub = s.declare_subscriber(
             delta_pattern(c.map_id, c.shard_id), zenoh.handlers.FifoChannel(c.channel_capacity)

@@ -26,7 +26,7 @@ from pathlib import Path
 
 from map_server.errors import MapServerConfigError
 from map_server.merge import Accepted, MergeBook, Merger, SeqState
-from mapcore import TiledMap
+from psrmap_mapcore import TiledMap
 
 log = logging.getLogger(__name__)
 

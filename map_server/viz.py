@@ -2,7 +2,7 @@
 
 Each changed tile of each layer is logged as an RGBA `rr.GridMap` at `map/<layer>/<tx>_<ty>` and its
 observation count at `map/counts/<layer>/<tx>_<ty>`, coloured on the layer's fixed scale
-(`common.recording.LAYER_SCALES`), unknown cells transparent, at most once per `interval_s`; untouched
+(`psrmap_common.recording.LAYER_SCALES`), unknown cells transparent, at most once per `interval_s`; untouched
 tiles are never re-sent. Rerun puts a GridMap's `translation` at the image's lower-left corner and draws
 image row 0 at the top, so the tile (row = iy, growing north) is flipped before it is sent.
 
@@ -18,8 +18,8 @@ import time
 import numpy as np
 import rerun as rr
 
-from common.recording import COUNT_SCALE, LAYER_SCALES, TIMELINE, Scale, colorize, open_stream
-from mapcore import TiledMap
+from psrmap_common.recording import COUNT_SCALE, LAYER_SCALES, TIMELINE, Scale, colorize, open_stream
+from psrmap_mapcore import TiledMap
 
 __all__ = ["MapViz", "grid_map"]
 

@@ -10,8 +10,8 @@ from typing import Any
 
 import numpy as np
 
-from mapcore import read_npz
 from protocol.layers import layer_value
+from psrmap_mapcore import read_npz
 
 
 def _elevation_by_cell(path: Path) -> dict[tuple[int, int], float]:

@@ -18,9 +18,9 @@ import os
 import sys
 from collections.abc import Sequence
 
-from common.cli_parser import Parser, usage_exit
-from common.errors import UsageError
 from psrmap.errors import exit_code_for
+from psrmap_common.cli_parser import Parser, usage_exit
+from psrmap_common.errors import UsageError
 
 # command -> (module whose `register` adds it, its one-line help), in `psrmap --help` order
 COMMANDS: dict[str, tuple[str, str]] = {

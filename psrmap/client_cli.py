@@ -1,4 +1,4 @@
-"""`psrmap status | query`: the map service's client commands, asking through `common.query`.
+"""`psrmap status | query`: the map service's client commands, asking through `psrmap_common.query`.
 
 `status` prints a map's status (for a sharded map the aggregate over its shards, each shard's own under
 `shard_status`); `query` fetches a box of the map (by default the whole map, as far as it holds data), prints
@@ -13,19 +13,19 @@ import json
 import sys
 from typing import Any
 
-from common.cli_parser import positive_float, positive_int
-from common.errors import UsageError
-from common.link import Link, add_link_arguments, link_from_args, open_link
 from protocol.errors import MAX_CLIENT_CELLS
 from protocol.keys import id_arg
 from psrmap.export import add_out_arguments, format_of, origin_from_args, write_export
+from psrmap_common.cli_parser import positive_float, positive_int
+from psrmap_common.errors import UsageError
+from psrmap_common.link import Link, add_link_arguments, link_from_args, open_link
 
 __all__ = ["cmd_query", "cmd_status", "register"]
 
 
 def _trust(link: Link) -> Any:
-    """Whose replies to believe (common.trust): the servers.json beside --zenoh-config, if there is one."""
-    from common.trust import load_trust
+    """Whose replies to believe (psrmap_common.trust): the servers.json beside --zenoh-config, if there is one."""
+    from psrmap_common.trust import load_trust
 
     try:
         return load_trust(None, link.zenoh_config)
@@ -35,7 +35,7 @@ def _trust(link: Link) -> Any:
 
 def cmd_status(args: argparse.Namespace) -> int:
     """The map's status; for a sharded map the aggregate over its shards, each shard's own under `shards`."""
-    from common.query import aggregate_status, get_statuses
+    from psrmap_common.query import aggregate_status, get_statuses
 
     link = link_from_args(args)
     trust = _trust(link)
@@ -59,8 +59,8 @@ def _box(args: argparse.Namespace, link: Link, trust: Any) -> tuple[float, float
         except ValueError:
             raise UsageError(f"--box {args.box!r}: give x0,y0,x1,y1 in map-frame metres") from None
         return x0, y0, x1, y1
-    from common.errors import QueryError
-    from common.query import get_statuses, map_extent
+    from psrmap_common.errors import QueryError
+    from psrmap_common.query import get_statuses, map_extent
 
     with open_link(link) as s:
         try:
@@ -71,11 +71,11 @@ def _box(args: argparse.Namespace, link: Link, trust: Any) -> tuple[float, float
 
 
 def _region(args: argparse.Namespace, link: Link, trust: Any, box: tuple[float, float, float, float]) -> Any:
-    """The box from every server (shard) that answers, stitched (`common.region.fetch_region`, as the planner
+    """The box from every server (shard) that answers, stitched (`psrmap_common.region.fetch_region`, as the planner
     and the bridge fetch it: each reply's size and box checked before anything is allocated); None (said why)
     when there is none or a reply is bad."""
-    from common.errors import QueryError
-    from common.region import NoAnswer, fetch_region
+    from psrmap_common.errors import QueryError
+    from psrmap_common.region import NoAnswer, fetch_region
 
     layers = tuple(args.layers.split(",")) if args.layers else None
     with open_link(link) as s:

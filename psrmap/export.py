@@ -1,12 +1,12 @@
 """`psrmap export`: a map region in the field's formats.
 
-- `--format geotiff`: a multi-band GeoTIFF (`interop/geotiff.py`): each layer's value and count, NaN as nodata,
+- `--format geotiff`: a multi-band GeoTIFF (`psrmap_interop/geotiff.py`): each layer's value and count, NaN as nodata,
   band descriptions and unit types; in `IAU_2015:30135` (Moon south polar stereographic) when the mission's
   origin on the Moon is known (`--origin LAT,LON[,HEADING]`, or `[mission] origin` of `--config`), with the
   GDAL side-car `<out>.aux.xml` that names that CRS (keep the two files together), else in a local
   engineering CRS that says so.
 - `--format npz`: the map core's one `.npz` layout (`<layer>/<stat>` arrays; `mapcore.read_npz` reads it).
-- `--format mcap`: a rosbag2 folder with MCAP storage (`interop/rosbag.py`): the map as
+- `--format mcap`: a rosbag2 folder with MCAP storage (`psrmap_interop/rosbag.py`): the map as
   `grid_map_msgs/msg/GridMap` on `/psrmap/grid_map`, the planner's cost as `nav_msgs/msg/OccupancyGrid` on
   `/psrmap/cost`, and with `--run-dir` each scout's own estimate of its walk as `nav_msgs/msg/Path` on
   `/psrmap/scouts/<id>/path` (growing, one message per simulated second) and the mission's planned path on
@@ -26,8 +26,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from common.errors import UsageError
-from common.link import link_from_args
+from psrmap_common.errors import UsageError
+from psrmap_common.link import link_from_args
 
 __all__ = ["FORMATS", "export_geotiff", "export_mcap", "format_of", "register", "write_export"]
 
@@ -51,10 +51,10 @@ def write_export(
     if fmt not in FORMATS:
         raise UsageError(f"--format {fmt!r}; formats: {', '.join(FORMATS)}")
     if fmt == "npz":
-        from mapcore import write_npz
+        from psrmap_mapcore import write_npz
 
         return write_npz(out, grid)
-    from mapcore import MapCoreError
+    from psrmap_mapcore import MapCoreError
 
     try:
         for name in grid.layers:
@@ -70,7 +70,7 @@ def write_export(
 
 def export_geotiff(grid: Any, out: str | Path, origin: Any = None) -> Path:
     """`grid` (consumer_planner LayerGrid) -> GeoTIFF at `out`."""
-    from interop.geotiff import write_geotiff
+    from psrmap_interop.geotiff import write_geotiff
 
     xa, ya, _, _ = grid.bounds_m()
     names = [n for n in grid.layers if n != "cost"]
@@ -83,7 +83,7 @@ def export_mcap(
 ) -> Path:
     """`grid` (and a mission's summary: scouts' estimated paths, the plan) -> rosbag2/MCAP folder `out`."""
     from consumer_planner.costs import build_costs
-    from interop.ros2_messages import (
+    from psrmap_interop.ros2_messages import (
         GRID_MAP,
         OCCUPANCY_GRID,
         PATH,
@@ -91,7 +91,7 @@ def export_mcap(
         occupancy_grid_msg,
         path_msg,
     )
-    from interop.rosbag import BagMessage, write_mcap_bag
+    from psrmap_interop.rosbag import BagMessage, write_mcap_bag
 
     t0 = time.time_ns() if stamp_ns is None else stamp_ns
     xa, ya, _, _ = grid.bounds_m()
@@ -117,9 +117,9 @@ def export_mcap(
 
 
 def register(sub: Any) -> None:
-    from common.link import add_link_arguments
     from protocol.keys import id_arg
     from psrmap.ros2 import box_arg
+    from psrmap_common.link import add_link_arguments
 
     p = sub.add_parser("export", help="write a map region as GeoTIFF (GIS) or rosbag2/MCAP (ROS tools)",
                        description=__doc__.split("\n\n")[0])  # fmt: skip
@@ -161,7 +161,7 @@ def add_out_arguments(p: Any, required: bool = True) -> None:
 
 def origin_from_args(args: argparse.Namespace) -> Any:
     """The `--origin` (or `--config`'s [mission] origin) as an interop MoonOrigin, None without one."""
-    from interop.geotiff import MoonOrigin
+    from psrmap_interop.geotiff import MoonOrigin
 
     try:
         if args.origin:
@@ -177,7 +177,7 @@ def origin_from_args(args: argparse.Namespace) -> Any:
 
 
 def _cmd(args: argparse.Namespace) -> int:
-    from interop.geotiff import pam_path
+    from psrmap_interop.geotiff import pam_path
 
     origin = origin_from_args(args)
     fmt = format_of(args.out, args.format)
@@ -203,7 +203,7 @@ def _cmd(args: argparse.Namespace) -> int:
 
 def _load(args: argparse.Namespace) -> Any:
     from consumer_planner.errors import PlannerError
-    from mapcore import MapFileError, read_npz
+    from psrmap_mapcore import MapFileError, read_npz
 
     link = link_from_args(args, required=False)
     if (args.npz is None) == (not link.connect):

@@ -9,7 +9,7 @@ Publishes, on a Zenoh network a ROS 2 system using `rmw_zenoh_cpp` shares (the s
 - `<prefix>/plan`: with `--plan-from/--plan-to`, the planned path as `nav_msgs/msg/Path`;
 all transient-local (a late subscriber gets the last one), at most `--rate` times a second and only when a tile
 inside `--box` (without one: anywhere) changed (the servers' tile-change notices: a change elsewhere on the map
-costs no query). Wire details in `interop/rmw_zenoh.py`; messages in `interop/ros2_messages.py`.
+costs no query). Wire details in `psrmap_interop/rmw_zenoh.py`; messages in `psrmap_interop/ros2_messages.py`.
 """
 
 from __future__ import annotations
@@ -22,8 +22,8 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
-from common.errors import UsageError
-from common.link import link_from_args
+from psrmap_common.errors import UsageError
+from psrmap_common.link import link_from_args
 
 __all__ = ["TOPICS", "BridgeConfig", "box_arg", "register", "ros_keys", "run_bridge"]
 
@@ -58,15 +58,15 @@ def run_bridge(cfg: BridgeConfig, stop: threading.Event | None = None, log=print
     """Run until `stop` (or SIGTERM/SIGINT via the CLI), `once`, or `max_seconds`; returns what was published."""
     import zenoh
 
-    from common.errors import QueryError
-    from common.query import map_extent
-    from common.session import zenoh_config
     from consumer_planner.client import ClientConfig, RegionFollower, query_region
     from consumer_planner.compare import plan_route
     from consumer_planner.costs import build_costs
     from consumer_planner.errors import PlannerError
-    from interop.rmw_zenoh import RosNode
-    from interop.ros2_messages import (
+    from psrmap_common.errors import QueryError
+    from psrmap_common.query import map_extent
+    from psrmap_common.session import zenoh_config
+    from psrmap_interop.rmw_zenoh import RosNode
+    from psrmap_interop.ros2_messages import (
         GRID_MAP,
         OCCUPANCY_GRID,
         PATH,
@@ -154,8 +154,8 @@ def ros_keys(domain: int = 0, prefix: str = "/psrmap", node: str = NODE) -> dict
     """The keys a bridge on `domain` under `prefix` puts and declares (for the router's ACL, `psrmap.secure`):
     `<topic>` each topic's sample key, `<topic_token>` / `<node_token>` its publishers' and node's graph
     tokens (any session id), `<ros_graph>` the domain's whole graph."""
-    from interop.rmw_zenoh import Qos, node_token, publisher_token, topic_key
-    from interop.ros2_messages import GRID_MAP, OCCUPANCY_GRID, PATH
+    from psrmap_interop.rmw_zenoh import Qos, node_token, publisher_token, topic_key
+    from psrmap_interop.ros2_messages import GRID_MAP, OCCUPANCY_GRID, PATH
 
     topics = [
         (f"{prefix.rstrip('/')}/{t}", ty)
@@ -192,8 +192,8 @@ def box_arg(text: str) -> tuple[float, float, float, float]:
 
 
 def register(sub: Any) -> None:
-    from common.link import add_link_arguments
     from protocol.keys import id_arg
+    from psrmap_common.link import add_link_arguments
 
     p = sub.add_parser("ros2", help="publish the shared map, cost grid and plan to ROS 2 (rmw_zenoh)",
                        description=__doc__.split("\n\n")[0])  # fmt: skip

@@ -17,7 +17,7 @@ Roles (`GRANTS`, the README's roles table; everything else is denied by the rout
   (`<topic>/@adv/pub/**`: queryable, heartbeat, publisher token) and holds its node's and publishers' graph
   tokens (`@ros2_lv/...`) — nothing of the map's own keys.
 Whose replies to believe: each server start takes a fresh random Zenoh id and declares it in a `serverid` token,
-which only server credentials may; clients (`common.trust`) believe replies and notices only from the ids so
+which only server credentials may; clients (`psrmap_common.trust`) believe replies and notices only from the ids so
 declared. No id is pinned, so none can be squatted while its server is down: Zenoh's ACL can match a session's
 id (`zids` subjects) but cannot refuse a session, so a pinned id held by an impostor would lock the real server
 out (its session is refused as a duplicate). The files: `credentials.txt` (the router's `user:password`
@@ -42,9 +42,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from common.errors import UsageError
-from common.session import check_endpoint, endpoint_arg
 from protocol.keys import validate_id
+from psrmap_common.errors import UsageError
+from psrmap_common.session import check_endpoint, endpoint_arg
 
 __all__ = ["GRANTS", "Grant", "SecureLayout", "acl", "register", "roles_table", "secure_init"]
 

@@ -15,7 +15,7 @@ from typing import Any
 import rerun as rr
 import rerun.blueprint as rrb
 
-from common.recording import TIMELINE, legend_markdown, open_stream, scout_color
+from psrmap_common.recording import TIMELINE, legend_markdown, open_stream, scout_color
 from scout_agent.viz import SERIES
 
 MAP_LAYERS = ("elevation", "slip", "cot", "giim", "giam", "contacts")

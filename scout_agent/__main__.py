@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import sys
 
-from common.cli_parser import Parser, run_command
+from psrmap_common.cli_parser import Parser, run_command
 from scout_agent.cli import register
 
 

@@ -4,7 +4,7 @@
 cell at `flush()` into the `layers` dict of a `CellDelta` (docs/design.md, wire contract: `ix`, `iy` int32 and
 float64 stats, a cell at most once per layer). `LocalMap` merges such dicts into the map core's `TiledMap`,
 the server's own storage and merge, so a scout with no server holds, cell for cell, what a server would
-merge from the same deltas; `save_npz` writes it with `mapcore.npz` in the `map_region` layout.
+merge from the same deltas; `save_npz` writes it with `psrmap_mapcore.npz` in the `map_region` layout.
 """
 
 from __future__ import annotations
@@ -14,8 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from mapcore import LayerGrid, TiledMap, write_npz
 from protocol.layers import LAYERS, cell_center, cell_index, empty_value, get_layer, merge_op, pack_pair
+from psrmap_mapcore import LayerGrid, TiledMap, write_npz
 from scout_agent.errors import ScoutConfigError
 
 __all__ = ["CellAccumulator", "LocalMap"]
@@ -135,7 +135,7 @@ class LocalMap:
         return self.map.region(ix0, iy0, ix1, iy1, stats=("all", "value"))
 
     def save_npz(self, path: str | Path, cover: tuple[int, int, int, int] | None = None) -> Path:
-        """Write the whole map as a `.npz` in `map_region` layout (`mapcore.npz`).
+        """Write the whole map as a `.npz` in `map_region` layout (`psrmap_mapcore.npz`).
 
         `cover` (ix0, iy0, ix1, iy1, inclusive): a cell box the saved region must include besides the data."""
         b = self.bounds() or (cover if cover is not None else (0, 0, -1, -1))

@@ -15,11 +15,11 @@ import json
 import sys
 from dataclasses import replace
 
-from common.cli_parser import non_negative_int, positive_float
-from common.defaults import DEFAULT_SEED
-from common.errors import UsageError, ViewerUnavailable
-from common.recording import use_viewer
 from protocol.keys import id_arg
+from psrmap_common.cli_parser import non_negative_int, positive_float
+from psrmap_common.defaults import DEFAULT_SEED
+from psrmap_common.errors import UsageError, ViewerUnavailable
+from psrmap_common.recording import use_viewer
 from scout_agent import component
 from scout_agent.component import ScoutConfig
 from scout_agent.errors import ScoutConfigError, ScoutLinkError
@@ -298,7 +298,7 @@ def _dem(args: argparse.Namespace) -> DemWindow | None:
 
 def _compile_notice(args: argparse.Namespace) -> None:
     """One line before a first run's silent numba compile of the state estimator's kernels."""
-    from common.jit import COMPILE_NOTICE, uncached
+    from psrmap_common.jit import COMPILE_NOTICE, uncached
     from scout_agent.state_estimation import kernels
 
     if not args.quiet and args.state != "exact" and uncached([kernels.propagate, kernels.update]):

@@ -11,8 +11,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from common.defaults import DEFAULT_DELTA_HZ, DEFAULT_RES_M
-from common.recording import ViewerUnavailable, use_viewer, viewer_url
+from psrmap_common.defaults import DEFAULT_DELTA_HZ, DEFAULT_RES_M
+from psrmap_common.recording import ViewerUnavailable, use_viewer, viewer_url
 from scout_agent.errors import ScoutConfigError
 from scout_agent.mapping import LinkConfig, open_mapping
 from scout_agent.run import ScoutRunConfig, build_world, run_scout
@@ -125,7 +125,7 @@ def _shared_map_source(cfg: ScoutRunConfig, config: ScoutConfig, mapping: Any, w
     mapper = mapping.mapper
     if cfg.localize != "on" or config.link is None or mapper is None or mapper.publisher is None:
         return None
-    from common.trust import load_trust
+    from psrmap_common.trust import load_trust
     from scout_agent.localization.shared_map import SharedMapSource
 
     pub = mapper.publisher

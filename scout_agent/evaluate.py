@@ -46,9 +46,9 @@ from typing import Any
 
 import numpy as np
 
-from common.defaults import DEFAULT_DELTA_HZ, DEFAULT_RES_M
-from common.errors import UsageError
 from protocol.layers import cell_center, elevation_slope_deg, layer_value
+from psrmap_common.defaults import DEFAULT_DELTA_HZ, DEFAULT_RES_M
+from psrmap_common.errors import UsageError
 from scout_agent.estimators import EstimatorPipeline, TickEstimates
 from scout_agent.estimators.elevation import plane_from_moments, slope_deg
 from scout_agent.mapping import Mapper, MapperConfig, default_pipeline_config

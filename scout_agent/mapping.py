@@ -7,7 +7,7 @@ cell for cell, what a server merges from the same deltas.
 
 `open_mapping(...)` (with a `LinkConfig` to publish) is what `scout_agent.component.run` calls; the CLI's
 `--map ID --connect ENDPOINT` (`add_mapping_arguments`, `publish_link`) publishes while walking; without
-`--connect` the scout keeps a local map, `--save-map PATH.npz` writes it (`mapcore.npz` reads it back).
+`--connect` the scout keeps a local map, `--save-map PATH.npz` writes it (`psrmap_mapcore.npz` reads it back).
 """
 
 from __future__ import annotations
@@ -20,11 +20,11 @@ from typing import Any
 
 import numpy as np
 
-from common.defaults import DEFAULT_DELTA_HZ, DEFAULT_RES_M
-from common.errors import UsageError
-from common.link import add_link_arguments, link_from_args
 from protocol.keys import id_arg
 from protocol.layers import HAZARD_REASONS
+from psrmap_common.defaults import DEFAULT_DELTA_HZ, DEFAULT_RES_M
+from psrmap_common.errors import UsageError
+from psrmap_common.link import add_link_arguments, link_from_args
 from scout_agent.cells import CellAccumulator, LocalMap
 from scout_agent.errors import ScoutConfigError
 from scout_agent.estimators import EstimatorPipeline, PipelineConfig, TickEstimates, record

@@ -20,15 +20,15 @@ from typing import Any
 import numpy as np
 import zenoh
 
-from common.errors import QueryError
-from common.query import get_partition
-from common.session import why_refused, zenoh_config
-from common.trust import load_trust
 from protocol.codec import decode
 from protocol.errors import ProtocolError
 from protocol.keys import ack_key, alive_key, server_who
 from protocol.messages import Ack
 from protocol.partition import Partition
+from psrmap_common.errors import QueryError
+from psrmap_common.query import get_partition
+from psrmap_common.session import why_refused, zenoh_config
+from psrmap_common.trust import load_trust
 from scout_agent.delivery import DeltaPublisher, UnackedBufferFull, new_epoch
 from scout_agent.errors import ScoutConfigError, ScoutLinkError
 from scout_agent.outbox import SQLiteOutbox

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from common.defaults import DEFAULT_SEED
+from psrmap_common.defaults import DEFAULT_SEED
 from scout_agent.control.pilot import Pilot, PilotConfig
 from scout_agent.control.reflex import Felt
 from scout_agent.errors import ScoutConfigError

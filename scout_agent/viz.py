@@ -3,7 +3,7 @@
 One explicit `rr.RecordingStream` is passed in; entity paths mirror the system:
 `world/terrain`, `world/friction`, `world/scouts/<id>/{base,feet,trajectory,trajectory_estimate,slips}`, and
 time series grouped by unit (one plot per unit; series named after the scout, foot or joint):
-`world/scouts/<id>/series/<group>` — see `SERIES`. Everything is on `sim_time` (common.recording).
+`world/scouts/<id>/series/<group>` — see `SERIES`. Everything is on `sim_time` (psrmap_common.recording).
 """
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import rerun as rr
 
-from common.recording import TIMELINE, open_stream, scout_color
+from psrmap_common.recording import TIMELINE, open_stream, scout_color
 from scout_agent.signals import JOINT_NAMES, LEG_NAMES, GroundTruth, ProprioSample
 from scout_agent.sim.friction import FrictionMap
 from scout_agent.sim.terrain import Terrain

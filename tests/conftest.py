@@ -10,9 +10,9 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from common.query import wait_for_server
-from common.session import zenoh_config
 from map_server.service import MapService, ServerConfig, free_endpoint
+from psrmap_common.query import wait_for_server
+from psrmap_common.session import zenoh_config
 
 
 @pytest.fixture(autouse=True)

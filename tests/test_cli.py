@@ -84,7 +84,7 @@ NOT_A_LINK = {("mission", "--zenoh-config")}
 
 
 def test_every_client_command_has_the_same_link_flags() -> None:
-    from common.link import add_link_arguments
+    from psrmap_common.link import add_link_arguments
 
     reference = argparse.ArgumentParser()
     add_link_arguments(reference)
@@ -107,9 +107,9 @@ def test_every_client_command_has_the_same_link_flags() -> None:
 def test_a_usage_error_is_shown_with_its_own_commands_usage(capsys: pytest.CaptureFixture[str]) -> None:
     """A command raises `UsageError` (no parser reach-in); the entry point finds that command's parser, nested
     ones included, and exits 2 with its usage, like argparse's own errors; the packages' `python -m` too."""
-    from common.cli_parser import command_parser
     from map_server.cli import main as map_server_main
     from psrmap.cli import main
+    from psrmap_common.cli_parser import command_parser
 
     parser = build_parser([], full=True)
     assert command_parser(parser, ["secure", "init", "d", "--map", "m"]).prog == "psrmap secure init"

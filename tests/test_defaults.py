@@ -1,15 +1,15 @@
-"""One source of truth: every entry point's defaults agree with `common.defaults` and with each other."""
+"""One source of truth: every entry point's defaults agree with `psrmap_common.defaults` and with each other."""
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
 
-from common.defaults import DEFAULT_DELTA_HZ, DEFAULT_MAP_ID, DEFAULT_RES_M, DEFAULT_SEED, DEFAULT_TILE
 from consumer_planner.cost_config import Weights
 from map_server.service import ServerConfig
 from psrmap.cli import build_parser
 from psrmap.mission.config import MissionConfig, load_config
+from psrmap_common.defaults import DEFAULT_DELTA_HZ, DEFAULT_MAP_ID, DEFAULT_RES_M, DEFAULT_SEED, DEFAULT_TILE
 from scout_agent.component import ScoutConfig
 from scout_agent.mapping import MapperConfig
 from scout_agent.run import ScoutRunConfig
@@ -40,7 +40,7 @@ def test_every_command_flag_shares_one_default() -> None:
             if action.dest in SHARED and action.default is not None:
                 assert action.default == SHARED[action.dest], (
                     f"psrmap {name} --{action.dest.replace('_', '-')} defaults to {action.default!r}, "
-                    f"common.defaults says {SHARED[action.dest]!r}"
+                    f"psrmap_common.defaults says {SHARED[action.dest]!r}"
                 )
                 checked.append((name, action.dest))
     commands_with_res = {n for n, d in checked if d == "res"}

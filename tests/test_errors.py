@@ -7,11 +7,11 @@ import argparse
 import pytest
 
 import psrmap.cli as cli
-from common.errors import SessionError
 from map_server.errors import MapServerConfigError
 from protocol.errors import ProtocolError
 from psrmap.errors import EXIT_CODES, MissionRunError, exit_code_for
 from psrmap.mission.config import MissionError
+from psrmap_common.errors import SessionError
 from scout_agent.errors import ScoutConfigError, ScoutLinkError
 
 

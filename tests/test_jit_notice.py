@@ -1,4 +1,4 @@
-"""The first-run numba compile is announced: `common.jit.uncached` names kernels whose cache holds no code."""
+"""The first-run numba compile is announced: `psrmap_common.jit.uncached` names kernels whose cache holds no code."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from common.jit import COMPILE_NOTICE
+from psrmap_common.jit import COMPILE_NOTICE
 
 
 def test_uncached_names_a_kernel_until_its_first_call_compiles_it(tmp_path: Path) -> None:
@@ -14,7 +14,7 @@ def test_uncached_names_a_kernel_until_its_first_call_compiles_it(tmp_path: Path
         "from numba import njit\n\n@njit(cache=True)\ndef twice(x):\n    return 2 * x\n"
     )
     code = (
-        "from common.jit import uncached\nimport tinykernel as k\n"
+        "from psrmap_common.jit import uncached\nimport tinykernel as k\n"
         "print(uncached([k.twice]))\nk.twice(1.0)\nprint(uncached([k.twice]))\n"
     )
     env_path = f"{tmp_path}:{':'.join(sys.path)}"
@@ -22,7 +22,7 @@ def test_uncached_names_a_kernel_until_its_first_call_compiles_it(tmp_path: Path
                          env={"PYTHONPATH": env_path, "NUMBA_CACHE_DIR": str(tmp_path / "cache")})  # fmt: skip
     assert res.stdout.splitlines() == ["['twice']", "[]"]
     # a new process finds it in the cache: nothing to announce
-    res = subprocess.run([sys.executable, "-c", "from common.jit import uncached\nimport tinykernel as k\n"
+    res = subprocess.run([sys.executable, "-c", "from psrmap_common.jit import uncached\nimport tinykernel as k\n"
                           "print(uncached([k.twice]))"], capture_output=True, text=True, check=True,
                          env={"PYTHONPATH": env_path, "NUMBA_CACHE_DIR": str(tmp_path / "cache")})  # fmt: skip
     assert res.stdout.strip() == "[]"

@@ -263,7 +263,7 @@ class Readme:
 
         with rasterio.open(self.cwd() / path) as ds:
             crs, bands = ds.crs.to_wkt(), ds.count
-        assert "Moon" in crs and "Polar_Stereographic" in crs, crs  # (its identifier: tests/interop)
+        assert "Moon" in crs and "Polar_Stereographic" in crs, crs  # (its identifier: tests/psrmap_interop)
         self.log.append(
             f"gdalinfo {path}  -> checked with rasterio: {bands} bands, Moon south polar stereographic"
         )

@@ -73,7 +73,15 @@ def _imports(packages: tuple[str, ...]) -> dict[str, set[str]]:
 def test_no_import_cycles_even_through_imports_inside_functions() -> None:
     """An import inside a function can hide a cycle; the graph here counts them. scout_agent is left out
     until its cli <-> evaluate cycle is broken (issue 27: the robot apart from the world)."""
-    packages = ("protocol", "common", "mapcore", "map_server", "consumer_planner", "interop", "psrmap")
+    packages = (
+        "protocol",
+        "psrmap_common",
+        "psrmap_mapcore",
+        "map_server",
+        "consumer_planner",
+        "psrmap_interop",
+        "psrmap",
+    )
     try:
         graphlib.TopologicalSorter(_imports(packages)).prepare()
     except graphlib.CycleError as exc:

@@ -12,7 +12,7 @@ quoted in docs/results.md) and PNG figures into its folder, with a tqdm bar over
 go to `--workers` spawn processes (default 2); every run is cached in `<out>/runs/`, so a second experiment
 needing the same walk reads it instead (`--fresh` ignores the cache).
 
-Modules: `config` (the options), `common` (a run's spec, the worker, the pool), `maps` (runs' cells merged,
+Modules: `config` (the options), `psrmap_common` (a run's spec, the worker, the pool), `maps` (runs' cells merged,
 saved for the planner, laid out densely), one module per experiment, `plots` and `report`. The simulator
 (MuJoCo, Pinocchio), the planner (numba) and matplotlib are imported inside the functions that walk, plan or
 draw, so `psrmap experiment --help` loads numpy and the map code only.
@@ -29,11 +29,11 @@ import time
 from pathlib import Path
 from typing import Any
 
-from common.cli_parser import positive_int
-from common.errors import UsageError
 from psrmap.experiments import lunar, ramps, slopes, utility
 from psrmap.experiments.common import RunPool, write_json
 from psrmap.experiments.config import ExperimentConfig, ExperimentError, from_args
+from psrmap_common.cli_parser import positive_int
+from psrmap_common.errors import UsageError
 
 __all__ = ["EXPERIMENTS", "register", "run_experiment"]
 

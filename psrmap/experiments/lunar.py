@@ -20,10 +20,10 @@ from typing import Any
 
 import numpy as np
 
-from common.cli_parser import positive_float
 from psrmap.experiments.common import MAP_RES, RunPool, RunSpec, estimation_summary, fmean, fstd, jitter_start
 from psrmap.experiments.config import ExperimentConfig
 from psrmap.experiments.maps import merged_grid, merged_local_map
+from psrmap_common.cli_parser import positive_float
 
 __all__ = [
     "PAPER_TABLE",

@@ -11,9 +11,9 @@ from pathlib import Path
 
 import numpy as np
 
-from mapcore import LayerGrid, read_npz
 from protocol.layers import layer_value
 from psrmap.experiments.common import MAP_RES
+from psrmap_mapcore import LayerGrid, read_npz
 from scout_agent.cells import LocalMap
 
 __all__ = ["FIELD_M", "dense", "merged_grid", "merged_local_map", "save_region_npz"]

@@ -24,10 +24,10 @@ from typing import Any
 
 import numpy as np
 
-from mapcore import LayerGrid
 from psrmap.experiments import lunar, maps, utility_scores
 from psrmap.experiments.common import MAP_RES, RunPool, RunSpec, jitter_start
 from psrmap.experiments.config import ExperimentConfig, ExperimentError
+from psrmap_mapcore import LayerGrid
 
 __all__ = [
     "add_arguments",

@@ -9,11 +9,11 @@ import signal
 from pathlib import Path
 from typing import Any
 
-from common.cli_parser import non_negative_int, positive_float
-from common.errors import UsageError
-from common.recording import ViewerUnavailable, use_viewer
 from psrmap.mission.config import MissionError, load_config, validate, with_scouts
 from psrmap.mission.run import run_mission
+from psrmap_common.cli_parser import non_negative_int, positive_float
+from psrmap_common.errors import UsageError
+from psrmap_common.recording import ViewerUnavailable, use_viewer
 
 __all__ = ["register"]
 

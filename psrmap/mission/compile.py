@@ -2,7 +2,7 @@
 would otherwise sit at 0 % while every scout process compiles the state estimator's kernels at once.
 
 `compile_ahead(say)` does nothing when numba's cache already holds every kernel; else it prints
-`common.jit.COMPILE_NOTICE` and runs the state estimator's and the planner's kernels once on small inputs in
+`psrmap_common.jit.COMPILE_NOTICE` and runs the state estimator's and the planner's kernels once on small inputs in
 this process (numba writes the machine code to its cache; the scouts and the planner load it)."""
 
 from __future__ import annotations
@@ -17,8 +17,8 @@ __all__ = ["compile_ahead"]
 
 def compile_ahead(say: Callable[[str], None]) -> float:
     """Compile what is not cached yet (saying so first); returns the seconds it took (0.0 when cached)."""
-    from common.jit import COMPILE_NOTICE, uncached
-    from common.pathsearch import kernels as plan_kernels
+    from psrmap_common.jit import COMPILE_NOTICE, uncached
+    from psrmap_common.pathsearch import kernels as plan_kernels
     from scout_agent.state_estimation import kernels as ekf_kernels
 
     todo = uncached(
@@ -50,7 +50,7 @@ def _run_ekf() -> None:
 
 
 def _run_search() -> None:
-    from common.pathsearch import plan_path
+    from psrmap_common.pathsearch import plan_path
 
     plan_path(np.ones((6, 6)), (0, 0), (5, 5), 0.4)  # Dial's buckets
     cost = np.ones((6, 6))

@@ -15,8 +15,8 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from common.defaults import DEFAULT_DELTA_HZ, DEFAULT_MAP_ID, DEFAULT_RES_M, DEFAULT_SEED, DEFAULT_TILE
 from psrmap.errors import PsrmapError
+from psrmap_common.defaults import DEFAULT_DELTA_HZ, DEFAULT_MAP_ID, DEFAULT_RES_M, DEFAULT_SEED, DEFAULT_TILE
 
 __all__ = [
     "DRIFT_KEYS",

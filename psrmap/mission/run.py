@@ -34,7 +34,7 @@ __all__ = ["run_mission"]
 
 
 def _status(session: Any, map_id: str, timeout: float = 2.0, trust: Any = ()) -> Any | None:
-    from common.query import get_status
+    from psrmap_common.query import get_status
 
     return get_status(session, map_id, timeout, trust)
 
@@ -42,9 +42,9 @@ def _status(session: Any, map_id: str, timeout: float = 2.0, trust: Any = ()) ->
 def _wait_for_servers(
     session: Any, map_id: str, procs: Sequence[Proc], deadline: float, shards: int = 1, trust: Any = ()
 ) -> None:
-    """Until every shard's server answers (common.query.wait_for_server); MissionRunError if one died first or
+    """Until every shard's server answers (psrmap_common.query.wait_for_server); MissionRunError if one died first or
     the deadline passed."""
-    from common.query import wait_for_server
+    from psrmap_common.query import wait_for_server
 
     def alive() -> None:
         for p in procs:
@@ -62,9 +62,9 @@ def run_mission(cfg: MissionConfig, run_dir: Path | None = None, progress: bool 
     """Run the mission, return its summary (also written to `<run_dir>/summary.json`)."""
     import zenoh
 
-    from common.session import zenoh_config
     from map_server.component import run as run_server
     from map_server.service import ServerConfig
+    from psrmap_common.session import zenoh_config
     from scout_agent.component import run as run_scout_component
 
     validate(cfg)
@@ -102,11 +102,11 @@ def run_mission(cfg: MissionConfig, run_dir: Path | None = None, progress: bool 
         )
         creds = {name: str(path) for name, path in lay.agents.items()}
         router_file = lay.router
-    from common.trust import load_trust
+    from psrmap_common.trust import load_trust
 
     trust = load_trust(
         None, router_file
-    )  # with credentials: believe only the attested servers (common.trust)
+    )  # with credentials: believe only the attested servers (psrmap_common.trust)
     with zenoh.open(zenoh_config(listen=[endpoint], mode="router", config_file=router_file)) as session:
         say(
             f"[mission] router listening on {endpoint}"

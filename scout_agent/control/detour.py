@@ -3,7 +3,7 @@
 A cost grid of `res` cells over the field (`bounds`, the mission area) costs 1 per metre everywhere; cells
 within `hazard_radius_m` of a hazard the scout felt (its own reports, and any in a known map's `hazard`
 layer) are impassable; cells of a known map whose slip rate is above `slip_rate_avoid` cost
-`slip_penalty` more per metre. The search is the planner's own (`common.pathsearch.plan_path`, exact
+`slip_penalty` more per metre. The search is the planner's own (`psrmap_common.pathsearch.plan_path`, exact
 8-connected Dijkstra). The cell path becomes waypoints by keeping only the cells where a straight walk to
 the next kept one would cross a dearer or forbidden cell (line of sight on the grid).
 
@@ -22,8 +22,8 @@ from dataclasses import dataclass
 import numpy as np
 from skimage.draw import line
 
-from common.pathsearch import nearest_passable, plan_path
-from mapcore import LayerGrid
+from psrmap_common.pathsearch import nearest_passable, plan_path
+from psrmap_mapcore import LayerGrid
 
 __all__ = ["DetourConfig", "plan_detour"]
 

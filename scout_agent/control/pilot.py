@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from mapcore import LayerGrid
+from psrmap_mapcore import LayerGrid
 from scout_agent.control.adaptation import GaitAdaptation, GaitAdaptationConfig, GaitSetting
 from scout_agent.control.controller import RobotState, TrotController
 from scout_agent.control.detour import DetourConfig, plan_detour

@@ -1,6 +1,6 @@
 """`SharedMapSource`: the shared map around the scout as a `GridReference`, followed live.
 
-The scout follows the map through the servers' tile-change notices (`common.region.RegionFollower` on its
+The scout follows the map through the servers' tile-change notices (`psrmap_common.region.RegionFollower` on its
 field): it queries the elevation statistics of the box it needs again only when a notice (or a status resync)
 says that part of the map changed, or when it needs a box outside the one it holds. Its own contribution is
 taken out, cell by cell, before matching: the elevation statistics are sums, so the other scouts' part is the
@@ -15,10 +15,10 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from common.errors import QueryError
-from common.region import RegionFollower, fetch_region
-from common.trust import Trust
-from mapcore import LayerGrid
+from psrmap_common.errors import QueryError
+from psrmap_common.region import RegionFollower, fetch_region
+from psrmap_common.trust import Trust
+from psrmap_mapcore import LayerGrid
 from scout_agent.cells import LocalMap
 
 from .reference import GridReference, map_reference

@@ -189,10 +189,10 @@ def orbital_dem(terrain, cfg: OrbitalDemConfig = OrbitalDemConfig()) -> DemGrid:
 
 
 def write_orbital_dem(terrain, path: str | Path, cfg: OrbitalDemConfig = OrbitalDemConfig()) -> DemGrid:
-    """`orbital_dem` written as a one-band GeoTIFF in the scene's local frame (interop.geotiff: the map's
+    """`orbital_dem` written as a one-band GeoTIFF in the scene's local frame (psrmap_interop.geotiff: the map's
     elevation band, NaN nodata, the noise and bias it was made with as tags); the same file `read_dem_grid`
     (and `--dem`) reads."""
-    from interop.geotiff import write_geotiff
+    from psrmap_interop.geotiff import write_geotiff
 
     g = orbital_dem(terrain, cfg)
     h = g.pixel_m / 2

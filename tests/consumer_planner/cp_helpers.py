@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 
-from mapcore import LayerGrid
+from psrmap_mapcore import LayerGrid
 
 
 def make_grid(shape, res=0.5, *, ix0=0, iy0=0, known=None, cot=1.0, slip=0.0, giim=0.6, giam=0.9, n=20.0):

@@ -25,7 +25,7 @@ from consumer_planner.costs import (
     Weights,
     build_costs,
 )
-from mapcore import LayerGrid
+from psrmap_mapcore import LayerGrid
 
 # --- the reference ------------------------------------------------------------------------------
 

@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 import zenoh
 
-from common.session import zenoh_config
 from consumer_planner.client import ClientConfig, MapClient
 from consumer_planner.errors import PlannerError
 from protocol.codec import encode
 from protocol.keys import map_key
 from protocol.messages import MapRegion
+from psrmap_common.session import zenoh_config
 
 
 def _free_port() -> int:

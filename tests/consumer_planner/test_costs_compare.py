@@ -10,8 +10,8 @@ from cp_helpers import make_grid, path_cost, reference_dijkstra
 from consumer_planner.compare import cell_weights, evaluate_route, plan_route
 from consumer_planner.costs import CostConfig, Limits, Weights, build_costs, parse_weights
 from consumer_planner.errors import PlannerError
-from mapcore import MapFileError, read_npz, stitch
 from protocol.messages import MapRegion
+from psrmap_mapcore import MapFileError, read_npz, stitch
 
 
 def test_cost_is_weighted_sum_of_terms():

@@ -6,8 +6,8 @@ from cp_helpers import path_cost, reference_dijkstra
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from common.pathsearch import PathSearchError
-from common.pathsearch.search import plan_path
+from psrmap_common.pathsearch import PathSearchError
+from psrmap_common.pathsearch.search import plan_path
 
 
 def _random_costs(seed, h, w, blocked, low=0.5):
@@ -100,7 +100,7 @@ def test_wide_cost_range_matches_reference():
 
 
 def test_a_goal_on_an_impassable_cell_moves_to_the_nearest_passable_one_within_tolerance():
-    from common.pathsearch.search import nearest_passable
+    from psrmap_common.pathsearch.search import nearest_passable
 
     cost = np.ones((9, 9))
     cost[3:6, 3:6] = np.inf  # a robot fell here: the map forbids these cells

@@ -9,18 +9,18 @@ import numpy as np
 import pytest
 import zenoh
 
-from common.query import get_status
-from common.session import zenoh_config
 from consumer_planner.component import CompareConfig, MapSource, PlanConfig, compare, plan
 from map_server.component import ServerSummary
 from map_server.component import run as run_server
 from map_server.errors import MapServerConfigError
 from map_server.service import ServerConfig
-from mapcore import TiledMap, write_npz
 from protocol import encode
 from protocol.keys import delta_key
 from protocol.messages import CellDelta
 from protocol.testing import layer_cells
+from psrmap_common.query import get_status
+from psrmap_common.session import zenoh_config
+from psrmap_mapcore import TiledMap, write_npz
 
 
 def test_server_component_serves_until_stopped_and_reports_typed_totals(router, tmp_path):

@@ -15,14 +15,14 @@ from pathlib import Path
 import numpy as np
 import zenoh
 
-from common.query import wait_for_server
-from common.session import zenoh_config
 from map_server.service import free_endpoint
-from mapcore import TiledMap
 from protocol import decode, encode
 from protocol.keys import delta_key, map_key, status_key
 from protocol.messages import CellDelta, MapRegion, RegionQuery, Status
 from protocol.testing import layer_cells
+from psrmap_common.query import wait_for_server
+from psrmap_common.session import zenoh_config
+from psrmap_mapcore import TiledMap
 from scout_agent.delivery import DeltaPublisher
 from scout_agent.publisher import ScoutLink, ZenohTransport
 

@@ -75,7 +75,7 @@ def test_server_totals_equal_sum_of_scouts(mission: tuple[dict, Path]) -> None:
     _, run_dir = mission
     from map_server.merge import Merger
     from map_server.store import MapStore  # reopen the persisted map exactly as a new server would
-    from mapcore import TiledMap
+    from psrmap_mapcore import TiledMap
 
     cfg = load_config()
     tiled = TiledMap(cfg.res, 64)
@@ -204,8 +204,8 @@ def test_every_blueprint_entity_has_data_on_sim_time(mission: tuple[dict, Path])
     """The default view (timeline sim_time) shows scouts, map, plans together: every entity the default
     blueprint shows has data on sim_time (or static data, shown on every timeline), and every view's
     contents match entities of the recording."""
-    from common.recording import TIMELINE
     from psrmap.viz import default_blueprint
+    from psrmap_common.recording import TIMELINE
 
     summary, _ = mission
     timelines, static = _recording_index(Path(summary["recording"]))
@@ -291,8 +291,8 @@ def test_a_mission_on_a_sharded_map(tmp_path: Path) -> None:
     hold exactly the scouts' own maps."""
     from map_server.merge import Merger
     from map_server.store import MapStore
-    from mapcore import TiledMap
     from protocol.partition import Partition
+    from psrmap_mapcore import TiledMap
 
     # 4-cell (1.6 m) tiles: the scouts' first metres cross several, so both shards get cells (at the default
     # 64 cells, 25.6 m, the whole 20 m field is one tile and one shard would hold everything)

@@ -9,9 +9,9 @@ import math
 import numpy as np
 import pytest
 
-from mapcore import LayerGrid
 from psrmap.agreement import cross_scout_rms, map_elevation_rmse
 from psrmap.mission.config import load_config, route_seconds
+from psrmap_mapcore import LayerGrid
 from scout_agent.sim.terrain import Terrain
 
 

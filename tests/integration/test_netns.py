@@ -23,9 +23,9 @@ import pytest
 from test_map_service import wait_line
 from test_shards import TILE, walk
 
-from mapcore import TiledMap, read_npz
 from protocol.partition import Partition
 from protocol.testing import RES
+from psrmap_mapcore import TiledMap, read_npz
 
 ROOT = Path(__file__).resolve().parents[2]
 MAP = "netmap"

@@ -2,7 +2,7 @@
 - refused by the router: a deployment from `psrmap secure init` (role ACL per message kind and direction), seen
   from a session that applies no trust of its own;
 - ignored by the clients: an open router (no ACL, so the attack goes through on the wire) and clients whose
-  `servers.json` asks them to believe attested servers only (common.trust), each saying what it ignored.
+  `servers.json` asks them to believe attested servers only (psrmap_common.trust), each saying what it ignored.
 Real router, loopback, free ports."""
 
 from __future__ import annotations
@@ -18,9 +18,6 @@ import numpy as np
 import pytest
 import zenoh
 
-from common.query import get_partition, get_replies, get_statuses, wait_for_server
-from common.session import zenoh_config
-from common.trust import Trust
 from consumer_planner.client import ClientConfig, RegionWatch, query_region
 from map_server.service import MapService, ServerConfig, free_endpoint
 from protocol import encode
@@ -39,6 +36,9 @@ from protocol.messages import RegionQuery, Status, TileChanges
 from protocol.partition import Partition
 from protocol.testing import MAP, RES, make_delta
 from psrmap.secure import secure_init
+from psrmap_common.query import get_partition, get_replies, get_statuses, wait_for_server
+from psrmap_common.session import zenoh_config
+from psrmap_common.trust import Trust
 from scout_agent.publisher import ScoutPublisher
 
 FAKE_VERSION = 10**12
@@ -164,7 +164,7 @@ def test_clients_ignore_an_impostor_queryable_and_say_so(open_router, caplog):
             p2, map_key(MAP), str(imp.info.zid())
         )
         assert FAKE_VERSION in [s.version for s in get_statuses(p2, MAP, 3.0)]  # without trust: fooled
-        with caplog.at_level(logging.WARNING, logger="common.trust"):
+        with caplog.at_level(logging.WARNING, logger="psrmap_common.trust"):
             sts = get_statuses(p2, MAP, 3.0, ATTESTED)
         assert [s.version for s in sts] == [service.status().version]
         assert f"ignored a reply on {status_key(MAP)!r} from Zenoh id {imp.info.zid()}" in caplog.text
@@ -218,7 +218,7 @@ def test_a_scout_ignores_partition_replies_of_others(open_router, caplog):
         assert _heard(c, partition_key(MAP), str(imp.info.zid()))
         with pytest.raises(Exception, match="different partitions"):  # without trust: the fleet cannot start
             get_partition(c, MAP, 3.0)
-        with caplog.at_level(logging.WARNING, logger="common.trust"):
+        with caplog.at_level(logging.WARNING, logger="psrmap_common.trust"):
             with ScoutPublisher(MAP, "s1", RES, [ep], outbox=None, zenoh_config_file=str(conf)) as pub:
                 assert pub.partition == Partition()
         assert f"ignored a reply on {partition_key(MAP)!r} from Zenoh id {imp.info.zid()}" in caplog.text
@@ -275,7 +275,7 @@ def test_a_watch_ignores_notices_from_others(open_router, caplog):
     ep, conf, service = open_router
     with _plain(ep) as imp, _plain(ep) as c, RegionWatch(c, MAP, RES, (0, 0, 1, 1), ATTESTED) as watch:
         pub = imp.declare_publisher(changes_key(MAP))
-        with caplog.at_level(logging.WARNING, logger="common.trust"):
+        with caplog.at_level(logging.WARNING, logger="psrmap_common.trust"):
             imp.put(changes_key(MAP), _fake_notice())  # no sender id
             pub.put(_fake_notice(), source_info=zenoh.SourceInfo(pub.id, 1))  # its own id
             assert _wait(lambda: watch.ignored == 2)
@@ -395,7 +395,7 @@ def test_clients_do_not_believe_a_stopped_servers_id(tmp_path, caplog):
             assert FAKE_VERSION in [
                 s.version for s in get_statuses(c, MAP, 3.0, (old,))
             ]  # a pinned id: fooled
-            with caplog.at_level(logging.WARNING, logger="common.trust"):
+            with caplog.at_level(logging.WARNING, logger="psrmap_common.trust"):
                 sts = get_statuses(c, MAP, 3.0, ATTESTED)
             assert [s.version for s in sts] == [service.status().version]
             assert f"from Zenoh id {old}" in caplog.text

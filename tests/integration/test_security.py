@@ -12,9 +12,6 @@ import numpy as np
 import pytest
 import zenoh
 
-from common.query import wait_for_server
-from common.session import zenoh_config
-from common.trust import Trust, load_trust
 from consumer_planner.client import ClientConfig, query_region
 from consumer_planner.errors import PlannerError
 from map_server.service import MapService, ServerConfig, free_endpoint
@@ -23,6 +20,9 @@ from protocol.keys import ack_key, delta_key, map_key
 from protocol.messages import Ack, RegionQuery
 from protocol.testing import MAP, RES, make_delta
 from psrmap.secure import secure_init
+from psrmap_common.query import wait_for_server
+from psrmap_common.session import zenoh_config
+from psrmap_common.trust import Trust, load_trust
 from scout_agent.publisher import ScoutPublisher
 
 
@@ -182,9 +182,9 @@ def test_mutual_tls_admits_only_clients_with_a_certificate_from_the_ca(tmp_path)
 def test_a_sharded_map_works_under_the_acl(tmp_path):
     """Two shard servers with their own identities; a scout discovers the partition, writes each shard its own
     part on its own keys and gets acks; a planner reads the stitched map and the tile changes."""
-    from common.query import get_status
     from consumer_planner.client import RegionWatch
     from protocol.partition import Partition
+    from psrmap_common.query import get_status
 
     ep = free_endpoint()
     lay = secure_init(tmp_path / "sec", MAP, ["s1"], ["p1"], servers=["m0", "m1"], endpoint=ep)
@@ -218,8 +218,8 @@ def test_robot_routers_mesh_to_the_base_with_their_own_credentials(tmp_path):
     shards and is acked; the planner on the rover's router reads the map; an anonymous client on a robot router
     is refused; the robot router's link may carry only what its own agents may (the base refuses a delta of
     s2 coming through s1's router), and a robot router's password is not an agent's."""
-    from common.query import get_status
     from protocol.partition import Partition
+    from psrmap_common.query import get_status
 
     base_ep, s1_ep, rover_ep = free_endpoint(), free_endpoint(), free_endpoint()
     lay = secure_init(tmp_path / "sec", MAP, ["s1", "s2"], ["p1"], servers=["m0", "m1"], endpoint=base_ep,

@@ -14,17 +14,17 @@ import pytest
 import zenoh
 from test_map_service import spawn, wait_line
 
-from common.query import aggregate_status, get_partition, get_status, get_statuses, wait_for_server
-from common.session import zenoh_config
 from consumer_planner.client import ClientConfig, RegionWatch, query_region
 from map_server.merge import Merger
 from map_server.service import MapService, ServerConfig, free_endpoint
-from mapcore import TiledMap
 from protocol import encode
 from protocol.keys import delta_key
 from protocol.messages import CellDelta
 from protocol.partition import Partition
 from protocol.testing import MAP, RES, layer_cells, make_delta
+from psrmap_common.query import aggregate_status, get_partition, get_status, get_statuses, wait_for_server
+from psrmap_common.session import zenoh_config
+from psrmap_mapcore import TiledMap
 from scout_agent.publisher import ScoutPublisher
 
 TILE = 8  # small tiles: a few metres of walk cross many, so both shards get cells

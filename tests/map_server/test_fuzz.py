@@ -31,10 +31,10 @@ def test_a_truncated_message_on_the_fast_path_is_rejected_not_a_crash():
     """Found by the fuzzer: a delta cut inside its `t` field made the batch decoder's learnt-header path raise
     struct.error, which stopped the merge worker."""
     from map_server.merge import Merger
-    from mapcore import TiledMap
     from protocol import encode
     from protocol.keys import delta_key
     from protocol.testing import MAP, RES, make_delta
+    from psrmap_mapcore import TiledMap
 
     m = Merger(TiledMap(RES), MAP)
     key = delta_key(MAP, "s1")
@@ -74,10 +74,10 @@ def test_hypothesis_arbitrary_msgpack_and_field_swaps_never_crash_the_merge():
     from hypothesis import strategies as st
 
     from map_server.merge import Merger
-    from mapcore import TiledMap
     from protocol import encode
     from protocol.keys import delta_key
     from protocol.testing import MAP, RES, make_delta
+    from psrmap_mapcore import TiledMap
 
     valid = msgpack.unpackb(encode(make_delta(seq=0, scout="s1")), raw=False)
     fields = sorted(valid)

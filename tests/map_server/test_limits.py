@@ -12,7 +12,6 @@ from map_server.limits import Limits, default_tile_budget_mib, tile_bytes
 from map_server.merge import Merger
 from map_server.service import MapService, ServerConfig
 from map_server.store import MapStore
-from mapcore import TiledMap
 from protocol import decode, encode
 from protocol.consistency import MAX_STAT, bad_cells
 from protocol.errors import ProtocolError
@@ -20,6 +19,7 @@ from protocol.keys import delta_key, map_key
 from protocol.layers import LAYERS
 from protocol.messages import CellDelta, RegionQuery
 from protocol.testing import MAP, RES, layer_cells, make_delta
+from psrmap_mapcore import TiledMap
 from scout_agent.estimators.elevation import plane_moments
 
 
@@ -216,8 +216,8 @@ def test_default_budget_is_sized_for_the_machine_and_bounds_a_memory_only_map():
 def test_a_full_query_budget_answers_busy_and_deltas_are_still_merged(router, tmp_path):
     import zenoh
 
-    from common.query import wait_for_server
-    from common.session import zenoh_config
+    from psrmap_common.query import wait_for_server
+    from psrmap_common.session import zenoh_config
 
     cfg = ServerConfig(
         map_id=MAP, res=RES, db=str(tmp_path / "q.db"), connect=(router,), max_queries_in_flight=2
@@ -270,8 +270,8 @@ def test_psrmap_query_refuses_a_reply_far_outside_its_box_without_allocating_it(
     import psutil
     import zenoh
 
-    from common.session import zenoh_config
     from psrmap.cli import main
+    from psrmap_common.session import zenoh_config
 
     with zenoh.open(zenoh_config(connect=[router], mode="client")) as fake:
         replies = [_fake_region(0, 0), _fake_region(*far)]
@@ -291,8 +291,8 @@ def test_psrmap_query_refuses_a_reply_far_outside_its_box_without_allocating_it(
 
 
 def test_stitch_refuses_a_union_box_over_the_client_limit():
-    from mapcore import MapCoreError, stitch
     from protocol.messages import MapRegion
+    from psrmap_mapcore import MapCoreError, stitch
 
     a, b = (decode(_fake_region(x, 0)) for x in (0, 5000))
     assert isinstance(a, MapRegion) and isinstance(b, MapRegion)

@@ -7,12 +7,12 @@ from hypothesis import strategies as st
 
 from map_server.limits import Limits
 from map_server.merge import Merger
-from mapcore import TiledMap
 from protocol import encode
 from protocol.keys import delta_key
 from protocol.messages import CellDelta
 from protocol.partition import Partition
 from protocol.testing import DELTA_REASONS, MAP, RES, SCOUT, broken, layer_cells, make_delta
+from psrmap_mapcore import TiledMap
 
 
 def merger(

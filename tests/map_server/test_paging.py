@@ -7,13 +7,13 @@ import numpy as np
 import pytest
 import zenoh
 
-from common.query import wait_for_server
-from common.session import zenoh_config
 from map_server.errors import MapServerConfigError
 from map_server.service import MapService, ServerConfig
-from mapcore import TiledMap
 from protocol.messages import RegionQuery
 from protocol.testing import MAP, RES, make_delta
+from psrmap_common.query import wait_for_server
+from psrmap_common.session import zenoh_config
+from psrmap_mapcore import TiledMap
 from scout_agent.delivery import DeltaPublisher
 from scout_agent.publisher import ScoutLink, ZenohTransport
 

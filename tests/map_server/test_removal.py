@@ -12,11 +12,11 @@ import pytest
 from map_server.merge import Merger
 from map_server.removal import RemovalError, hold_lock, remove_contributions
 from map_server.store import MapStore
-from mapcore import TiledMap
 from protocol import encode
 from protocol.keys import delta_key
 from protocol.messages import CellDelta
 from protocol.testing import MAP, RES, make_delta
+from psrmap_mapcore import TiledMap
 
 TILE = 8
 LAYERS3 = ("elevation", "slip", "giim")

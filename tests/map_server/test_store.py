@@ -6,10 +6,10 @@ import pytest
 
 from map_server.merge import Merger
 from map_server.store import MapStore
-from mapcore import TiledMap
 from protocol import encode
 from protocol.keys import delta_key
 from protocol.testing import MAP, RES, SCOUT, broken, make_delta
+from psrmap_mapcore import TiledMap
 
 
 def open_map(path, keep_deltas=True):

@@ -10,11 +10,11 @@ import pytest
 
 from map_server.merge import Merger
 from map_server.store import MapStore
-from mapcore import TiledMap
 from protocol import decode, encode
 from protocol.keys import delta_key, status_key
 from protocol.messages import Ack, Status
 from protocol.testing import MAP, RES, SCOUT, make_delta
+from psrmap_mapcore import TiledMap
 from scout_agent.delivery import DeltaPublisher, InMemoryTransport
 from scout_agent.publisher import ScoutLink, ZenohTransport
 

@@ -3,8 +3,8 @@ from __future__ import annotations
 import threading
 
 from map_server.viz import MapViz
-from mapcore import TiledMap
 from protocol.testing import layer_cells
+from psrmap_mapcore import TiledMap
 
 
 def test_logs_only_touched_tiles(tmp_path):

@@ -71,7 +71,7 @@ def test_the_contract_imports_no_transport_and_no_service():
         "import importlib, sys\n"
         f"for n in {names!r}: importlib.import_module(n)\n"
         "bad = sorted(m for m in sys.modules if m.split('.')[0] in "
-        "('zenoh', 'rerun', 'common', 'scout_agent', 'map_server', 'consumer_planner', 'psrmap', 'interop'))\n"
+        "('zenoh', 'rerun', 'psrmap_common', 'scout_agent', 'map_server', 'consumer_planner', 'psrmap', 'psrmap_interop'))\n"
         "print(','.join(bad))\n"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)

@@ -7,9 +7,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mapcore import read_npz
 from protocol.codec import decode
 from protocol.layers import LAYERS, layer_value
+from psrmap_mapcore import read_npz
 from scout_agent.cells import CellAccumulator, LocalMap
 from scout_agent.delivery import DeltaPublisher, InMemoryTransport
 
@@ -111,7 +111,7 @@ def test_save_npz_has_the_map_region_layout(tmp_path):
 @given(seed=st.integers(0, 10_000))
 def test_local_map_equals_what_a_server_merges_from_the_same_deltas(seed):
     """The deltas go through the wire codec into map_server's TiledMap; the local map sees the same dicts."""
-    from mapcore import TiledMap
+    from psrmap_mapcore import TiledMap
 
     rng = np.random.default_rng(seed)
     deltas = _random_deltas(rng, n_deltas=4)

@@ -10,9 +10,9 @@ import signal
 import numpy as np
 import pytest
 
-from common.query import wait_for_server
 from map_server.service import MapService, ServerConfig
 from protocol.testing import MAP, RES, make_delta
+from psrmap_common.query import wait_for_server
 from scout_agent.delivery import DeltaPublisher, InMemoryTransport
 from scout_agent.outbox import SQLiteOutbox
 
@@ -75,7 +75,7 @@ def test_kill_9_with_the_server_down_then_resume_loses_nothing(router, tmp_path)
     with MapService(cfg) as service:
         import zenoh
 
-        from common.session import zenoh_config
+        from psrmap_common.session import zenoh_config
 
         with zenoh.open(zenoh_config(connect=[router], mode="client")) as client:
             assert wait_for_server(client, MAP)

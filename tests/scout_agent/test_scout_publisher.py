@@ -117,7 +117,7 @@ def test_scout_command_publishes_while_walking(server, router, tmp_path, capsys)
     assert code == 0
     summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert summary["map"]["all_acked"] and summary["map"]["saved"] == str(out)
-    from mapcore import read_npz
+    from psrmap_mapcore import read_npz
 
     grid = read_npz(out)
     header, layers = {"ix0": grid.ix0, "iy0": grid.iy0, "w": grid.w, "h": grid.h}, grid.layers

@@ -24,7 +24,7 @@ from urllib.parse import urlsplit
 
 import numpy as np
 
-from common.errors import ViewerUnavailable
+from psrmap_common.errors import ViewerUnavailable
 
 __all__ = [
     "APP_ID",

@@ -13,10 +13,10 @@ It imports `protocol` (the layer table) and numpy, nothing else of psrmap and no
 
 from __future__ import annotations
 
-from mapcore.dense import MAX_CLIENT_CELLS, LayerGrid, check_replies, stitch
-from mapcore.errors import MapCoreError, MapFileError, MapRequestError
-from mapcore.npz import read_npz, write_npz
-from mapcore.tiled import TiledMap
+from psrmap_mapcore.dense import MAX_CLIENT_CELLS, LayerGrid, check_replies, stitch
+from psrmap_mapcore.errors import MapCoreError, MapFileError, MapRequestError
+from psrmap_mapcore.npz import read_npz, write_npz
+from psrmap_mapcore.tiled import TiledMap
 
 __all__ = [
     "LayerGrid",

@@ -2,7 +2,7 @@
 
 `add_link_arguments` puts them on a command's parser (the same names, types, defaults and help in every
 command: `tests/test_cli.py` checks it), `link_from_args` turns them into a `Link`: the endpoints given (each
-checked by `common.session.endpoint_arg`, commas allowed), else the router the `--zenoh-config` file names
+checked by `psrmap_common.session.endpoint_arg`, commas allowed), else the router the `--zenoh-config` file names
 (`psrmap secure init` writes it into every agent's file), else — when the command needs one — a `UsageError`
 saying what to give.
 """
@@ -14,8 +14,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from common.errors import UsageError
-from common.session import endpoint_arg, file_endpoints
+from psrmap_common.errors import UsageError
+from psrmap_common.session import endpoint_arg, file_endpoints
 
 __all__ = [
     "CONNECT_HELP",
@@ -81,8 +81,8 @@ def link_from_args(args: argparse.Namespace, required: bool = True) -> Link:
 def open_link(link: Link, mode: str = "client", listen: Sequence[str] = (), insecure: bool = False) -> Any:
     """A Zenoh session on `link` (`mode` unless its config file names one), or a `UsageError` naming what would
     have worked: an unreadable config, an open listen without credentials, nothing listening at the endpoints."""
-    from common.errors import SessionError
-    from common.session import open_session, zenoh_config
+    from psrmap_common.errors import SessionError
+    from psrmap_common.session import open_session, zenoh_config
 
     try:
         conf = zenoh_config(

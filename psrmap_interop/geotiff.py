@@ -27,8 +27,8 @@ from pathlib import Path
 
 import numpy as np
 
-from interop.errors import InteropError
 from protocol.layers import LAYERS
+from psrmap_interop.errors import InteropError
 
 __all__ = ["MOON_GEOGRAPHIC", "MOON_SOUTH_POLAR", "MoonOrigin", "map_affine", "pam_path", "write_geotiff"]
 

@@ -53,7 +53,7 @@ class Parser(argparse.ArgumentParser):
 
 def command_parser(parser: argparse.ArgumentParser, argv: Sequence[str]) -> argparse.ArgumentParser:
     """The (sub)parser of the command `argv` names (`psrmap secure init ...` -> the `init` parser): the one whose
-    usage a `common.errors.UsageError` of that command is shown with."""
+    usage a `psrmap_common.errors.UsageError` of that command is shown with."""
     words = iter(a for a in argv if not a.startswith("-"))
     while True:
         sub = next((a for a in parser._actions if isinstance(a, argparse._SubParsersAction)), None)
@@ -79,7 +79,7 @@ def run_command(parser: argparse.ArgumentParser, argv: Sequence[str] | None = No
     `UsageError` (the component packages' own `python -m ...` entry points; `psrmap` adds its error table)."""
     import sys
 
-    from common.errors import UsageError
+    from psrmap_common.errors import UsageError
 
     args = parser.parse_args(argv)
     try:

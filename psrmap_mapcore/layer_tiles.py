@@ -12,8 +12,8 @@ from collections.abc import Iterator, Mapping, Sequence
 
 import numpy as np
 
-from mapcore.memory import reserve_float64
 from protocol.layers import Layer, empty_value, merge_op
+from psrmap_mapcore.memory import reserve_float64
 
 __all__ = ["RESERVE_TILES", "LayerTiles", "TileKey"]
 

@@ -204,8 +204,8 @@ def test_query_out_writes_geotiff_and_mcap(router, served_map, tmp_path, capsys)
     import rasterio
     from rosbags.rosbag2 import Reader
 
-    from interop.ros2_messages import grid_map_layers, typestore
     from psrmap.cli import main
+    from psrmap_interop.ros2_messages import grid_map_layers, typestore
 
     map_id = "qmap"
     with served_map(map_id, 0.4) as (_, client):

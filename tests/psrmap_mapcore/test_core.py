@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mapcore import LayerGrid, MapFileError, TiledMap, read_npz, write_npz
 from protocol.layers import LAYERS, merge_op
 from protocol.testing import layer_cells
+from psrmap_mapcore import LayerGrid, MapFileError, TiledMap, read_npz, write_npz
 
 ROOT = Path(__file__).resolve().parents[2]
 SERVICES = ("scout_agent", "map_server", "consumer_planner")
@@ -38,17 +38,17 @@ def test_services_import_protocol_and_the_map_core_never_each_other():
 
 
 def test_the_shared_path_search_imports_no_service():
-    allowed = {"common", "numpy", "numba", "skimage", "__future__", "dataclasses", "typing", "math"}
-    mods = _imports("common/pathsearch")
-    assert "common/pathsearch/search.py" in mods
+    allowed = {"psrmap_common", "numpy", "numba", "skimage", "__future__", "dataclasses", "typing", "math"}
+    mods = _imports("psrmap_common/pathsearch")
+    assert "psrmap_common/pathsearch/search.py" in mods
     for module, tops in mods.items():
         assert tops <= allowed, f"{module} imports {sorted(tops - allowed)}"
 
 
 def test_the_map_core_is_pure_numpy_on_the_contract():
-    allowed = {"mapcore", "protocol", "numpy", "__future__", "collections", "dataclasses", "typing",
+    allowed = {"psrmap_mapcore", "protocol", "numpy", "__future__", "collections", "dataclasses", "typing",
                "pathlib", "mmap", "itertools", "math"}  # fmt: skip
-    for module, tops in _imports("mapcore").items():
+    for module, tops in _imports("psrmap_mapcore").items():
         assert tops <= allowed, f"{module} imports {sorted(tops - allowed)}"
 
 

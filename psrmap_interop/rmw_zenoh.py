@@ -2,7 +2,7 @@
 
 What a ROS 2 node on rmw_zenoh (RViz, `ros2 topic echo`) needs to see a topic:
 - samples on `<domain>/<topic without leading slash>/<DDS type name>/<RIHS01 type hash>`
-  (`topic_key`), payload CDR little endian with its encapsulation header (`interop.ros2_messages.serialize`);
+  (`topic_key`), payload CDR little endian with its encapsulation header (`psrmap_interop.ros2_messages.serialize`);
 - an attachment on every sample, in zenoh-ext serialisation (`attachment`): sequence number (int64), source
   timestamp [ns] (int64), the publisher's 16-byte GID as a *sequence* (rmw_zenoh serialises a
   `std::array<uint8_t, 16>`, which zenoh-cpp writes as a LEB128 length, 0x10, then the bytes, and reads back
@@ -26,8 +26,8 @@ import xxhash
 import zenoh
 import zenoh.ext as zext
 
-from interop.errors import InteropError
-from interop.ros2_messages import dds_type_name, serialize, type_hash
+from psrmap_interop.errors import InteropError
+from psrmap_interop.ros2_messages import dds_type_name, serialize, type_hash
 
 __all__ = [
     "Qos",

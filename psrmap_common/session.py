@@ -11,7 +11,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from common.errors import InsecureListen, SessionError
+from psrmap_common.errors import InsecureListen, SessionError
 
 __all__ = [
     "MODES",

@@ -15,10 +15,10 @@ from collections.abc import Iterable, Mapping, Sequence
 
 import numpy as np
 
-from mapcore.dense import LayerGrid
-from mapcore.errors import MapRequestError
-from mapcore.layer_tiles import LayerTiles, TileKey
 from protocol.layers import LAYERS, derived_names, get_layer, layer_derived, merge_op, pack_pair, unpack_pair
+from psrmap_mapcore.dense import LayerGrid
+from psrmap_mapcore.errors import MapRequestError
+from psrmap_mapcore.layer_tiles import LayerTiles, TileKey
 
 __all__ = ["TiledMap"]
 

@@ -27,8 +27,8 @@ from typing import Literal
 
 import numpy as np
 
-from common.pathsearch import kernels
-from common.pathsearch.errors import PathSearchError
+from psrmap_common.pathsearch import kernels
+from psrmap_common.pathsearch.errors import PathSearchError
 
 __all__ = ["GridPath", "METHODS", "Method", "nearest_passable", "plan_path", "step_lengths"]
 

@@ -1,4 +1,4 @@
-"""The one root exception of `interop`: a map, option or message that cannot be written in a field format."""
+"""The one root exception of `psrmap_interop`: a map, option or message that cannot be written in a field format."""
 
 from __future__ import annotations
 

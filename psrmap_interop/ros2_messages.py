@@ -2,7 +2,7 @@
 `nav_msgs/msg/Path`.
 
 Definitions, CDR serialisation and RIHS01 type hashes come from `rosbags` (its ROS 2 Jazzy type store for the
-standard messages; grid_map_msgs from the `.msg` files shipped in `interop/msg/`), not hand-written encoders.
+standard messages; grid_map_msgs from the `.msg` files shipped in `psrmap_interop/msg/`), not hand-written encoders.
 
 Index conventions (what RViz and grid_map expect):
 - GridMap: `info.pose` is the map's centre; cell (i, j) of a layer lies at x = centre_x + length_x/2 − (i + ½)·res,
@@ -35,7 +35,7 @@ def typestore():  # -> rosbags Typestore
 
     store = get_typestore(Stores.ROS2_JAZZY)
     types = {}
-    pkg = resources.files("interop") / "msg" / "grid_map_msgs" / "msg"
+    pkg = resources.files("psrmap_interop") / "msg" / "grid_map_msgs" / "msg"
     for name in ("GridMapInfo", "GridMap"):
         types.update(get_types_from_msg((pkg / f"{name}.msg").read_text(), f"grid_map_msgs/msg/{name}"))
     store.register(types)

@@ -6,7 +6,7 @@ __all__ = ["CommonError", "InsecureListen", "QueryError", "SessionError", "Usage
 
 
 class CommonError(Exception):
-    """Root of every error `common` raises on purpose."""
+    """Root of every error `psrmap_common` raises on purpose."""
 
 
 class InsecureListen(CommonError, ValueError):

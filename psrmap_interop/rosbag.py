@@ -18,8 +18,8 @@ from io import BytesIO
 from pathlib import Path
 from typing import Any
 
-from interop.rmw_zenoh import Qos
-from interop.ros2_messages import serialize, typestore
+from psrmap_interop.rmw_zenoh import Qos
+from psrmap_interop.ros2_messages import serialize, typestore
 
 __all__ = ["BagMessage", "write_mcap_bag"]
 

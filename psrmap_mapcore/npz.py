@@ -12,8 +12,8 @@ from typing import Any
 
 import numpy as np
 
-from mapcore.dense import LayerGrid, Layers
-from mapcore.errors import MapFileError
+from psrmap_mapcore.dense import LayerGrid, Layers
+from psrmap_mapcore.errors import MapFileError
 
 __all__ = ["read_npz", "write_npz"]
 

@@ -12,9 +12,9 @@ import time
 import pytest
 import zenoh
 
-from common.session import zenoh_config
-from interop.rmw_zenoh import Qos, RosNode, attachment, qos_key
-from interop.ros2_messages import PATH, path_msg
+from psrmap_common.session import zenoh_config
+from psrmap_interop.rmw_zenoh import Qos, RosNode, attachment, qos_key
+from psrmap_interop.ros2_messages import PATH, path_msg
 
 GID = bytes(range(0xA0, 0xB0))
 

@@ -1,7 +1,7 @@
 """The one Zenoh query client: status and region queries of the map service, as every process asks them.
 
 `get_replies` sends one query (to the nearest queryable, or fanned out to every shard with
-`fan_out=True`), keeps only the replies of the servers its `Trust` believes (common.trust: the one check every
+`fan_out=True`), keeps only the replies of the servers its `Trust` believes (psrmap_common.trust: the one check every
 client makes; each ignored reply is logged and listed with the reason), and returns the payloads and the error
 texts; `get_one` is the first good payload or a `QueryError` that says why there is none;
 `get_status` is the map's decoded `Status`, or None. The CLI (`psrmap status`, `psrmap query`), the
@@ -18,13 +18,13 @@ from typing import Any
 
 import zenoh
 
-from common.errors import QueryError
-from common.trust import Trust, believe, trusted_ids
 from protocol.codec import decode
 from protocol.errors import ProtocolError
 from protocol.keys import partition_key, status_key
 from protocol.messages import ScoutStatus, Status
 from protocol.partition import Partition
+from psrmap_common.errors import QueryError
+from psrmap_common.trust import Trust, believe, trusted_ids
 
 __all__ = [
     "QueryError",

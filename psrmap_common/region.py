@@ -1,10 +1,10 @@
 """A box of the shared map, and following it: the region query every reader sends, and the tile-change
 notices that say when to send it again. Shared by the rover planner (`consumer_planner.client`), the ROS
 bridge and the scouts (`scout_agent.localization`, which match their footholds against the map around
-them): services do not import each other, so this lives in `common`.
+them): services do not import each other, so this lives in `psrmap_common`.
 
 `fetch_region(session, map_id, box, ...)`: `get(psr/<map>/map?x0=..;y0=..;x1=..;y1=..;stats=all)` through
-`common.query` with `fan_out=True` (target ALL, no consolidation), so every map-server shard owning part of
+`psrmap_common.query` with `fan_out=True` (target ALL, no consolidation), so every map-server shard owning part of
 the box answers; the replies are decoded with `protocol.codec.decode` (validated) and stitched into one
 `LayerGrid` (`mapcore.stitch`). Raises `NoAnswer` (no server answered) or `QueryError` (every answer was an
 error, or the replies cannot be one map).
@@ -22,15 +22,15 @@ from typing import Any
 import numpy as np
 import zenoh
 
-from common.errors import QueryError
-from common.query import get_replies, get_statuses
-from common.trust import Trust, TrustedIds
-from mapcore import LayerGrid, MapCoreError, stitch
 from protocol.codec import INDEX_LIMIT, decode
 from protocol.errors import MAX_CLIENT_CELLS, ProtocolError
 from protocol.keys import changes_pattern, map_key
 from protocol.layers import cell_index
 from protocol.messages import MapRegion, RegionQuery, TileChanges
+from psrmap_common.errors import QueryError
+from psrmap_common.query import get_replies, get_statuses
+from psrmap_common.trust import Trust, TrustedIds
+from psrmap_mapcore import LayerGrid, MapCoreError, stitch
 
 __all__ = ["Box", "NoAnswer", "RegionChange", "RegionFollower", "RegionWatch", "fetch_region"]
 
@@ -101,7 +101,7 @@ class RegionWatch:
     """`with RegionWatch(session, map_id, res, (x0, y0, x1, y1)) as w: ... w.changed(timeout)`; box None: the
     whole map (every change).
 
-    trust: whose notices to act on (common.trust; a notice names its sender in its source info); others are
+    trust: whose notices to act on (psrmap_common.trust; a notice names its sender in its source info); others are
     ignored with a log line and counted in `ignored`."""
 
     def __init__(
@@ -173,7 +173,7 @@ class RegionFollower:
     """When a box must be queried again: once at the start (as soon as a server answers), on every tile-change
     notice inside it (`RegionWatch`, every shard), and when a status poll every `resync_s` shows a server's
     version beyond what its notices told (a lost notice, or a server that publishes none). Box None: the whole
-    map, whose every change counts; query `common.query.map_extent(statuses)` then.
+    map, whose every change counts; query `psrmap_common.query.map_extent(statuses)` then.
 
         follow = RegionFollower(session, map_id, box)
         while ...:

@@ -117,8 +117,8 @@ def test_export_refuses_bad_origin_and_existing_bag(npz: Path, tmp_path: Path, c
 def test_mcap_export_reads_back_with_rosbags(npz: Path, tmp_path: Path, capsys) -> None:
     from rosbags.rosbag2 import Reader
 
-    from interop.ros2_messages import grid_map_layers, typestore
-    from mapcore import read_npz
+    from psrmap_interop.ros2_messages import grid_map_layers, typestore
+    from psrmap_mapcore import read_npz
 
     run = tmp_path / "run"
     run.mkdir()
@@ -158,7 +158,7 @@ def test_mcap_read_by_foxglove_mcap_ros2_support(npz: Path, tmp_path: Path, caps
     from mcap_ros2.decoder import DecoderFactory
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-    from mapcore import read_npz
+    from psrmap_mapcore import read_npz
 
     bag = tmp_path / "bag"
     _run(["export", "--format", "mcap", "--npz", str(npz), "--out", str(bag)], capsys)
@@ -233,7 +233,7 @@ def test_the_moon_geotiff_is_identified_as_iau_2015_30135_and_its_bands_have_uni
     from rasterio.crs import CRS
     from rasterio.warp import transform
 
-    from interop.geotiff import pam_path
+    from psrmap_interop.geotiff import pam_path
 
     out = tmp_path / "moon.tif"
     _run(

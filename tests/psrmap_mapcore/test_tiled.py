@@ -3,9 +3,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mapcore import TiledMap
 from protocol import LAYERS, ProtocolError, layer_value
 from protocol.testing import layer_cells
+from psrmap_mapcore import TiledMap
 
 
 def dense_reference(parts, name, box):

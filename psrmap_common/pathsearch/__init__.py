@@ -1,4 +1,4 @@
-"""common.pathsearch: optimal path search on 8-connected cost grids, shared by the scout (its detours around
+"""psrmap_common.pathsearch: optimal path search on 8-connected cost grids, shared by the scout (its detours around
 hazards) and the planner (routes for rovers). Services never import each other; both import this.
 
 - `search.plan_path`, `nearest_passable`, `step_lengths`, `GridPath`: the search and its path definition.
@@ -10,8 +10,15 @@ It imports numpy, numba (and scikit-image for the reference method), nothing of 
 
 from __future__ import annotations
 
-from common.pathsearch.errors import PathSearchError
-from common.pathsearch.search import METHODS, GridPath, Method, nearest_passable, plan_path, step_lengths
+from psrmap_common.pathsearch.errors import PathSearchError
+from psrmap_common.pathsearch.search import (
+    METHODS,
+    GridPath,
+    Method,
+    nearest_passable,
+    plan_path,
+    step_lengths,
+)
 
 __all__ = [
     "METHODS",

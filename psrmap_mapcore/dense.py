@@ -2,7 +2,7 @@
 
 The dense view of the map core: built from a `TiledMap.region` read, from one or several
 `protocol.MapRegion` replies (several map-server shards answer one query; `stitch` puts their boxes
-together) or from a saved `.npz` map (`mapcore.npz`, the same `map_region` layout).
+together) or from a saved `.npz` map (`psrmap_mapcore.npz`, the same `map_region` layout).
 Arrays are (h, w), row = iy - iy0, column = ix - ix0; a cell's centre is x0 + (ix + 0.5) * res.
 """
 
@@ -13,10 +13,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from mapcore.errors import MapCoreError
 from protocol.errors import MAX_CLIENT_CELLS
 from protocol.layers import LAYERS, cell_index, elevation_slope_deg, empty_value, layer_value
 from protocol.messages import MapRegion
+from psrmap_mapcore.errors import MapCoreError
 
 __all__ = ["MAX_CLIENT_CELLS", "LayerGrid", "Layers", "check_replies", "stitch"]
 
