@@ -30,6 +30,7 @@ import numpy as np
 from map_server.merge import Merger
 from protocol import LAYERS, encode
 from protocol.keys import delta_key
+from protocol.layers import pack_pair
 from protocol.messages import CellDelta
 from protocol.testing import layer_cells
 from psrmap_mapcore import TiledMap
@@ -108,7 +109,7 @@ def raw_add_at_store(deltas: list[CellDelta], tile: int = 64) -> tuple[float, in
         S = len(LAYERS[name].stats)
         ix = np.concatenate([d.layers[name]["ix"] for d in deltas]).astype(np.int64)
         iy = np.concatenate([d.layers[name]["iy"] for d in deltas]).astype(np.int64)
-        _, slot = np.unique(((ix >> sh) << 32) | ((iy >> sh) & 0xFFFFFFFF), return_inverse=True)
+        _, slot = np.unique(pack_pair(ix >> sh, iy >> sh), return_inverse=True)
         cell = (slot.reshape(-1) * tile * tile + ((iy & (tile - 1)) << sh) + (ix & (tile - 1))) * S
         for r, s in enumerate(LAYERS[name].stats):
             prepared.append((base + cell + r, np.concatenate([d.layers[name][s] for d in deltas])))

@@ -470,7 +470,7 @@ class Merger:
                 tkey = pack_pair(c.ix.astype(np.int64) >> sh, c.iy.astype(np.int64) >> sh)
                 uniq, inv = np.unique(tkey, return_inverse=True)
                 lim = np.array(
-                    [upto.get((name, k >> 32, ((k & 0xFFFFFFFF) ^ 2**31) - 2**31), 0) for k in uniq.tolist()],
+                    [upto.get((name, *unpack_pair(k)), 0) for k in uniq.tolist()],
                     dtype=np.int64,
                 )
                 keep = id_of[c.seg] > lim[inv.reshape(-1)]

@@ -36,6 +36,7 @@ import numpy as np
 
 from map_server.decode import DeltaDecoder
 from map_server.errors import MapServerError
+from protocol.layers import pack_pair
 from protocol.messages import CellDelta
 from psrmap_mapcore import TiledMap
 
@@ -141,11 +142,9 @@ def _remove(
                 affected |= _tile_keys(probe, name, c.ix, c.iy)
     rebuilt = TiledMap(res, tile)
     sh = rebuilt.shift
-    # per layer, the affected tiles as int64 keys (tx << 32 | ty & 0xFFFFFFFF), for a vectorised membership test
+    # per layer, the affected tiles as int64 keys (`pack_pair`), for a vectorised membership test
     wanted = {
-        name: np.array(
-            sorted((tx << 32) | (ty & 0xFFFFFFFF) for n, tx, ty in affected if n == name), np.int64
-        )
+        name: np.array(sorted(pack_pair(tx, ty) for n, tx, ty in affected if n == name), np.int64)
         for name in {n for n, _, _ in affected}
     }
     kept = 0
@@ -155,7 +154,7 @@ def _remove(
         for name, c in batch.columns.items():
             if not c.seg.size or name not in wanted:
                 continue
-            key = (c.ix.astype(np.int64) >> sh << 32) | ((c.iy.astype(np.int64) >> sh) & 0xFFFFFFFF)
+            key = pack_pair(c.ix.astype(np.int64) >> sh, c.iy.astype(np.int64) >> sh)
             keep = np.isin(key, wanted[name])
             if keep.any():
                 rebuilt.merge_columns(name, c.ix[keep], c.iy[keep], c.vals[:, keep])

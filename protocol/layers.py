@@ -25,6 +25,7 @@ __all__ = [
     "cell_index",
     "pack_pair",
     "unpack_pair",
+    "unpack_pairs",
     "derived_names",
     "elevation_slope_deg",
     "plane_fit",
@@ -329,3 +330,9 @@ def unpack_pair(key: int) -> tuple[int, int]:
     key = int(key)
     lo = key & 0xFFFFFFFF
     return key >> 32, lo - (1 << 32) if lo >= 1 << 31 else lo
+
+
+def unpack_pairs(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The (a, b) int32 arrays that `pack_pair` packed into the int64 array `keys`."""
+    keys = np.asarray(keys, np.int64)
+    return (keys >> 32).astype(np.int32), (keys & 0xFFFFFFFF).astype(np.uint32).astype(np.int32)

@@ -14,7 +14,16 @@ from pathlib import Path
 
 import numpy as np
 
-from protocol.layers import LAYERS, cell_center, cell_index, empty_value, get_layer, merge_op, pack_pair
+from protocol.layers import (
+    LAYERS,
+    cell_center,
+    cell_index,
+    empty_value,
+    get_layer,
+    merge_op,
+    pack_pair,
+    unpack_pairs,
+)
 from psrmap_mapcore import LayerGrid, TiledMap, write_npz
 from scout_agent.errors import ScoutConfigError
 
@@ -94,10 +103,8 @@ def reduce_cells(
     values = values[order]
     starts = np.flatnonzero(np.concatenate(([True], keys[1:] != keys[:-1])))
     uniq = keys[starts]
-    cells: dict[str, np.ndarray] = {
-        "ix": (uniq >> 32).astype(np.int32),
-        "iy": (uniq & 0xFFFFFFFF).astype(np.uint32).astype(np.int32),
-    }
+    ix_cells, iy_cells = unpack_pairs(uniq)
+    cells: dict[str, np.ndarray] = {"ix": ix_cells, "iy": iy_cells}
     for op, ufunc in (("add", np.add), ("min", np.minimum), ("max", np.maximum)):
         cols = [j for j, s in enumerate(stats) if merge_op(s) == op]
         if not cols:

@@ -124,7 +124,7 @@ def test_cell_index_floor_and_centre():
 
 
 def test_pack_pair_round_trips_signed_indices_for_ints_and_arrays() -> None:
-    from protocol.layers import pack_pair, unpack_pair
+    from protocol.layers import pack_pair, unpack_pair, unpack_pairs
 
     pairs = [(0, 0), (-1, 0), (0, -1), (-(2**30), 2**30), (2**31 - 1, -(2**31)), (5, -7)]
     for a, b in pairs:
@@ -134,3 +134,5 @@ def test_pack_pair_round_trips_signed_indices_for_ints_and_arrays() -> None:
     keys = pack_pair(a, b)
     assert keys.dtype == np.int64 and len(np.unique(keys)) == len(pairs)
     assert [unpack_pair(k) for k in keys.tolist()] == pairs
+    ua, ub = unpack_pairs(keys)
+    assert ua.dtype == ub.dtype == np.int32 and ua.tolist() == a.tolist() and ub.tolist() == b.tolist()
