@@ -8,7 +8,9 @@ import re
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-OUTSIDE = re.compile(r"\.\./shared|shared/(DESIGN|REFERENCE|STYLE)\.md|\bREFERENCE\.md\b|\bDESIGN\.md\b")
+# the team's notes beside the clone (written so that this file does not match a grep for them itself)
+_NOTES = "shared" + "/"
+OUTSIDE = re.compile(rf"\.\./{_NOTES}|{_NOTES}(DESIGN|REFERENCE|STYLE)\.md|\bREFERENCE\.md\b|\bDESIGN\.md\b")
 
 
 def test_no_file_refers_outside_the_repository() -> None:
@@ -17,8 +19,6 @@ def test_no_file_refers_outside_the_repository() -> None:
         if path.suffix not in {".py", ".md", ".toml"} or any(
             p in {".git", "runs", "build"} for p in path.parts
         ):
-            continue
-        if path == Path(__file__).resolve():
             continue
         for n, line in enumerate(path.read_text(errors="replace").splitlines(), 1):
             if OUTSIDE.search(line):
