@@ -38,10 +38,19 @@ class GaitSetting:
 class GaitAdaptation:
     def __init__(self, config: GaitAdaptationConfig = GaitAdaptationConfig()) -> None:
         self.config = config
+        self._last: tuple[tuple[float, ...], GaitSetting] | None = None
 
     def setting(self, mu_feet: np.ndarray, plane_grad: np.ndarray) -> GaitSetting:
-        c = self.config
+        """The gait for these friction estimates and foothold plane; the same object again while neither
+        changed (the estimate moves at stance ends, the plane when a foot lands: most ticks change nothing)."""
         mu = np.asarray(mu_feet, dtype=float)
+        key = (*mu.tolist(), float(plane_grad[0]), float(plane_grad[1]))
+        if self._last is None or self._last[0] != key:
+            self._last = (key, self._setting(mu, plane_grad))
+        return self._last[1]
+
+    def _setting(self, mu: np.ndarray, plane_grad: np.ndarray) -> GaitSetting:
+        c = self.config
         tan_slope = float(np.hypot(plane_grad[0], plane_grad[1]))
         margin = float(np.min(mu)) - tan_slope
         u = min(1.0, max(0.0, margin / c.margin_full))  # 1: full margin, 0: none

@@ -54,9 +54,17 @@ class FrictionEstimate:
     def area_mu(self) -> float:
         return float(self.mu.min())
 
-    def ratios(self, q: np.ndarray, tau: np.ndarray, R: np.ndarray, normal: np.ndarray) -> np.ndarray:
-        """(4,) |f_t| / f_n of each foot's torque-estimated ground force (NaN below `min_normal_n`)."""
-        f = leg_forces_from_torques(K.jacobians(q), tau, _ZERO12) @ R.T  # world
+    def ratios(
+        self,
+        q: np.ndarray,
+        tau: np.ndarray,
+        R: np.ndarray,
+        normal: np.ndarray,
+        forces_w: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """(4,) |f_t| / f_n of each foot's torque-estimated ground force (NaN below `min_normal_n`);
+        `forces_w` (4, 3): those forces, world, when the estimators already computed them this tick."""
+        f = leg_forces_from_torques(K.jacobians(q), tau, _ZERO12) @ R.T if forces_w is None else forces_w
         fn = f @ normal
         ft = np.linalg.norm(f - fn[:, None] * normal, axis=1)
         with np.errstate(invalid="ignore", divide="ignore"):
@@ -73,9 +81,11 @@ class FrictionEstimate:
         stance_end: tuple[bool, ...],
         slipped: tuple[bool, ...],
         dt: float,
+        forces_w: np.ndarray | None = None,
     ) -> None:
+        """One tick; `forces_w` as in `ratios` (feet out of `contact` may read anything there)."""
         c = self.config
-        rho = self.ratios(q, tau, R, normal)
+        rho = self.ratios(q, tau, R, normal, forces_w)
         a = dt / (c.ratio_tau_s + dt) if dt > 0 else 1.0
         for i in range(4):
             r = rho[i]

@@ -32,10 +32,21 @@ class TrotGait:
     def swing_progress(self, phase: np.ndarray) -> np.ndarray:
         """(4,) progress through swing in [0, 1] (0 for stance legs)."""
         d = self.config.duty
-        return np.clip((phase - d) / (1.0 - d), 0.0, 1.0)
+        return _unit_clip(np.asarray(phase, dtype=float), d, 1.0 - d)
 
     def stance_progress(self, phase: np.ndarray) -> np.ndarray:
-        return np.clip(phase / self.config.duty, 0.0, 1.0)
+        """(4,) progress through stance in [0, 1] (1 for swing legs)."""
+        return _unit_clip(np.asarray(phase, dtype=float), 0.0, self.config.duty)
+
+
+@njit(cache=True, nogil=True)
+def _unit_clip(phase: np.ndarray, start: float, length: float) -> np.ndarray:
+    """(phase − start) / length clipped to [0, 1], each element (np.clip's figures without its per-call cost:
+    the run loop asks every tick)."""
+    out = np.empty(phase.shape[0])
+    for i in range(phase.shape[0]):
+        out[i] = min(max((phase[i] - start) / length, 0.0), 1.0)
+    return out
 
 
 @njit(cache=True, nogil=True)

@@ -102,6 +102,8 @@ class Pilot:
         self._back_len = 0.0
         self._left_of_route = 0.0
         self._t_prev: float | None = None
+        self._normal_key: tuple[float, float] | None = None
+        self._normal = np.array([0.0, 0.0, 1.0])
 
     @property
     def done(self) -> bool:
@@ -137,15 +139,24 @@ class Pilot:
             self.trail.append((t, x, y))
         grad, _ = self.controller.plane()
         if c.adaptive and est is not None:
-            n = np.array([-grad[0], -grad[1], 1.0])
-            n /= np.linalg.norm(n)
             sl = est.slip
             self.friction.update(
-                sample.q, sample.tau, R, sample.contact, n, sl.event, sl.stance_end, sl.slipped, dt
+                sample.q,
+                sample.tau,
+                R,
+                sample.contact,
+                self._plane_normal(grad),
+                sl.event,
+                sl.stance_end,
+                sl.slipped,
+                dt,
+                est.foot_force_w,
             )
-            self.setting = self.adaptation.setting(self.friction.mu, grad)
-            self.controller.set_friction(self.setting.qp_mu)
-            self.controller.height_offset = self.setting.height_offset_m
+            setting = self.adaptation.setting(self.friction.mu, grad)
+            if setting is not self.setting:
+                self.setting = setting
+                self.controller.set_friction(setting.qp_mu)
+                self.controller.height_offset = setting.height_offset_m
         if not c.reflex or self.mode != "walk" or self.reached:
             return None
         margin = self.setting.margin if self.setting is not None else math.inf
@@ -154,6 +165,16 @@ class Pilot:
             return None
         self._stop(felt, x, y)
         return felt
+
+    def _plane_normal(self, grad: np.ndarray) -> np.ndarray:
+        """Unit upward normal of the foothold plane z = g·(x, y) + c (kept while the plane does not change:
+        it moves only when a foot lands)."""
+        key = (float(grad[0]), float(grad[1]))
+        if key != self._normal_key:
+            n = np.array([-key[0], -key[1], 1.0])
+            n /= np.linalg.norm(n)
+            self._normal_key, self._normal = key, n
+        return self._normal
 
     # ------------------------------------------------------------------ modes
     def _stop(self, felt: Felt, x: float, y: float) -> None:

@@ -22,7 +22,8 @@ class PinocchioFeet:
     """`feet_base_and_vel(q, dq)` → ((4, 3) positions [m], (4, 3) velocities [m/s]), base frame.
 
     The returned arrays are reused by the next call (copy them to keep them); `foot_omega` (4, 3) holds the
-    feet's angular velocities from the same pass [rad/s] (the slip detector's rolling term).
+    feet's angular velocities from the same pass [rad/s] (the slip detector's rolling term) and `jacobians`
+    (4, 3, 3) the legs' Jacobians d foot / d leg joints, base frame (`kinematics.jacobians` of that q).
     """
 
     def __init__(self, model: pin.Model | None = None) -> None:
@@ -38,6 +39,7 @@ class PinocchioFeet:
         self._pos = np.zeros((4, 3))
         self._vel = np.zeros((4, 3))
         self._J = np.zeros((4, 3, 3))
+        self.jacobians = self._J  # the last pass's (filled in place)
         self.foot_omega = np.zeros(
             (4, 3)
         )  # angular velocity of each foot (calf) relative to the base, base frame

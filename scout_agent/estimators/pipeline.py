@@ -94,6 +94,8 @@ class TickEstimates(NamedTuple):
     footholds: np.ndarray  # (m, 3) committed non-slipping stance footholds (elevation)
     nonfoot: bool  # non-foot contact flagged this tick
     nonfoot_force_n: float  # filtered unexplained external force [N]
+    foot_force_w: np.ndarray  # (4, 3) ground force on each foot from its joint torques, world [N]; zero
+    # on feet out of contact (the friction estimate's force ratios read it too)
     giim_paper: float = math.nan
     giam_paper: float = math.nan
     giim_stance: float = math.nan
@@ -144,6 +146,11 @@ class EstimatorPipeline:
         self._t_prev: float | None = None
         self._t0: float | None = None
         self._combined = getattr(kinematics, "feet_base_and_vel", None)
+
+    def _jacobians(self, q: np.ndarray) -> np.ndarray:
+        """The legs' Jacobians at `q`: from this tick's kinematics pass when it computed them, else anew."""
+        J = getattr(self.kin, "jacobians", None)
+        return J if J is not None and self._combined is not None else K.jacobians(q)
 
     def update(self, s: ProprioSample) -> TickEstimates:
         c = self.config
@@ -205,7 +212,7 @@ class EstimatorPipeline:
         work, dist = self.cot.update(s.t, s.joint_energy_j, s.base.vel)
 
         # GIA (world) from the torque-estimated foot forces and from the IMU
-        f_w = leg_forces_from_torques(K.jacobians(s.q), s.tau, _ZERO12) @ rot.T
+        f_w = leg_forces_from_torques(self._jacobians(s.q), s.tau, _ZERO12) @ rot.T
         f_w[~s.contact] = 0.0
         (f0, f1, f2, f3) = f_w.tolist()
         m = c.mass_kg
@@ -270,6 +277,7 @@ class EstimatorPipeline:
             footholds=footholds,
             nonfoot=f_ext > c.nonfoot_threshold_n and s.t - self._t0 >= c.nonfoot_warmup_s,
             nonfoot_force_n=f_ext,
+            foot_force_w=f_w,
             **extra,
         )
 

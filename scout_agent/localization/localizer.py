@@ -23,6 +23,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from numba import njit
 from scipy.stats import chi2
 
 from scout_agent.estimators.feet import PinocchioFeet
@@ -106,6 +107,22 @@ class LocalizerReport:
         }
 
 
+@njit(cache=True, nogil=True)
+def _due_feet(
+    contact: np.ndarray, since: np.ndarray, taken: np.ndarray, t: float, settle_s: float, due: np.ndarray
+) -> int:
+    """Feet whose contact has lasted `settle_s` and whose stance gave no foothold yet, into `due` (4,); how
+    many. `since` (4,) each contact's start [s] (inf without contact) and `taken` (4,) (this stance's foothold
+    is in the track) are updated in place (compiled: every tick)."""
+    n = 0
+    for i in range(4):
+        since[i] = min(since[i], t) if contact[i] else np.inf
+        taken[i] = taken[i] and contact[i]
+        due[i] = contact[i] and not taken[i] and t - since[i] >= settle_s
+        n += due[i]
+    return n
+
+
 class Localizer:
     def __init__(
         self,
@@ -125,29 +142,27 @@ class Localizer:
         self.report = LocalizerReport(sources=tuple(n for n, r in (("dem", dem), ("map", map_source)) if r))
         self._since = np.full(4, np.inf)
         self._taken = np.zeros(4, bool)
+        self._due = np.zeros(4, bool)
         self.walked_m = 0.0
         # each source's first match once its track is full
         self._next = {"dem": config.dem.track_m, "map": config.map.track_m}
-        self._prev_xy: np.ndarray | None = None
+        self._prev_xy: tuple[float, float] | None = None
 
     def on_tick(self, sample: ProprioSample) -> None:
         c = self.config
         t = sample.t
-        contact = np.asarray(sample.contact, bool)
-        self._since = np.where(contact, np.minimum(self._since, t), np.inf)
-        self._taken &= contact
-        due = contact & ~self._taken & (t - self._since >= c.settle_s)
+        due = self._due
         est = self.est.ekf
-        if due.any():
+        if _due_feet(np.asarray(sample.contact, bool), self._since, self._taken, t, c.settle_s, due):
             fb, _ = self.feet.feet_base_and_vel(sample.q, sample.dq)
             pts = fb[due] @ est.R.T + est.p
             pts[:, 2] -= C.FOOT_RADIUS
             self.track.add(pts, self.walked_m)
             self._taken |= due
-        xy = est.p[:2].copy()
+        x, y = float(est.p[0]), float(est.p[1])
         if self._prev_xy is not None:
-            self.walked_m += float(np.hypot(*(xy - self._prev_xy)))
-        self._prev_xy = xy
+            self.walked_m += float(np.hypot(x - self._prev_xy[0], y - self._prev_xy[1]))
+        self._prev_xy = (x, y)
         for name in self.report.sources:
             if self.walked_m >= self._next[name]:
                 self._next[name] = self.walked_m + getattr(c, name).every_m

@@ -94,6 +94,11 @@ class ImuTemperature:
         t = np.asarray(t_s, dtype=float)
         return self.warmup_k * (1.0 - np.exp(-t / self.warmup_tau_s)) + self.rate_k_per_h * t / 3600.0
 
+    def delta_k_steps(self, t0_s: float, dt_s: float, k: int) -> np.ndarray:
+        """`delta_k` at t0 + dt, …, t0 + k·dt [s] (compiled: the IMU samples k steps every tick; libm's exp,
+        which may differ from numpy's vectorised one in the last bit, far below the 16-bit quantisation)."""
+        return _temperature_steps(t0_s, dt_s, k, self.warmup_k, self.warmup_tau_s, self.rate_k_per_h)
+
     def delta_k_at(self, t_s: float) -> float:
         """`delta_k` at one time [s] (scalar arithmetic: the thermometer is read every tick)."""
         return self.warmup_k * (1.0 - math.exp(-t_s / self.warmup_tau_s)) + self.rate_k_per_h * t_s / 3600.0
@@ -206,7 +211,7 @@ class ImuModel:
         if self._ideal:
             dtemp, kept = _NO_TEMP, np.ones(k, bool)
         else:
-            dtemp = np.asarray(e.temperature.delta_k(self.t + dt * np.arange(1, k + 1)), dtype=float)
+            dtemp = e.temperature.delta_k_steps(self.t, dt, k)
             if self._f_cal is None:
                 self._f_cal = np.array(acc_true[0], dtype=float)
             kept = self.rng.random(k) >= e.sample_drop if e.sample_drop > 0 else np.ones(k, bool)
@@ -234,6 +239,18 @@ class ImuModel:
             e.gyro_lsb,
             kept,
         )
+
+
+@njit(cache=True, nogil=True)
+def _temperature_steps(
+    t0: float, dt: float, k: int, warmup_k: float, tau_s: float, rate_k_per_h: float
+) -> np.ndarray:
+    """`ImuTemperature.delta_k` at t0 + (s + 1)·dt for s < k [K]."""
+    out = np.empty(k)
+    for s in range(k):
+        t = t0 + dt * (s + 1)
+        out[s] = warmup_k * (1.0 - np.exp(-t / tau_s)) + rate_k_per_h * t / 3600.0
+    return out
 
 
 _NO_TEMP = np.zeros(0)

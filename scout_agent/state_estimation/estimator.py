@@ -73,6 +73,7 @@ from .launch import LaunchPose
 from .leg_odometry import odometry_rows
 
 _EZ = np.array([0.0, 0.0, 1.0])
+_ALL4 = np.ones(4, bool)
 
 
 @dataclass(frozen=True)
@@ -125,14 +126,27 @@ def matrix_to_quat(R: np.ndarray) -> np.ndarray:
 
 
 @njit(cache=True, nogil=True)
-def _settled_feet(contact: np.ndarray, since: np.ndarray, t: float, settle_s: float) -> np.ndarray:
-    """Feet whose contact has lasted `settle_s`; `since` (4,) each contact's start [s] (inf without contact),
-    updated in place."""
-    out = np.empty(4, np.bool_)
+def _settled_feet(
+    contact: np.ndarray,
+    since: np.ndarray,
+    t: float,
+    settle_s: float,
+    mid_stance: np.ndarray,
+    settled: np.ndarray,
+    use: np.ndarray,
+) -> tuple[int, int, int]:
+    """Feet whose contact has lasted `settle_s` into `settled` (4,), and of those the ones in `mid_stance`
+    into `use`; `since` (4,) each contact's start [s] (inf without contact), updated in place. Returns the
+    counts (in contact, settled, in use): the tick's branches need only those."""
+    n_contact = n_settled = n_use = 0
     for i in range(4):
         since[i] = min(since[i], t) if contact[i] else np.inf
-        out[i] = contact[i] and t - since[i] >= settle_s
-    return out
+        settled[i] = contact[i] and t - since[i] >= settle_s
+        use[i] = settled[i] and mid_stance[i]
+        n_contact += contact[i]
+        n_settled += settled[i]
+        n_use += use[i]
+    return n_contact, n_settled, n_use
 
 
 @njit(cache=True, nogil=True)
@@ -203,6 +217,9 @@ class StateEstimator:
         self.walked_m = 0.0  # horizontal distance by the estimate [m]
         self.turned_rad = 0.0  # heading turned by the estimate [rad]
         self._contact_since = np.full(4, np.inf)
+        self._settled = np.zeros(4, bool)
+        self._use = np.zeros(4, bool)
+        self._leg_var = np.full(12, c.leg_vel_std**2)  # one variance per velocity row (4 feet × 3)
         self._footholds = fb @ R0.T + self.ekf.p  # (4, 3) each foot's latest stance position, world [m]
         self._was_contact = np.zeros(4, bool)
         self._normal_w = _EZ.copy()  # ground normal under the feet, world (plane through the footholds)
@@ -232,17 +249,17 @@ class StateEstimator:
                 for i in range(3):
                     P[9 + i, 9 + i] += c.gyro_tempco_std**2 * d2
                     P[12 + i, 12 + i] += c.acc_tempco_std**2 * d2
-        v = self.ekf.v
-        speed = math.hypot(v[0], v[1])
+        vx, vy, _ = self.ekf.v.tolist()
+        speed = math.hypot(vx, vy)
         if speed > 1e-3:  # along-track odometry scale: σ = k·distance (d σ² = 2 k² d·|v| dt)
             q = 2.0 * c.odometry_scale_std**2 * self.walked_m * speed * dt
-            ux, uy = v[0] / speed, v[1] / speed
+            ux, uy = vx / speed, vy / speed
             P[6, 6] += q * ux * ux
             P[7, 7] += q * uy * uy
             P[6, 7] += q * ux * uy
             P[7, 6] += q * ux * uy
             self.walked_m += speed * dt
-        wz = abs(float(tick.imu_gyro[2] - self.ekf.bg[2]))
+        wz = abs(float(tick.imu_gyro[2]) - float(self.ekf.bg[2]))
         P[2, 2] += 2.0 * c.gyro_scale_std**2 * self.turned_rad * wz * dt  # heading from scale/cross-axis
         self.turned_rad += wz * dt
         if n_rejected:  # the gate refused a foot: the others may be sliding too, undetected
@@ -276,21 +293,30 @@ class StateEstimator:
         self._held_s = 0.0
         e.propagate(tick.imu_gyro, self._specific_force(tick, dt), dt)
         contact = tick.contact
-        settled = _settled_feet(contact, self._contact_since, t, c.stance_settle_s)
-        use = settled & mid_stance if mid_stance is not None else settled
-        any_contact = bool(contact.any())
+        settled, use = self._settled, self._use
+        n_contact, n_settled, n_use = _settled_feet(
+            contact,
+            self._contact_since,
+            t,
+            c.stance_settle_s,
+            _ALL4 if mid_stance is None else mid_stance,
+            settled,
+            use,
+        )
+        any_contact = n_contact > 0
         if any_contact:
             fb, fv = self.feet.feet_base_and_vel(tick.q, tick.dq)
-        if use.any():
+        if n_use:
             feet = (fb, fv, self.feet.foot_omega)
             n_b = e.R.T @ self._normal_w
             residual, H = odometry_rows(use, e.R, e.v, e.bg, feet, tick.imu_gyro, n_b, c.foot_radius_m)
-            keep = e.update(residual, H, np.full(H.shape[0], c.leg_vel_std**2), gate_chi2=c.gate_chi2)
-            self.rejected += int((~keep).sum())
-            self._inflate(tick, dt, int((~keep).sum()))
+            keep = e.update(residual, H, self._leg_var[: H.shape[0]], gate_chi2=c.gate_chi2)
+            n_rejected = len(keep) - int(np.count_nonzero(keep))
+            self.rejected += n_rejected
+            self._inflate(tick, dt, n_rejected)
         else:
             self._inflate(tick, dt, 0)
-        if not self.anchored and settled.sum() >= 2:
+        if not self.anchored and n_settled >= 2:
             # settled feet stand on the launch ground: the one height the mission knows (its survey)
             feet_z = float(np.mean((fb[settled] @ e.R.T)[:, 2]))
             z_meas = self.launch.ground_z + c.foot_radius_m - feet_z
