@@ -22,6 +22,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from scout_agent.robot import kinematics as K
 from scout_agent.sensors import leg_forces_from_torques
@@ -38,6 +39,19 @@ class FrictionEstimateConfig:
     min_normal_n: float = 8.0  # force ratios only from feet bearing at least this much [N]
     ratio_tau_s: float = 0.03  # low-pass of the force ratio within a stance [s]
     recover: float = 0.15  # share of the way back to the prior after each clean stance
+
+
+@njit(cache=True, nogil=True)
+def _force_ratios(f: np.ndarray, fn: np.ndarray, normal: np.ndarray, min_normal_n: float) -> np.ndarray:
+    """|f − f_n n̂| / f_n per foot from forces `f` (4, 3) and their normal parts `fn` (4,); NaN where f_n is
+    below `min_normal_n` (compiled: numpy's norm, where and errstate cost ≈ 15 µs a tick)."""
+    out = np.empty(4)
+    for i in range(4):
+        t0 = f[i, 0] - fn[i] * normal[0]
+        t1 = f[i, 1] - fn[i] * normal[1]
+        t2 = f[i, 2] - fn[i] * normal[2]
+        out[i] = np.sqrt(t0 * t0 + t1 * t1 + t2 * t2) / fn[i] if fn[i] >= min_normal_n else np.nan
+    return out
 
 
 class FrictionEstimate:
@@ -65,10 +79,7 @@ class FrictionEstimate:
         """(4,) |f_t| / f_n of each foot's torque-estimated ground force (NaN below `min_normal_n`);
         `forces_w` (4, 3): those forces, world, when the estimators already computed them this tick."""
         f = leg_forces_from_torques(K.jacobians(q), tau, _ZERO12) @ R.T if forces_w is None else forces_w
-        fn = f @ normal
-        ft = np.linalg.norm(f - fn[:, None] * normal, axis=1)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            return np.where(fn >= self.config.min_normal_n, ft / fn, np.nan)
+        return _force_ratios(f, f @ normal, normal, self.config.min_normal_n)
 
     def update(
         self,

@@ -62,12 +62,14 @@ class Senses:
         self.config = config
         self._slips: deque[tuple[float, float, float]] = deque()  # t, x, y of recent slip events
         self._margin: deque[tuple[float, bool]] = deque()
+        self._margin_low = 0  # ticks in `_margin` whose margin was low
         self._contact_run = 0
 
     def reset(self) -> None:
         """Forget the recent history (after a stop: what follows is a new walk)."""
         self._slips.clear()
         self._margin.clear()
+        self._margin_low = 0
         self._contact_run = 0
 
     def first_slip_t(self) -> float | None:
@@ -95,10 +97,11 @@ class Senses:
                 est.giam == est.giam and est.giam < c.min_giam
             )
             self._margin.append((t, bool(low)))
+            self._margin_low += bool(low)
             while self._margin and self._margin[0][0] < t - c.margin_window_s:
-                self._margin.popleft()
+                self._margin_low -= self._margin.popleft()[1]
             full = self._margin[-1][0] - self._margin[0][0] >= 0.8 * c.margin_window_s
-            if full and sum(m[1] for m in self._margin) >= c.margin_share * len(self._margin):
+            if full and self._margin_low >= c.margin_share * len(self._margin):
                 reasons.append("margin")
             self._contact_run = self._contact_run + 1 if est.nonfoot else 0
             if self._contact_run >= c.contact_ticks:

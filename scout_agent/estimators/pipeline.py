@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 from typing import Any, NamedTuple, Protocol
 
 import numpy as np
+from numba import njit
 
 from scout_agent.errors import ScoutConfigError
 from scout_agent.robot import kinematics as K
@@ -105,14 +106,18 @@ class TickEstimates(NamedTuple):
 
 def quat_to_matrix(q: np.ndarray) -> np.ndarray:
     """world_R_base from a unit quaternion (w, x, y, z)."""
-    w, x, y, z = float(q[0]), float(q[1]), float(q[2]), float(q[3])
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-        ]
-    )
+    return _quat_to_matrix(np.asarray(q, dtype=float))
+
+
+@njit(cache=True, nogil=True)
+def _quat_to_matrix(q: np.ndarray) -> np.ndarray:
+    """`quat_to_matrix`, compiled (the pipeline and the pilot ask every tick)."""
+    w, x, y, z = q[0], q[1], q[2], q[3]
+    R = np.empty((3, 3))
+    R[0, 0], R[0, 1], R[0, 2] = 1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)
+    R[1, 0], R[1, 1], R[1, 2] = 2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)
+    R[2, 0], R[2, 1], R[2, 2] = 2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)
+    return R
 
 
 _ZERO12 = np.zeros(12)  # joint gravity torques: the legs below the joints weigh ≈ 0.2 N at a foot at lunar g
