@@ -40,9 +40,9 @@ from scout_agent.estimators.slip import SlipDetector
 from scout_agent.estimators.stability import margins_fast
 from scout_agent.localization import DemReference, Localizer, LocalizerConfig, map_reference, match_track
 from scout_agent.localization.localizer import SourceConfig
-from scout_agent.sensors import SensorTick
+from scout_agent.loop import SimConfig, SimulatedScout
+from scout_agent.onboard.drivers import SensorTick
 from scout_agent.sim.dem import orbital_dem
-from scout_agent.sim.simulator import ScoutSim, SimConfig
 from scout_agent.sim.terrain import LunarConfig, RampConfig, make_lunar, make_ramps
 from scout_agent.state_estimation import StateEstimator
 
@@ -50,11 +50,11 @@ from scout_agent.state_estimation import StateEstimator
 def loop_cpu_seconds(state_source: str, seconds: float, slope: float) -> float:
     """CPU time [s] of `seconds` of the scout loop walking a ramp, on the given state source."""
     terrain = make_ramps(RampConfig(slope_deg=slope))
-    sim = ScoutSim(terrain, config=replace(SimConfig(), state_source=state_source))
+    sim = SimulatedScout(terrain, config=replace(SimConfig(), state_source=state_source))
     follower = PathFollower([terrain.spawn[:2], terrain.goal])
     t0 = time.process_time()
     for _ in range(int(round(seconds / sim.control_dt))):
-        st = sim.robot_state()
+        st = sim.robot.state
         v, w = follower.command(
             st.pos[:2], float(np.arctan2(st.R[1, 0], st.R[0, 0])), st.vel[:2], sim.control_dt
         )
@@ -67,16 +67,16 @@ def localizer_loop_cpu(
 ) -> tuple[float, dict]:
     """CPU time [s] of `seconds` of the scout loop on the lunar `terrain` along its diagonal, with a localizer
     matching against `dem` every `every_m` walked (None: no localizer), and the localizer's report."""
-    sim = ScoutSim(terrain)
+    sim = SimulatedScout(terrain)
     follower = PathFollower([terrain.spawn[:2], terrain.goal])
     loc = None
     if every_m is not None:
         base = LocalizerConfig()
         cfg = replace(base, dem=SourceConfig(every_m, 3 * every_m, base.dem.match, base.dem.datum_m))
-        loc = Localizer(sim.estimator, cfg, dem=dem)
+        loc = Localizer(sim.robot.estimator, cfg, dem=dem)
     t0 = time.process_time()
     for _ in range(int(round(seconds / sim.control_dt))):
-        st = sim.robot_state()
+        st = sim.robot.state
         v, w = follower.command(
             st.pos[:2], float(np.arctan2(st.R[1, 0], st.R[0, 0])), st.vel[:2], sim.control_dt
         )
@@ -90,7 +90,7 @@ def localizer_costs(repeats: int, loc_seconds: float, every_m: float) -> dict:
     """The localizer's cost: bookkeeping per tick, one match per source, amortized; the loop with vs without."""
     terrain = make_lunar(LunarConfig(seed=3, size_m=100.0))
     dem = DemReference(orbital_dem(terrain))
-    sim = ScoutSim(terrain)
+    sim = SimulatedScout(terrain)
     samples = [sim.step(0.2)[0] for _ in range(600)]
     n = len(samples)
 
@@ -177,7 +177,7 @@ def main() -> None:
     ap.add_argument("--loc-every", type=float, default=2.0, help="DEM match cadence in that loop [m]")
     args = ap.parse_args()
 
-    sim = ScoutSim(make_ramps(RampConfig(slope_deg=args.slope)))
+    sim = SimulatedScout(make_ramps(RampConfig(slope_deg=args.slope)))
     n = int(round(args.seconds / sim.control_dt))
     t0 = time.process_time()
     samples = [sim.step(0.2)[0] for _ in range(n)]

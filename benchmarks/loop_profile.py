@@ -23,12 +23,16 @@ PARTS = (  # (module, attribute path, part)
     ("scout_agent.control.controller", "TrotController.step", "controller (excl. QP)"),
     ("scout_agent.control.stance", "StanceQP.solve", "stance QP"),
     ("scout_agent.control.stance", "StanceQP.solve_feet", "stance QP"),
-    ("scout_agent.sensors.suite", "SensorSuite.read", "sensor models"),
+    ("scout_agent.sim.sensors.suite", "SensorSuite.read", "sensor models"),
+    ("scout_agent.onboard.drivers", "ContactDetector.read", "drivers (contact flags)"),
     ("scout_agent.state_estimation.estimator", "StateEstimator.update", "state estimator"),
-    ("scout_agent.sim.simulator", "tick_truth", "ground truth (contacts, feet, terrain)"),
-    ("scout_agent.sim.simulator", "ScoutSim._apply_friction", "friction lookup"),
-    ("scout_agent.sim.simulator", "ScoutSim._records", "records and glue (sim)"),
-    ("scout_agent.sim.simulator", "ScoutSim.step", "per-step copies, controls (sim)"),
+    ("scout_agent.sim.aliengo", "tick_truth", "ground truth (contacts, feet, terrain)"),
+    ("scout_agent.sim.aliengo", "SimulatedAliengo._apply_friction", "friction lookup"),
+    ("scout_agent.sim.aliengo", "SimulatedAliengo.truth", "ground truth records (evaluation channel)"),
+    ("scout_agent.sim.aliengo", "SimulatedAliengo.write", "per-step copies, controls (hardware)"),
+    ("scout_agent.onboard.software", "OnboardSoftware.sense", "records and glue (robot software)"),
+    ("scout_agent.onboard.software", "OnboardSoftware.command", "records and glue (robot software)"),
+    ("scout_agent.loop", "SimulatedScout.step", "loop glue"),
     ("scout_agent.control.pilot", "Pilot.command", "pilot (follower, reflex, adaptation)"),
     ("scout_agent.control.pilot", "Pilot.feel", "pilot (follower, reflex, adaptation)"),
     ("scout_agent.localization.localizer", "Localizer.on_tick", "localizer bookkeeping"),
@@ -73,7 +77,7 @@ def main() -> int:
         for attr in outer:
             owner = getattr(owner, attr)
         _wrap(owner, name, part, acc, stack)
-    importlib.import_module("scout_agent.sim.simulator").mujoco = mujoco  # the wrapped mj_step
+    importlib.import_module("scout_agent.sim.aliengo").mujoco = mujoco  # the wrapped mj_step
     importlib.import_module("scout_agent.run").run_scout(cfg, progress=False, world=world)
     total = sum(acc.values())
     print(f"scout loop: {1e6 * per_tick:.0f} us CPU per control tick (thread time, unwrapped run)")

@@ -23,12 +23,12 @@ import numpy as np
 
 from scout_agent.robot import constants as C
 from scout_agent.run import ScoutRunConfig, build_world, run_scout
-from scout_agent.sim.simulator import ScoutSim
+from scout_agent.sim.aliengo import SimulatedAliengo
 
 
 def raw_step_rate(world, steps: int) -> float:
     """mj_step/s with the robot standing on the same scene under constant joint PD (no Python per step)."""
-    sim = ScoutSim(world.terrain, world.friction, start=world.start)
+    sim = SimulatedAliengo(world.terrain, world.friction, start=world.start)
     m, d = sim.model, sim.data
     m.actuator_gainprm[sim._pd_ids, 0] = 40.0
     m.actuator_biasprm[sim._pd_ids, 1] = -40.0

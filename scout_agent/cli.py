@@ -22,17 +22,17 @@ from psrmap_common.errors import UsageError, ViewerUnavailable
 from psrmap_common.recording import use_viewer
 from scout_agent import component
 from scout_agent.component import ScoutConfig
+from scout_agent.dem_reader import DemWindow
 from scout_agent.errors import ScoutConfigError, ScoutLinkError
 from scout_agent.evaluate import register_evaluate
 from scout_agent.localization import LOCALIZE_MODES
+from scout_agent.loop import STATE_SOURCES, SimConfig
 from scout_agent.mapping import add_mapping_arguments, publish_link
+from scout_agent.onboard.drivers import CONTACT_SOURCES, ContactDetection
 from scout_agent.run import SCENES, ScoutRunConfig, build_world
-from scout_agent.sensors import IMU_PRESETS, SENSOR_PROFILES, SensorConfig
-from scout_agent.sensors.foot_pressure import CONTACT_SOURCES
-from scout_agent.sensors.imu import IMU_ERROR_PRESETS
-from scout_agent.sim.dem import DemWindow
 from scout_agent.sim.friction import Patch
-from scout_agent.sim.simulator import STATE_SOURCES, SimConfig
+from scout_agent.sim.sensors import IMU_PRESETS, SENSOR_PROFILES, SensorConfig
+from scout_agent.sim.sensors.imu import IMU_ERROR_PRESETS
 from scout_agent.sim.terrain import LUNAR_ROUTES, PAPER_FIELD_M, RampConfig
 from scout_agent.state_estimation.launch import LAUNCH_MODES, LaunchSurvey
 
@@ -201,10 +201,16 @@ def _sim_config(
 ) -> SimConfig:
     base = SimConfig()
     prof = SensorConfig.named(sensors)
-    prof = replace(prof, contact=replace(prof.contact, source=contact), imu=IMU_PRESETS[imu])
+    prof = replace(prof, imu=IMU_PRESETS[imu])
     if sensors == "realistic":
         prof = replace(prof, imu_errors=IMU_ERROR_PRESETS[imu])
-    return replace(base, state_source=state, sensors=prof, launch=launch or LaunchSurvey())
+    return replace(
+        base,
+        state_source=state,
+        sensors=prof,
+        contact=ContactDetection(source=contact),
+        launch=launch or LaunchSurvey(),
+    )
 
 
 def _launch(args: argparse.Namespace) -> LaunchSurvey:

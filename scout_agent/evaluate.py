@@ -390,7 +390,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         "localization": summary["localization"],
         "launch": summary["launch"],
         "localization_stats": summary["localization_stats"],
-        "contact_source": cfg.sim.sensors.contact.source,
+        "contact_source": cfg.sim.contact.source,
         "fell": summary["fell"],
         "fall_xy": summary["fall_xy"],
         "reached_goal": summary["reached_goal"],

@@ -18,8 +18,6 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from protocol.keys import id_arg
 from protocol.layers import HAZARD_REASONS
 from psrmap_common.defaults import DEFAULT_DELTA_HZ, DEFAULT_RES_M
@@ -154,14 +152,11 @@ class Mapper:
         return out
 
 
-def _placement_sigma(sim: Any) -> float | None:
-    """The horizontal position σ [m] the scout's own estimator gives itself (None on the exact state, or
-    without an estimator): the square root of the larger eigenvalue of its x, y covariance."""
-    est = getattr(sim, "estimator", None)
-    if est is None or getattr(getattr(sim, "config", None), "state_source", "estimate") != "estimate":
-        return None
-    P = est.position_covariance()[:2, :2]
-    return float(np.sqrt(max(float(np.linalg.eigvalsh(P)[-1]), 0.0)))
+def _placement_sigma(scout: Any) -> float | None:
+    """The horizontal position σ [m] the scout's own estimator gives itself
+    (`onboard.OnboardSoftware.position_sigma_m`; None on the exact state, or without the robot's software)."""
+    robot = getattr(scout, "robot", None)
+    return None if robot is None else robot.position_sigma_m()
 
 
 def add_mapping_arguments(p: argparse.ArgumentParser) -> None:

@@ -1,7 +1,10 @@
-"""The scout's run loop, reusable: build the world from a `ScoutRunConfig`, walk the path, summarise.
+"""The scout's run, reusable: build the world from a `ScoutRunConfig`, walk the path, summarise.
 
-`run_scout(config, on_tick=callback)` calls `callback(sample, truth, sim)` every control tick, so the
-estimators and the map publisher plug into the same loop the `scout` command uses.
+`run_scout` steps a `loop.SimulatedScout` (the simulated Aliengo and the robot's software joined tick by tick)
+and drives it with the robot's pilot (`control.pilot`) and localizer (`localization`), which read only the
+robot's own records (`ProprioSample`, the estimate). `run_scout(config, on_tick=callback)` calls
+`callback(sample, truth, scout)` every control tick, so the map estimators and the map publisher plug into the
+same loop the `scout` command uses; `truth` and the summary's ground-truth figures are evaluation only.
 """
 
 from __future__ import annotations
@@ -19,13 +22,15 @@ import numpy as np
 from psrmap_common.defaults import DEFAULT_SEED
 from scout_agent.control.pilot import Pilot, PilotConfig
 from scout_agent.control.reflex import Felt
+from scout_agent.dem_reader import DemWindow, read_dem_grid, read_dem_window
 from scout_agent.errors import ScoutConfigError
 from scout_agent.estimators import TickEstimates
 from scout_agent.localization import LOCALIZE_MODES, DemReference, Localizer, LocalizerConfig, height_datum
 from scout_agent.localization.localizer import MapSource
+from scout_agent.loop import SimConfig, SimulatedScout
 from scout_agent.robot import constants as C
 from scout_agent.signals import GroundTruth, ProprioSample
-from scout_agent.sim.dem import DemWindow, OrbitalDemConfig, read_dem_grid, read_dem_window, write_orbital_dem
+from scout_agent.sim.dem import OrbitalDemConfig, write_orbital_dem
 from scout_agent.sim.friction import (
     DEFAULT_MU,
     FrictionMap,
@@ -33,7 +38,6 @@ from scout_agent.sim.friction import (
     lunar_slippery_patches,
     ramp_slippery_patch,
 )
-from scout_agent.sim.simulator import ScoutSim, SimConfig
 from scout_agent.sim.terrain import (
     PAPER_FIELD_M,
     LunarConfig,
@@ -47,7 +51,7 @@ from scout_agent.state_estimation.consistency import ConsistencyTracker
 from scout_agent.state_estimation.launch import HeightDatum
 
 SCENES = ("ramps", "lunar")
-OnTick = Callable[[ProprioSample, GroundTruth, ScoutSim], object]  # may return the tick's TickEstimates
+OnTick = Callable[[ProprioSample, GroundTruth, SimulatedScout], object]  # may return the tick's TickEstimates
 OnHazard = Callable[[Felt], object]
 
 
@@ -204,7 +208,8 @@ def run_scout(
         sources.append(("map", height_datum(lambda x, y: map_source(x, y, 2.0))))
     if dem is not None:
         sources.append(("dem", height_datum(lambda x, y: dem)))
-    sim = ScoutSim(world.terrain, world.friction, sim_cfg, start=world.start, datum_sources=sources)
+    scout = SimulatedScout(world.terrain, world.friction, sim_cfg, start=world.start, datum_sources=sources)
+    robot = scout.robot  # the robot's software: the pilot and localizer below run on its estimate
     on, pc = cfg.hazard_control, cfg.pilot
     pilot_cfg = replace(
         pc,
@@ -212,13 +217,13 @@ def run_scout(
         adaptive=pc.adaptive and on,
         reflex=pc.reflex and on,
     )
-    pilot = Pilot(world.waypoints, sim.controller, world.terrain.extent, pilot_cfg)
+    pilot = Pilot(world.waypoints, robot.controller, world.terrain.extent, pilot_cfg)
     localizer = None
-    if cfg.localize == "on" and sim.config.state_source == "estimate":
+    if cfg.localize == "on" and scout.config.state_source == "estimate":
         if dem is not None or map_source is not None:
-            localizer = Localizer(sim.estimator, cfg.localizer, dem=dem, map_source=map_source)
+            localizer = Localizer(robot.estimator, cfg.localizer, dem=dem, map_source=map_source)
     limit = cfg.sim_seconds or 2.0 * path_length(world.waypoints) / max(cfg.speed, 0.05) + 10.0
-    n_ticks = int(np.ceil(limit / sim.control_dt))
+    n_ticks = int(np.ceil(limit / scout.control_dt))
     bar = None
     if progress and sys.stderr.isatty():
         from tqdm import tqdm
@@ -235,36 +240,36 @@ def run_scout(
     path_estimate: list[list[float]] = []  # [t, x, y, z] of the robot's own estimate, every PATH_EVERY_S
     next_path_t = 0.0
     errors = ConsistencyTracker()  # the estimate against the truth, every tick (evaluation only)
-    on_estimate = sim.config.state_source == "estimate"
+    on_estimate = scout.config.state_source == "estimate"
     for k in range(n_ticks):
-        st = sim.robot_state()  # the robot's own estimate (exact only with state_source "exact")
-        v, w = pilot.command(st, sim.control_dt)
-        if sim.t < sim.config.settle_s:
+        st = robot.state  # the robot's own estimate (exact only with state_source "exact")
+        v, w = pilot.command(st, scout.control_dt)
+        if scout.t < scout.config.settle_s:
             pilot.follower.integral = 0.0
-        sample, truth = sim.step(v, w)
+        sample, truth = scout.step(v, w)
         x, y, _ = truth.base.pos.tolist()
-        if walk_t0 is None and sim.t >= sim.config.settle_s:
-            walk_t0 = sim.t
+        if walk_t0 is None and scout.t >= scout.config.settle_s:
+            walk_t0 = scout.t
             prev_x, prev_y = x, y
         if walk_t0 is not None:
             distance += math.hypot(x - prev_x, y - prev_y)
             prev_x, prev_y = x, y
-        if sim.t >= next_path_t:
+        if scout.t >= next_path_t:
             next_path_t += PATH_EVERY_S
-            path_estimate.append([round(sim.t, 3), *(round(float(v), 3) for v in sample.base.pos)])
+            path_estimate.append([round(scout.t, 3), *(round(float(v), 3) for v in sample.base.pos)])
         nonfoot_ticks += truth.nonfoot_contacts > 0
         errors.add(
             truth.base.pos,
             truth.base.quat,
             sample.base.pos,
             sample.base.quat,
-            sim.estimator.position_covariance()[:2, :2] if on_estimate else None,
+            robot.estimator.position_covariance()[:2, :2] if on_estimate else None,
         )
         vx, vy, _ = truth.base.vel.tolist()
-        speed_path += math.hypot(vx, vy) * sim.control_dt
+        speed_path += math.hypot(vx, vy) * scout.control_dt
         if localizer is not None:  # before the mapper: what it publishes next is placed corrected
             localizer.on_tick(sample)
-        est = on_tick(sample, truth, sim) if on_tick is not None else None
+        est = on_tick(sample, truth, scout) if on_tick is not None else None
         felt = pilot.feel(sample, est if isinstance(est, TickEstimates) else None)
         if felt is not None and on_hazard is not None:
             on_hazard(felt)
@@ -273,17 +278,17 @@ def run_scout(
         elif time.perf_counter() - wall0 >= next_line:
             next_line += 30.0
             print(
-                f"[{cfg.scout_id}] {sim.t:.0f}/{limit:.0f} s simulated, {distance:.1f} m walked",
+                f"[{cfg.scout_id}] {scout.t:.0f}/{limit:.0f} s simulated, {distance:.1f} m walked",
                 file=sys.stderr,
                 flush=True,
             )
-        if sim.fell or pilot.done:
+        if scout.fell or pilot.done:
             break
     if bar is not None:
         bar.close()
     wall = time.perf_counter() - wall0
-    walked = sim.t - (walk_t0 or sim.t)
-    pos = sim.data.qpos[0:3]
+    walked = scout.t - (walk_t0 or scout.t)
+    pos = scout.hardware.data.qpos[0:3]
     return {
         "scene": cfg.scene,
         "terrain": world.terrain.name,
@@ -291,35 +296,35 @@ def run_scout(
         "waypoints": world.waypoints.round(3).tolist(),
         "path_estimate": path_estimate,  # [t s, x, y, z m]: where the scout believes it walked
         "speed_cmd_mps": cfg.speed,
-        "fell": bool(sim.fell),
-        "fall_xy": list(sim.fall_xy) if sim.fall_xy else None,
+        "fell": bool(scout.fell),
+        "fall_xy": list(scout.hardware.fall_xy) if scout.hardware.fall_xy else None,
         "reached_goal": bool(pilot.reached),
         **pilot.summary(),
         "final_xy": [float(pos[0]), float(pos[1])],
         "distance_m": round(distance, 3),
         "mean_speed_mps": round(distance / walked, 4) if walked > 0 else 0.0,
-        "sim_seconds": round(sim.t, 3),
+        "sim_seconds": round(scout.t, 3),
         "wall_seconds": round(wall, 2),
-        "real_time_factor": round(sim.t / wall, 2) if wall > 0 else None,
+        "real_time_factor": round(scout.t / wall, 2) if wall > 0 else None,
         "nonfoot_contact_ticks": int(nonfoot_ticks),
         "friction": world.friction.to_dict(),
-        "state_source": sim.config.state_source,
-        "sensors": sim.config.sensors.profile,
+        "state_source": scout.config.state_source,
+        "sensors": scout.config.sensors.profile,
         "localization": localizer.report.used if localizer is not None else "off",
         "localization_stats": localizer.report.to_json() if localizer is not None else None,
         "launch": {
-            "mode": sim.config.launch.mode,
-            "datum": sim.launch.datum,
-            "sigma_xy_m": sim.launch.sigma_xy_m,
-            "sigma_yaw_deg": round(math.degrees(sim.launch.sigma_yaw_rad), 4),
-            "sigma_z_m": sim.launch.sigma_z_m,
-            "error_xy_m": _r4(math.hypot(sim.launch.x - world.start[0], sim.launch.y - world.start[1])),
-            "error_yaw_deg": _r4(math.degrees(sim.launch.yaw - world.start[2])),
+            "mode": scout.config.launch.mode,
+            "datum": scout.launch.datum,
+            "sigma_xy_m": scout.launch.sigma_xy_m,
+            "sigma_yaw_deg": round(math.degrees(scout.launch.sigma_yaw_rad), 4),
+            "sigma_z_m": scout.launch.sigma_z_m,
+            "error_xy_m": _r4(math.hypot(scout.launch.x - world.start[0], scout.launch.y - world.start[1])),
+            "error_yaw_deg": _r4(math.degrees(scout.launch.yaw - world.start[2])),
         },
         **drift(sample, truth, distance),
         **errors.summary(),
-        "energy_truth_j": round(sim.energy_true_j, 3),
-        "cot_whole_run_truth": _r4(sim.energy_true_j / (C.TOTAL_MASS * C.LUNAR_G * speed_path))
+        "energy_truth_j": round(scout.hardware.energy_true_j, 3),
+        "cot_whole_run_truth": _r4(scout.hardware.energy_true_j / (C.TOTAL_MASS * C.LUNAR_G * speed_path))
         if speed_path > 0.05
         else None,
     }

@@ -1,9 +1,11 @@
 """What a scout knows each control tick (proprioception) and what only the simulator knows (ground truth).
 
-These two records are the seam between the simulation (`scout_agent.sim`) and the robot's software (state
-estimator, controller, `scout_agent.estimators`): every field of `ProprioSample` is a sensor model's reading
-(`scout_agent.sensors`) or the state estimate (`scout_agent.state_estimation`); evaluation reads `GroundTruth`
-beside it, never mixed in.
+`ProprioSample` is the robot's software's own record of a tick (`scout_agent.onboard.OnboardSoftware.sense`):
+every field is a reading of the hardware's `lowlevel.LowState`, a flag the drivers made of one, the state
+estimate (`scout_agent.state_estimation`) or the controller's plan; the localizer, the map estimators
+(`scout_agent.estimators`) and the pilot read it. `GroundTruth` comes from the simulator's evaluation channel
+(`scout_agent.sim.aliengo.SimulatedAliengo.truth`); evaluation reads it beside the sample, never mixed in. Both
+sides import this module (it imports neither).
 
 Conventions: legs in `LEG_NAMES` order, joints in `JOINT_NAMES` order (hip ab/ad, thigh, calf per leg);
 quaternions are (w, x, y, z) and rotate base-frame vectors into the world (map) frame; the world frame is the

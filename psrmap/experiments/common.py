@@ -66,7 +66,7 @@ class RunSpec:
     slippery_patches: int = 0  # lunar: seeded patches
     sim_seconds: float | None = None  # cap on simulated time [s]
     res: float = MAP_RES
-    sensors: str = "realistic"  # sensor profile (scout_agent.sensors.SENSOR_PROFILES)
+    sensors: str = "realistic"  # sensor profile (scout_agent.sim.sensors.SENSOR_PROFILES)
     launch: str = "survey"  # start given to the scout (state_estimation.launch.LAUNCH_MODES)
     label: str = field(default="", compare=False)
 
@@ -92,9 +92,9 @@ def jitter_start(xy: Sequence[float], seed: int, dx: float = 0.05, dy: float = 0
 
 
 def _run_config(spec: RunSpec):
+    from scout_agent.loop import SimConfig
     from scout_agent.run import ScoutRunConfig
-    from scout_agent.sensors import SensorConfig
-    from scout_agent.sim.simulator import SimConfig
+    from scout_agent.sim.sensors import SensorConfig
     from scout_agent.state_estimation.launch import LaunchSurvey
 
     kw: dict[str, Any] = {}

@@ -25,7 +25,7 @@ class ExperimentConfig:
     seeds: tuple[int, ...]
     runs: int
     sim_seconds: float | None = None  # cap on each run's simulated time (reduced sets)
-    sensors: str = "realistic"  # sensor profile of every walk (scout_agent.sensors.SENSOR_PROFILES)
+    sensors: str = "realistic"  # sensor profile of every walk (scout_agent.sim.sensors.SENSOR_PROFILES)
     launch: str = "survey"  # the start every walk is given (state_estimation.launch.LAUNCH_MODES)
     # ramps / slopes
     angles: tuple[float, ...] = (5.0, 10.0, 15.0, 20.0)

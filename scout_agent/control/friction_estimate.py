@@ -25,7 +25,7 @@ import numpy as np
 from numba import njit
 
 from scout_agent.robot import kinematics as K
-from scout_agent.sensors import leg_forces_from_torques
+from scout_agent.robot.statics import leg_forces_from_torques
 
 __all__ = ["FrictionEstimate", "FrictionEstimateConfig"]
 

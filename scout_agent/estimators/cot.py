@@ -3,7 +3,7 @@
 Per tick we produce the two additive pieces a cell needs (ratio of sums, DESIGN "cot" layer):
 `work` = E_tick / (m·g) [m] and `dist` = horizontal distance the base travelled during the tick [m].
 E_tick is the joint energy the motor drivers integrated over the tick at every physics step from measured
-current (torque) and velocity (`ProprioSample.joint_energy_j`, `scout_agent.sensors.joints`). The distance is
+current (torque) and velocity (`ProprioSample.joint_energy_j`, `scout_agent.sim.sensors.joints`). The distance is
 ‖v_xy‖·dt of the state estimator's velocity (IMU + leg odometry), which is smooth and near zero standing.
 """
 

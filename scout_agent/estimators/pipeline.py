@@ -35,7 +35,7 @@ from numba import njit
 
 from scout_agent.errors import ScoutConfigError
 from scout_agent.robot import kinematics as K
-from scout_agent.sensors import leg_forces_from_torques
+from scout_agent.robot.statics import leg_forces_from_torques
 from scout_agent.signals import ProprioSample
 
 from .cot import CotConfig, CotMeter

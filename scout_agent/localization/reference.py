@@ -1,6 +1,6 @@
 """What footholds are matched against: heights with a per-point uncertainty, NaN where nothing is known.
 
-- `DemReference`: an orbital DEM (`scout_agent.sim.dem.DemGrid`, simulated or a real LOLA tile), bilinear
+- `DemReference`: an orbital DEM (`scout_agent.dem_reader.DemGrid`, simulated or a real LOLA tile), bilinear
   between pixel centres; each height's σ is the DEM's stated per-pixel error combined with what a 5 m pixel
   cannot show (the craters and rocks a foot stands on: `subpixel_m`).
 - `GridReference`: a regular grid of planes (height at the cell centre and gradient) and σ (the shared map's
@@ -17,7 +17,7 @@ from typing import Protocol
 import numpy as np
 
 from protocol.layers import plane_fit
-from scout_agent.sim.dem import DemGrid
+from scout_agent.dem_reader import DemGrid
 
 __all__ = ["DemReference", "GridReference", "HeightReference", "height_datum", "map_reference"]
 

@@ -263,7 +263,7 @@ class LunarConfig:
     corridor_m: float = 1.2  # half-width of the surveyed corridors along routes
     spawn_radius_m: float = 0.9  # flattened patch around route ends
     corridor_max_slope_deg: float = 26.0  # slopes within corridors are smoothed down to this cap
-    # a measured broad relief (n, n) at `res` (e.g. a DEM window, `scout_agent.sim.dem`) instead of the
+    # a measured broad relief (n, n) at `res` (e.g. a DEM window, `scout_agent.dem_reader`) instead of the
     # seeded one; the seeded detail (fine noise, craters, rocks) is added on top
     base: np.ndarray | None = field(default=None, compare=False, repr=False)
     base_info: dict = field(default_factory=dict, compare=False, repr=False)

@@ -1,5 +1,6 @@
 """The simulator's ground truth each control tick, compiled (numba): per-foot ground forces from MuJoCo's
-contact list, the trunk's rotation and the feet in the world, each stance's contact-point displacement.
+contact list, the trunk's rotation and the feet in the world (`tick_truth`), and each stance's contact-point
+displacement (`stance_displacement`).
 
 In numpy these cost ≈ 120 µs a tick (a Python loop over contacts and a few dozen small array operations), here
 a few µs. The arithmetic is the same, in the same order, so the figures are bit-identical to the numpy version
@@ -128,7 +129,6 @@ class TickTruth(NamedTuple):
     R: np.ndarray  # (3, 3) trunk rotation, world_R_base
     feet: np.ndarray  # (4, 3) foot-sphere centres, world [m]
     ground: np.ndarray  # (5,) terrain height under the four feet and the trunk origin [m]
-    stance_disp: np.ndarray  # (4,) contact point's displacement since its stance's first contact [m]; NaN
 
 
 @njit(cache=True, nogil=True)
@@ -143,13 +143,10 @@ def tick_truth(
     y0: float,
     res: float,
     contact_threshold_n: float,
-    stance_planned: np.ndarray,
-    first_point: np.ndarray,
-    swung: np.ndarray,
 ) -> TickTruth:
     """All of a tick's ground truth in one compiled pass: `foot_contacts` (MuJoCo's contact arrays `contacts`:
-    geom, efc_address, frame, pos, and efc_force; the `touching` flags), `pose_and_feet` (qpos), the terrain (grid z, x0, y0, res) under the feet and the trunk,
-    and `stance_displacement` (its carried-over `first_point`, `swung`)."""
+    geom, efc_address, frame, pos, and efc_force; the `touching` flags), `pose_and_feet` (qpos), and the terrain
+    (grid z, x0, y0, res) under the feet and the trunk."""
     forces, points, fn = np.empty((4, 3)), np.empty((4, 3)), np.empty(4)
     geom, efc_address, frame, pos, efc_force = contacts
     n_nonfoot = foot_contacts(
@@ -165,10 +162,8 @@ def tick_truth(
     x[4], y[4] = qpos[0], qpos[1]
     ground = np.empty(5)
     heights_at(z, x0, y0, res, x, y, ground)
-    disp = np.empty(4)
-    stance_displacement(stance_planned, contact, points, first_point, swung, disp)
     contact_point = points.copy()
     for i in range(4):
         if not contact[i]:
             contact_point[i] = np.nan
-    return TickTruth(forces, contact_point, fn, contact, n_nonfoot, R, feet, ground, disp)
+    return TickTruth(forces, contact_point, fn, contact, n_nonfoot, R, feet, ground)

@@ -1,7 +1,7 @@
 """The scout's state estimator: base orientation, velocity and position from the IMU, leg kinematics and contacts.
 
 `StateEstimator` (estimator.py) runs every control tick inside the scout loop on sensor readings only
-(`scout_agent.sensors.SensorTick`) and the mission's launch pose; `ErrorStateEKF` (ekf.py) is its filter and
+(`scout_agent.onboard.drivers.SensorTick`) and the mission's launch pose; `ErrorStateEKF` (ekf.py) is its filter and
 `leg_odometry.py` turns encoders + gyro into base-velocity measurements from the stance feet.
 """
 

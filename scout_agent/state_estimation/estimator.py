@@ -1,10 +1,10 @@
 """`StateEstimator`: the scout's base state from its own sensors, every control tick.
 
 Inputs, and where each comes from on a real Aliengo:
-- the IMU's specific force and angular rate (tick means of the 500 Hz samples; `scout_agent.sensors.imu`),
-- the joint encoders and driver velocities (`scout_agent.sensors.joints`) through the leg kinematics
+- the IMU's specific force and angular rate (tick means of the 500 Hz samples; the model: `scout_agent.sim.sensors.imu`),
+- the joint encoders and driver velocities (`scout_agent.sim.sensors.joints`) through the leg kinematics
   (Pinocchio, the same model the simulator runs),
-- the foot contact flags (`scout_agent.sensors.foot_pressure`),
+- the foot contact flags (`scout_agent.onboard.drivers`),
 - the launch pose the scout is given in the shared map frame (launch.py: a lander's survey of x, y, heading
   with its σ, and a ground height from a DEM, the shared map, or declared 0 with a large σ; docs/design.md,
   "Frames and grid"): the filter starts with exactly that covariance; the height is anchored once, when two
@@ -64,8 +64,8 @@ from numba import njit
 
 from scout_agent.estimators.elevation import terrain_normal
 from scout_agent.estimators.feet import PinocchioFeet
+from scout_agent.onboard.drivers import SensorTick
 from scout_agent.robot import constants as C
-from scout_agent.sensors import SensorTick
 
 from . import kernels
 from .ekf import ErrorStateEKF, NoiseConfig

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from psrmap.cli import main
+from scout_agent.dem_reader import DemWindow
 from scout_agent.run import ScoutRunConfig, build_world
-from scout_agent.sim.dem import DemWindow
 
 TILT_DEG = 4.0
 X0, Y0, PX, N = 10_000.0, -20_000.0, 5.0, 40  # upper-left corner [m], pixel [m], pixels per side

@@ -7,7 +7,8 @@ import mujoco
 import numpy as np
 import pytest
 
-from scout_agent.sim.dem import DemWindow, OrbitalDemConfig, orbital_dem, read_dem_grid, write_orbital_dem
+from scout_agent.dem_reader import DemWindow, read_dem_grid
+from scout_agent.sim.dem import OrbitalDemConfig, orbital_dem, write_orbital_dem
 from scout_agent.sim.scene import build_scene
 from scout_agent.sim.terrain import LUNAR_ROUTES, LunarConfig, lunar_routes, make_lunar
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from scout_agent.loop import SimulatedScout
 from scout_agent.robot.constants import FOOT_GEOMS
 from scout_agent.sim.friction import (
     FrictionMap,
@@ -14,7 +15,6 @@ from scout_agent.sim.friction import (
     ramp_slippery_patch,
     unholdable,
 )
-from scout_agent.sim.simulator import ScoutSim
 from scout_agent.sim.terrain import (
     LUNAR_ROUTES,
     LunarConfig,
@@ -87,11 +87,14 @@ def test_unholdable_is_friction_below_the_slope_tangent():
 def test_feet_take_friction_from_the_map():
     t = make_ramps(RampConfig(slope_deg=0.0))
     fm = FrictionMap(0.7, (Patch(0.0, -2.0, 0.6, 2.0, 0.25),))  # under the rear feet only
-    sim = ScoutSim(t, fm)
+    sim = SimulatedScout(t, fm)
     for _ in range(5):
         _, truth = sim.step(0.0, 0.0)
-    ids = [sim.model.geom(n).id for n in FOOT_GEOMS]
-    mu = sim.model.geom_friction[ids, 0]
+    ids = [sim.hardware.model.geom(n).id for n in FOOT_GEOMS]
+    mu = sim.hardware.model.geom_friction[ids, 0]
     np.testing.assert_allclose(mu, [0.7, 0.7, 0.25, 0.25])
     np.testing.assert_allclose(truth.friction_at_feet, mu)
-    assert sim.model.geom_priority[ids].min() > sim.model.geom_priority[sim.model.geom("terrain").id]
+    assert (
+        sim.hardware.model.geom_priority[ids].min()
+        > sim.hardware.model.geom_priority[sim.hardware.model.geom("terrain").id]
+    )

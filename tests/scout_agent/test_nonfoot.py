@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from scout_agent.loop import SimulatedScout
 from scout_agent.mapping import Mapper, MapperConfig
 from scout_agent.run import ScoutRunConfig, run_scout
-from scout_agent.sim.simulator import ScoutSim
 from scout_agent.sim.terrain import LunarConfig, make_lunar
 
 
@@ -14,7 +14,7 @@ def test_tumbling_into_a_hazard_crater_is_flagged_as_non_foot_contact():
     terrain = make_lunar(LunarConfig(seed=0))
     crater = max((c for c in terrain.info["craters"] if c["hazard"]), key=lambda c: c["depth"])
     x, y = crater["x"], crater["y"]
-    sim = ScoutSim(terrain, start=(x - 2.0, y, 0.0))
+    sim = SimulatedScout(terrain, start=(x - 2.0, y, 0.0))
     mapper = Mapper(MapperConfig())
     truth_t: list[float] = []
     flagged_t: list[float] = []

@@ -10,9 +10,9 @@ import pytest
 
 from protocol.keys import alive_key
 from protocol.layers import LAYERS
+from scout_agent.loop import SimulatedScout
 from scout_agent.mapping import Mapper, MapperConfig
 from scout_agent.publisher import ScoutPublisher
-from scout_agent.sim.simulator import ScoutSim
 from scout_agent.sim.terrain import RampConfig, make_ramps
 
 MAP = "testmap"
@@ -22,7 +22,7 @@ RES = 0.4
 @pytest.fixture(scope="module")
 def samples():
     """3 s of a real trot on a 10° ramp (settling included), as the scout would see it."""
-    sim = ScoutSim(make_ramps(RampConfig(slope_deg=10.0)))
+    sim = SimulatedScout(make_ramps(RampConfig(slope_deg=10.0)))
     return [sim.step(0.2)[0] for _ in range(int(3.0 / sim.control_dt))]
 
 

@@ -8,18 +8,19 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from scout_agent.loop import SimulatedScout
+from scout_agent.onboard.drivers import ContactDetection, ContactDetector
 from scout_agent.robot import kinematics as K
 from scout_agent.robot.constants import HOME_Q
-from scout_agent.sensors import (
+from scout_agent.robot.statics import leg_forces_from_torques
+from scout_agent.sim.sensors import (
     ContactConfig,
     FootContactSensors,
     ImuConfig,
     ImuModel,
     JointSensorConfig,
     JointSensors,
-    leg_forces_from_torques,
 )
-from scout_agent.sim.simulator import ScoutSim
 from scout_agent.sim.terrain import RampConfig, make_ramps
 
 DT = 0.002
@@ -71,13 +72,13 @@ def test_torque_from_current_has_a_gain_error_per_joint_and_noise():
 
 
 def test_foot_pressure_contact_has_hysteresis():
-    feet = FootContactSensors(ContactConfig(on_n=5.0, off_n=2.5), np.random.default_rng(0))
+    feet = ContactDetector(ContactDetection(on_n=5.0, off_n=2.5))
     assert not feet.flags(np.full(4, 4.0)).any()  # below on: stays off
     assert feet.flags(np.full(4, 6.0)).all()  # above on
     assert feet.flags(np.full(4, 3.0)).all()  # between: stays on
     assert not feet.flags(np.full(4, 2.0)).any()  # below off
     with pytest.raises(ValueError, match="pressure, torques"):
-        ContactConfig(source="vision")
+        ContactDetection(source="vision")
 
 
 def test_ground_forces_from_joint_torques_invert_the_stance_map():
@@ -89,11 +90,11 @@ def test_ground_forces_from_joint_torques_invert_the_stance_map():
 
 @pytest.fixture(scope="module")
 def walk():
-    sim = ScoutSim(make_ramps(RampConfig(slope_deg=10.0)))
+    sim = SimulatedScout(make_ramps(RampConfig(slope_deg=10.0)))
     rec = []
     for _ in range(int(8.0 / sim.control_dt)):
         s, g = sim.step(0.2, 0.0)
-        rec.append((s, g, sim.last_output.stance_forces.copy()))
+        rec.append((s, g, sim.robot.last_output.stance_forces.copy()))
     return sim, rec
 
 
@@ -110,7 +111,7 @@ def test_driver_energy_is_within_3_percent_of_the_exact_energy_and_tick_sampling
     sim, rec = walk
     measured = sum(s.joint_energy_j for s, _, _ in rec)
     exact = sum(g.joint_energy_j for _, g, _ in rec)
-    assert exact == pytest.approx(sim.energy_true_j)
+    assert exact == pytest.approx(sim.hardware.energy_true_j)
     assert measured == pytest.approx(exact, rel=0.03)
     once_per_tick = sum(float(np.abs(g.dq * s.tau).sum()) * sim.control_dt for s, g, _ in rec)
     assert once_per_tick < 0.95 * exact  # the old way: last physics step of each tick only
@@ -137,7 +138,7 @@ def _quat_to_mat(q: np.ndarray) -> np.ndarray:
 
 
 def test_realistic_imu_bias_follows_the_temperature_by_its_drawn_coefficients():
-    from scout_agent.sensors import ImuErrors, ImuTemperature
+    from scout_agent.sim.sensors import ImuErrors, ImuTemperature
 
     # no white noise, no bias walk, no quantiser: the drift is the temperature's alone
     cfg = ImuConfig(acc_bias_walk=0.0, gyro_bias_walk=0.0, gyro_noise_density=0.0)
@@ -165,7 +166,7 @@ def test_realistic_imu_bias_follows_the_temperature_by_its_drawn_coefficients():
 
 
 def test_ideal_imu_errors_leave_the_datasheet_model_unchanged():
-    from scout_agent.sensors import ImuErrors
+    from scout_agent.sim.sensors import ImuErrors
 
     a = ImuModel(ImuConfig(), np.random.default_rng(9))
     b = ImuModel(ImuConfig(), np.random.default_rng(9), ImuErrors.none())
@@ -175,7 +176,7 @@ def test_ideal_imu_errors_leave_the_datasheet_model_unchanged():
 
 
 def test_realistic_scale_and_misalignment_show_under_a_known_rate():
-    from scout_agent.sensors import ImuErrors
+    from scout_agent.sim.sensors import ImuErrors
 
     errs = replace(ImuErrors.none(), gyro_scale=0.01, misalignment_rad=(0.0, 0.0, 0.01))
     imu = ImuModel(
@@ -205,8 +206,8 @@ def test_joint_zero_offsets_and_foot_sensor_drift_and_saturation():
 
 
 def test_lost_packets_repeat_the_last_reading_and_keep_the_energy():
-    from scout_agent.sensors import LinkTiming, SensorConfig, SensorSuite
-    from scout_agent.sensors.suite import TrueBlock
+    from scout_agent.sim.sensors import LinkTiming, SensorConfig, SensorSuite
+    from scout_agent.sim.sensors.suite import TrueBlock
 
     suite = SensorSuite(SensorConfig(timing=LinkTiming(jitter_s=1e-4, packet_drop=0.3)), HOME_Q)
     k = 5

@@ -1,4 +1,4 @@
-"""ScoutSim: the per-tick records, contact flags and forces, the base state as the robot estimates it, falls."""
+"""SimulatedScout (the simulated Aliengo and the robot's software, joined): the per-tick records, contact flags and forces, the base state as the robot estimates it, falls."""
 
 from __future__ import annotations
 
@@ -7,15 +7,15 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from scout_agent.loop import SimConfig, SimulatedScout
 from scout_agent.robot.constants import FOOT_RADIUS, LUNAR_G, TOTAL_MASS
 from scout_agent.signals import GroundTruth, ProprioSample
-from scout_agent.sim.simulator import ScoutSim, SimConfig
 from scout_agent.sim.terrain import RampConfig, make_ramps
 
 
 @pytest.fixture(scope="module")
 def standing():
-    sim = ScoutSim(make_ramps(RampConfig(slope_deg=0.0)))
+    sim = SimulatedScout(make_ramps(RampConfig(slope_deg=0.0)))
     records = [sim.step(0.0, 0.0) for _ in range(int(1.5 / sim.control_dt))]
     return sim, records
 
@@ -31,7 +31,7 @@ def test_records_have_the_fixed_shapes(standing):
     assert sample.phase.shape == (4,) and ((sample.phase >= 0) & (sample.phase < 1)).all()
     assert truth.foot_pos_world.shape == (4, 3)
     assert sim.control_dt == pytest.approx(0.002 * sim.config.decimation)
-    assert sim.model.opt.timestep == 0.002 and sim.model.opt.impratio == 10
+    assert sim.hardware.model.opt.timestep == 0.002 and sim.hardware.model.opt.impratio == 10
 
 
 def test_standing_feet_carry_the_lunar_weight(standing):
@@ -59,8 +59,10 @@ def test_base_state_is_the_estimate_and_exact_only_on_request(standing):
     err = est - true
     assert np.abs(err).max() > 1e-4  # an estimate, not the truth
     assert np.sqrt((err[50:] ** 2).mean()) < 0.02  # ... and a good one once the robot stands
-    np.testing.assert_array_equal(records[-1][1].base.vel, sim.data.qvel[:3])
-    exact = ScoutSim(make_ramps(RampConfig(slope_deg=0.0)), config=replace(SimConfig(), state_source="exact"))
+    np.testing.assert_array_equal(records[-1][1].base.vel, sim.hardware.data.qvel[:3])
+    exact = SimulatedScout(
+        make_ramps(RampConfig(slope_deg=0.0)), config=replace(SimConfig(), state_source="exact")
+    )
     s, g = exact.step(0.0, 0.0)
     np.testing.assert_array_equal(s.base.vel, g.base.vel)
     with pytest.raises(ValueError, match="estimate, exact"):
@@ -68,7 +70,7 @@ def test_base_state_is_the_estimate_and_exact_only_on_request(standing):
 
 
 def test_contact_flags_follow_the_trot(standing):
-    sim = ScoutSim(make_ramps(RampConfig(slope_deg=0.0)))
+    sim = SimulatedScout(make_ramps(RampConfig(slope_deg=0.0)))
     flags, planned, disp = [], [], []
     for _ in range(int(3.0 / sim.control_dt)):
         s, g = sim.step(0.2, 0.0)
@@ -81,13 +83,13 @@ def test_contact_flags_follow_the_trot(standing):
 
 
 def test_falls_are_detected():
-    sim = ScoutSim(make_ramps(RampConfig(slope_deg=0.0)))
-    sim.data.qpos[3:7] = (np.cos(np.pi / 4), np.sin(np.pi / 4), 0.0, 0.0)  # rolled 90°
+    sim = SimulatedScout(make_ramps(RampConfig(slope_deg=0.0)))
+    sim.hardware.data.qpos[3:7] = (np.cos(np.pi / 4), np.sin(np.pi / 4), 0.0, 0.0)  # rolled 90°
     for _ in range(50):
         sim.step(0.0, 0.0)
         if sim.fell:
             break
-    assert sim.fell and sim.fall_xy is not None
+    assert sim.fell and sim.hardware.fall_xy is not None
 
 
 def test_walking_into_a_hazard_crater_is_a_reported_fall():
@@ -108,11 +110,11 @@ def test_walking_into_a_hazard_crater_is_a_reported_fall():
 
 
 def test_the_controller_runs_on_the_estimate_not_the_truth():
-    sim = ScoutSim(make_ramps(RampConfig(slope_deg=0.0)))
+    sim = SimulatedScout(make_ramps(RampConfig(slope_deg=0.0)))
     for _ in range(80):
         s, g = sim.step(0.2, 0.0)
-    state = sim.robot_state()
+    state = sim.robot.state
     np.testing.assert_array_equal(state.pos, s.base.pos)  # what the controller reads is what the sample says
     np.testing.assert_array_equal(state.q, s.q)
     assert np.abs(state.pos - g.base.pos).max() > 1e-5
-    np.testing.assert_array_equal(s.foot_vel_des_base, sim.last_output.foot_vel_des_base)
+    np.testing.assert_array_equal(s.foot_vel_des_base, sim.robot.last_output.foot_vel_des_base)

@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 
 from scout_agent.estimators.pipeline import quat_to_matrix
+from scout_agent.loop import SimConfig, SimulatedScout
 from scout_agent.mapping import Mapper, MapperConfig
 from scout_agent.run import ScoutRunConfig, run_scout
 from scout_agent.signals import BaseState, GroundTruth
-from scout_agent.sim import simulator
-from scout_agent.sim.simulator import ScoutSim, SimConfig
+from scout_agent.sim.aliengo import SimulatedAliengo
 from scout_agent.sim.terrain import RampConfig, make_ramps
 from scout_agent.state_estimation import ErrorStateEKF, NoiseConfig
 from scout_agent.state_estimation.ekf import so3_exp
@@ -84,7 +84,7 @@ def test_matrix_to_quat_round_trips():
 def ramp_walk():
     # realistic sensors; the exact launch, so that the error measured here is the estimator's drift alone (the
     # survey's start error is covered by test_the_start_error_is_inside_the_stated_covariance)
-    sim = ScoutSim(
+    sim = SimulatedScout(
         make_ramps(RampConfig(slope_deg=15.0)), config=SimConfig(launch=LaunchSurvey(mode="exact"))
     )
     rec = []
@@ -92,7 +92,7 @@ def ramp_walk():
     for _ in range(int(25.0 / sim.control_dt)):
         s, g = sim.step(0.2, 0.0)
         rec.append((s.base, g.base))
-        sim.position_covariances.append(sim.estimator.position_covariance()[:2, :2])
+        sim.position_covariances.append(sim.robot.estimator.position_covariance()[:2, :2])
         assert not sim.fell
     return sim, rec
 
@@ -113,7 +113,7 @@ def test_the_covariance_contains_the_true_position_error(ramp_walk):
 
 def test_the_imu_lever_arm_is_removed():
     """An IMU 7 cm off the trunk origin reads ω̇ × r + ω × (ω × r) more; the estimator subtracts it."""
-    from scout_agent.sensors import SensorTick
+    from scout_agent.onboard.drivers import SensorTick
     from scout_agent.state_estimation import EstimatorConfig, StateEstimator
     from scout_agent.state_estimation.launch import LaunchPose
 
@@ -159,9 +159,8 @@ def test_drift_on_a_ramp_walk_is_small(ramp_walk):
     assert np.sqrt((vel_err**2).mean()) < 0.02
 
 
-def _nan_truth(*args, **kwargs) -> GroundTruth:
-    """A `GroundTruth` whose every number is NaN: whoever reads it on the robot's side propagates NaN."""
-    t = GroundTruth(*args, **kwargs)
+def _nan_truth(t: GroundTruth) -> GroundTruth:
+    """`t` with every number NaN: whoever reads it propagates NaN."""
     nan3 = np.full(3, np.nan)
     return GroundTruth(
         t=math.nan,
@@ -193,33 +192,27 @@ def _walk_and_map(cfg: ScoutRunConfig) -> tuple[dict, list[np.ndarray], dict]:
     return summary, trace, {k: mapper.local.cells(k) for k in ("elevation", "slip", "cot", "giim", "giam")}
 
 
-def test_nothing_on_the_estimation_or_control_path_reads_the_simulator_state(monkeypatch):
+def test_the_loop_hands_the_robot_readings_only(monkeypatch):
+    """The robot's software cannot import the simulator (test_structure.py); what it gets is what the loop
+    (scout_agent/loop.py) hands it. With the hardware's evaluation channel (ground truth) and the exact launch
+    height poisoned with NaN, the scout walks and maps bit-identically: only evaluation sees the poison."""
     cfg = ScoutRunConfig(scene="ramps", slope_deg=10.0, sim_seconds=10.0)
     ref_summary, ref_trace, ref_map = _walk_and_map(cfg)
-    # poison every way the robot's side could reach ground truth: the records evaluation gets, and the exact state
-    monkeypatch.setattr(simulator, "GroundTruth", _nan_truth)
-    nan_state = simulator.RobotState(
-        math.nan,
-        *(np.full(n, np.nan) for n in (3,)),
-        np.full((3, 3), np.nan),
-        np.full(3, np.nan),
-        np.full(3, np.nan),
-        np.full(12, np.nan),
-        np.full(12, np.nan),
-        np.zeros(4, bool),
-    )
-    monkeypatch.setattr(ScoutSim, "exact_state", lambda self: nan_state)
-    # and the start: the robot's software powers on with the exact ground height NaN, and from then on every
-    # terrain query (the simulator's truth records, fall check) answers NaN; the survey draws its own error
-    start_software = ScoutSim._start_robot_software
+    truth, reset, survey = SimulatedAliengo.truth, SimulatedAliengo.reset, SimulatedScout._survey_launch
+    monkeypatch.setattr(SimulatedAliengo, "truth", lambda self, stance: _nan_truth(truth(self, stance)))
+
+    def poisoned_reset(self, start):
+        reset(self, start)
+        self.start_ground_z = math.nan  # the exact ground height the "exact" launch mode would read
+
     launches = []
 
-    def poisoned_start(self, x, y, yaw, ground_z):
-        start_software(self, x, y, yaw, math.nan)
-        monkeypatch.setattr(type(self.terrain), "height", lambda self, x, y: np.full(np.shape(x), np.nan))
-        launches.append(self.launch)
+    def recorded_survey(self, sources):
+        launches.append(survey(self, sources))
+        return launches[-1]
 
-    monkeypatch.setattr(ScoutSim, "_start_robot_software", poisoned_start)
+    monkeypatch.setattr(SimulatedAliengo, "reset", poisoned_reset)
+    monkeypatch.setattr(SimulatedScout, "_survey_launch", recorded_survey)
     summary, trace, poisoned_map = _walk_and_map(cfg)
     assert len(trace) == len(ref_trace) and not summary["fell"]
     np.testing.assert_array_equal(np.array(trace), np.array(ref_trace))  # walked identically
@@ -279,11 +272,11 @@ def test_stacked_velocity_rows_equal_the_single_ones():
 
 
 def test_the_height_is_anchored_to_the_launch_ground_once_the_feet_stand_on_it():
-    sim = ScoutSim(make_ramps(RampConfig(slope_deg=0.0)))  # dropped from 1 cm above the ground at t = 0
+    sim = SimulatedScout(make_ramps(RampConfig(slope_deg=0.0)))  # dropped from 1 cm above the ground at t = 0
     first = sim.step(0.0, 0.0)
     for _ in range(100):
         s, g = sim.step(0.0, 0.0)
-    assert sim.estimator.anchored
+    assert sim.robot.estimator.anchored
     assert abs(first[0].base.pos[2] - first[1].base.pos[2]) > 0.008  # before: the launch prior, 1 cm off
     assert abs(s.base.pos[2] - g.base.pos[2]) < 0.005  # after: on the ground it stands on
 

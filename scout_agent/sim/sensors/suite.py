@@ -1,8 +1,10 @@
 """`SensorSuite`: one robot's sensors, sampled every physics step, delivered once per control tick.
 
-The simulator hands the suite the exact readings of the k physics steps of one control tick (`TrueBlock`);
-the suite returns what the robot's drivers and IMU report (`SensorTick`). This is the only place where the
-simulator's exact state enters the robot's side.
+The simulated Aliengo (`sim/aliengo.py`) hands the suite the exact values of the k physics steps of one control
+tick (`TrueBlock`); the suite returns what the robot's drivers and IMU report, the `lowlevel.LowState` the
+robot's software receives. These models are part of the simulated hardware: they say what a real device reads
+(noise, biases, quantisation, drift, saturation, lost packets). What the software makes of the readings (contact
+flags, the state estimate) is on the robot's side (`scout_agent.onboard`, `scout_agent.state_estimation`).
 
 Two profiles (`SensorConfig.realistic()`, the default, and `SensorConfig.ideal()`, the models as they were
 before issue 23, for comparison: `psrmap scout|evaluate --sensors ideal`). Realistic adds, beside the IMU's
@@ -17,7 +19,7 @@ own errors (`imu.ImuErrors`), the joint zero offsets (`joints.py`) and the foot 
 - **time stamps with jitter, and dropped packets** (`LinkTiming`): the low-level state reaches the robot's
   software over UDP (Unitree legged_sdk) with a time stamp jittered by σ 0.2 ms and is lost with probability
   0.5 % (assumed: a non-real-time Linux user-space receiver; Unitree publishes none). A lost packet leaves the
-  software with the previous reading (`SensorTick.fresh` False); its joint energy arrives with the next one
+  software with the previous reading (`LowState.fresh` False); its joint energy arrives with the next one
   (the driver integrates it).
 """
 
@@ -30,13 +32,12 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from scout_agent.robot import kinematics as K
+from scout_agent.lowlevel import LowState
 
-from .foot_pressure import ContactConfig, FootContactSensors, leg_forces_from_torques
+from .foot_pressure import ContactConfig, FootContactSensors
 from .imu import ImuConfig, ImuErrors, ImuModel
 from .joints import JointSensorConfig, JointSensors
 
-_ZERO12 = np.zeros(12)
 SENSOR_PROFILES = ("realistic", "ideal")
 GO1_IMU_OFFSET_M = (-0.01592, -0.06659, -0.00617)  # MuJoCo Menagerie unitree_go1: imu site [m], trunk frame
 
@@ -119,22 +120,6 @@ class TrueBlock(NamedTuple):
     foot_normal_n: np.ndarray  # (4,) normal ground force on each foot at the tick's end [N]
 
 
-class SensorTick(NamedTuple):
-    """What the robot's sensors report for one control tick."""
-
-    imu_acc: np.ndarray  # (3,) mean specific force over the tick, base frame [m/s²]
-    imu_gyro: np.ndarray  # (3,) mean angular velocity over the tick, base frame [rad/s]
-    q: np.ndarray  # (12,) encoder angles at the tick's end [rad]
-    dq: np.ndarray  # (12,) driver joint velocities at the tick's end [rad/s]
-    tau: np.ndarray  # (12,) torques from motor current at the tick's end [N·m]
-    joint_energy_j: float  # Σ|τ·θ̇|dt over the tick's physics steps, from the measured values [J]
-    foot_pressure: np.ndarray  # (4,) foot pressure readings [N]
-    contact: np.ndarray  # (4,) bool contact flags (pressure or torque based, with hysteresis)
-    stamp_s: float = math.nan  # the reading's time stamp on the robot's clock [s] (NaN: use the loop period)
-    fresh: bool = True  # False: the packet was lost, these are the previous tick's values
-    imu_temp_c: float = math.nan  # the IMU's on-chip thermometer [°C]
-
-
 class SensorSuite:
     def __init__(self, config: SensorConfig, q0: np.ndarray) -> None:
         self.config = config
@@ -144,29 +129,24 @@ class SensorSuite:
         self.feet = FootContactSensors(config.contact, rng)
         self._link_rng = np.random.default_rng([config.seed, 0x7173])  # timing: its own stream
         self.t = 0.0  # true time of the last reading [s]
-        self._last: SensorTick | None = None
+        self._last: LowState | None = None
         self._energy_pending = 0.0  # joint energy of lost packets, delivered with the next one [J]
         self.dropped = 0  # packets lost so far
 
-    def read(self, block: TrueBlock) -> SensorTick:
+    def read(self, block: TrueBlock) -> LowState:
         cfg = self.config
         k = len(block.q)
         self.t += k * block.dt
         acc, gyro = self.imu.sample(block.acc, block.gyro, block.dt)
         q, dq, tau, energy = self.joints.sample(block.q, block.tau, block.dt)
         pressure = self.feet.reading(block.foot_normal_n, k * block.dt)
-        if cfg.contact.source == "torques":
-            fb = leg_forces_from_torques(K.jacobians(q[-1]), tau[-1], _ZERO12)
-            contact = self.feet.flags(fb[:, 2])  # the ground pushes a stance foot up the base z axis
-        else:
-            contact = self.feet.flags(pressure)
         tm = cfg.timing
         if tm.packet_drop and self._last is not None and self._link_rng.random() < tm.packet_drop:
             self.dropped += 1
             self._energy_pending += energy
             return self._last._replace(joint_energy_j=0.0, fresh=False)
         stamp = self.t + (self._link_rng.normal(0.0, tm.jitter_s) if tm.jitter_s else 0.0)
-        tick = SensorTick(
+        tick = LowState(
             _mean_rows(acc),
             _mean_rows(gyro),
             q[-1],
@@ -174,7 +154,6 @@ class SensorSuite:
             tau[-1],
             energy + self._energy_pending,
             pressure,
-            contact,
             stamp,
             True,
             self.imu.temperature_c() if cfg.profile != "ideal" else math.nan,

@@ -1,0 +1,250 @@
+"""`SimulatedAliengo`: the simulated hardware — one Aliengo on one terrain, offering what the real robot offers.
+
+Out: sensor readings (`read()` → `lowlevel.LowState`); in: joint commands (`write(lowlevel.LowCmd)`); and,
+unlike the real robot, ground truth on a separate evaluation channel (`truth()` → `signals.GroundTruth`, plus
+`fell`, `fall_xy`, `energy_true_j` and MuJoCo's `model`/`data`). Nothing here imports the robot's software
+(`scout_agent.onboard`, `control`, `state_estimation`, …; tests/scout_agent/test_structure.py checks it): the
+loop that joins the two is `scout_agent.loop`.
+
+Timing: physics at `dt` = 0.002 s; one `write` runs `decimation` physics steps (default 5 → a 100 Hz control
+tick) under the command, the joint PD servos acting at every physics step inside MuJoCo (τ = τ_ff +
+Kp (q_des − q) + Kd (dq_des − dq), as a Unitree motor driver applies a `LowCmd`). The sensor models
+(`sim.sensors`) sample the IMU, encoders and motor currents at every physics step (driver rate: the joint energy
+is integrated there) and report once per tick: the `LowState` that `read()` returns until the next `write`.
+
+The robot as built, not as designed (`sim/sensors/suite.py`): its IMU site sits where the sensor profile mounts
+it and its thigh/calf lengths are off the nominal ones the robot's software uses.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import mujoco
+import numpy as np
+
+from scout_agent.lowlevel import LowCmd, LowState
+from scout_agent.robot import constants as C
+from scout_agent.robot import kinematics as K
+from scout_agent.signals import LEG_NAMES, BaseState, GroundTruth
+from scout_agent.sim.friction import FrictionMap
+from scout_agent.sim.scene import TERRAIN_GEOM, PhysicsConfig, build_scene
+from scout_agent.sim.sensors import SensorConfig, SensorSuite
+from scout_agent.sim.sensors.suite import TrueBlock, link_length_errors
+from scout_agent.sim.terrain import Terrain
+from scout_agent.sim.truth import TickTruth, stance_displacement, tick_truth
+
+
+@dataclass(frozen=True)
+class HardwareConfig:
+    """The simulated robot and its world's physics (the robot's software is configured apart: `onboard`)."""
+
+    physics: PhysicsConfig = field(default_factory=PhysicsConfig)
+    sensors: SensorConfig = field(default_factory=SensorConfig)
+    decimation: int = 5  # physics steps per control tick (100 Hz control; PD servos at 500 Hz)
+    contact_threshold_n: float = 1.0  # [N] ground truth's contact flag
+    fall_tilt_deg: float = 60.0  # trunk tilt from vertical that counts as a fall
+    fall_min_height_m: float = 0.12  # trunk origin above the terrain below which it counts as a fall
+
+
+def _ids_slice(ids: np.ndarray) -> slice:
+    """The slice of consecutive ids (the model's actuators are declared in blocks of 12)."""
+    lo = int(ids[0])
+    if not np.array_equal(ids, np.arange(lo, lo + len(ids))):
+        raise ValueError(f"actuator ids {ids.tolist()} are not consecutive")
+    return slice(lo, lo + len(ids))
+
+
+class SimulatedAliengo:
+    """One Aliengo on one terrain: `write(cmd)` runs one control tick of physics, `read()` its readings,
+    `truth(stance_planned)` its ground truth (evaluation only)."""
+
+    def __init__(
+        self,
+        terrain: Terrain,
+        friction: FrictionMap | None = None,
+        config: HardwareConfig = HardwareConfig(),
+        start: tuple[float, float, float] | None = None,
+    ) -> None:
+        self.terrain = terrain
+        self.friction = friction or FrictionMap()
+        self.config = config
+        self.model = build_scene(terrain, config.physics)
+        self.data = mujoco.MjData(self.model)
+        m = self.model
+        self.dt = m.opt.timestep
+        self.control_dt = self.dt * config.decimation
+        self._tau_ids = np.array([m.actuator(n).id for n in C.TAU_ACTUATORS])
+        self._pd_ids = np.array([m.actuator(n).id for n in C.PD_ACTUATORS])
+        self._foot_geoms = np.array([m.geom(n).id for n in C.FOOT_GEOMS])
+        self._foot_bodies = m.geom_bodyid[self._foot_geoms]
+        self._terrain_geom = m.geom(TERRAIN_GEOM).id
+        self._trunk_geom = m.geom("trunk").id
+        self._leg_of_geom = np.full(m.ngeom, -1)
+        self._leg_of_geom[self._foot_geoms] = np.arange(4)
+        # the simulated robot as built, not as designed (sensors/suite.py): IMU where it is mounted, and
+        # thigh/calf lengths off the nominal ones the robot's software uses
+        m.site_pos[m.site(C.IMU_SITE).id] = config.sensors.imu_offset_m
+        dl = link_length_errors(config.sensors)
+        for i, leg in enumerate(LEG_NAMES):
+            m.body_pos[m.body(f"{leg}_calf").id, 2] -= dl[i, 0]
+            m.body_pos[m.body(f"{leg}_foot").id, 2] -= dl[i, 1]
+        acc_adr = m.sensor_adr[m.sensor("imu_acc").id]
+        gyro_adr = m.sensor_adr[m.sensor("imu_gyro").id]
+        self._touching = np.zeros(m.ngeom, bool)  # non-foot geoms on the ground (truth.foot_contacts)
+        # per control tick: the physics steps' readings land in these blocks (one row per step), copied from
+        # views of MjData/MjModel taken once (MuJoCo keeps their memory for the model's/data's lifetime)
+        k = config.decimation
+        self._blk_sensors = np.zeros((k, m.nsensordata))
+        self._blk_acc = self._blk_sensors[:, acc_adr : acc_adr + 3]
+        self._blk_gyro = self._blk_sensors[:, gyro_adr : gyro_adr + 3]
+        self._blk_q = np.zeros((k, 12))
+        self._blk_tau = np.zeros((k, 12))
+        self._blk_dq = np.zeros((k, 12))
+        d = self.data
+        self._v_sensors, self._v_q, self._v_dq, self._v_tau = (
+            d.sensordata,
+            d.qpos[7:],
+            d.qvel[6:],
+            d.qfrc_actuator[6:],
+        )
+        self._v_ctrl_tau, self._v_ctrl_pd = (
+            d.ctrl[_ids_slice(self._tau_ids)],
+            d.ctrl[_ids_slice(self._pd_ids)],
+        )
+        pd = _ids_slice(self._pd_ids)
+        self._v_kp, self._v_bias_p, self._v_bias_d = (
+            m.actuator_gainprm[pd, 0],
+            m.actuator_biasprm[pd, 1],
+            m.actuator_biasprm[pd, 2],
+        )
+        self.reset(start if start is not None else terrain.spawn)
+
+    # ------------------------------------------------------------------------------------------ setup
+    def reset(self, start: tuple[float, float, float]) -> None:
+        """Put the robot down at `start` (x, y, yaw) in the home posture, a centimetre above the ground, and
+        power its sensors on (`read()` has nothing until the first `write`)."""
+        m, d = self.model, self.data
+        mujoco.mj_resetData(m, d)
+        x, y, yaw = start
+        feet = K.fk(C.HOME_Q)
+        c, s = np.cos(yaw), np.sin(yaw)
+        fx = x + c * feet[:, 0] - s * feet[:, 1]
+        fy = y + s * feet[:, 0] + c * feet[:, 1]
+        ground = float(np.max(self.terrain.height(fx, fy)))
+        d.qpos[0:3] = (x, y, ground - feet[0, 2] + C.FOOT_RADIUS + 0.01)
+        d.qpos[3:7] = (np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2))
+        d.qpos[7:] = C.HOME_Q
+        mujoco.mj_forward(m, d)
+        self.start = (float(x), float(y), float(yaw))  # where the lander put it (truth)
+        self.start_ground_z = ground  # the exact ground height there (truth; the "exact" launch only)
+        self.t = 0.0
+        self.fell = False
+        self.fall_xy: tuple[float, float] | None = None
+        self.sensors = SensorSuite(self.config.sensors, C.HOME_Q)
+        self.energy_true_j = 0.0  # exact joint work since start, every physics step [J]
+        self._energy_tick_j = 0.0
+        self._low_state: LowState | None = None
+        self._tt: TickTruth | None = None
+        self._cp0 = np.full((4, 3), np.nan)
+        self._swung = np.ones(4, bool)
+        self._apply_friction()
+
+    def _apply_friction(self) -> None:
+        d = self.data
+        feet = d.xpos[self._foot_bodies]
+        self._mu_feet = self.friction.at_points(feet[:, 0], feet[:, 1])
+        self.model.geom_friction[self._foot_geoms, 0] = self._mu_feet
+
+    # ------------------------------------------------------------------------------ the robot's interface
+    def write(self, cmd: LowCmd) -> None:
+        """Apply `cmd` to the joint drivers and run one control tick of physics under it; the sensors sample
+        it, and `read()` then returns their `LowState`."""
+        m, d, cfg = self.model, self.data, self.config
+        if cmd.dq_des.any():  # the driver's Kd (dq_des − dq): the dq_des part is a feed-forward torque
+            self._v_ctrl_tau[:] = cmd.tau_ff + cmd.kd * cmd.dq_des
+        else:
+            self._v_ctrl_tau[:] = cmd.tau_ff
+        self._v_ctrl_pd[:] = cmd.q_des
+        self._v_kp[:] = cmd.kp
+        np.negative(cmd.kp, out=self._v_bias_p)
+        np.negative(cmd.kd, out=self._v_bias_d)
+        sens, q, tau, dq = self._blk_sensors, self._blk_q, self._blk_tau, self._blk_dq
+        v_sens, v_q, v_tau, v_dq = self._v_sensors, self._v_q, self._v_tau, self._v_dq
+        step = mujoco.mj_step
+        for k in range(cfg.decimation):
+            step(m, d)
+            sens[k] = v_sens
+            q[k] = v_q
+            tau[k] = v_tau
+            dq[k] = v_dq
+        energy = 0.0
+        for e in np.abs(tau * dq).sum(axis=1).tolist():  # step by step, as the drivers integrate it
+            energy += e
+        self._energy_tick_j = energy * self.dt
+        self.energy_true_j += self._energy_tick_j
+        self.t += self.control_dt
+        self._apply_friction()
+        con, tz = d.contact, self.terrain
+        self._tt = tt = tick_truth(
+            (con.geom, con.efc_address, con.frame, con.pos, d.efc_force),
+            self._leg_of_geom,
+            self._terrain_geom,
+            self._touching,
+            d.qpos,
+            tz.z,
+            tz.x0,
+            tz.y0,
+            tz.res,
+            cfg.contact_threshold_n,
+        )
+        self._low_state = self.sensors.read(
+            TrueBlock(self.dt, self._blk_acc, self._blk_gyro, self._blk_q, self._blk_tau, tt.normal_force)
+        )
+        self._check_fall(tt)
+
+    def read(self) -> LowState:
+        """The sensors' readings of the last control tick (what the real robot's UDP packet carries)."""
+        if self._low_state is None:
+            raise RuntimeError("no reading before the first write: the robot has not run a control tick")
+        return self._low_state
+
+    # ------------------------------------------------------------------------- the evaluation channel
+    def truth(self, stance_planned: np.ndarray) -> GroundTruth:
+        """The last control tick's ground truth, for evaluation only: call once per tick. `stance_planned`
+        (4,) is the gait's planned stance, handed in by the evaluation loop: it delimits the stances over
+        which `GroundTruth.stance_disp` measures each foot's contact-point travel."""
+        tt, d = self._tt, self.data
+        if tt is None:
+            raise RuntimeError("no ground truth before the first write")
+        disp = np.empty(4)
+        stance_displacement(stance_planned, tt.contact, tt.contact_point, self._cp0, self._swung, disp)
+        qpos = d.qpos.copy()
+        return GroundTruth(
+            t=self.t,
+            base=BaseState(qpos[0:3], qpos[3:7], d.qvel[0:3].copy(), d.qvel[3:6].copy()),
+            foot_pos_world=tt.feet,
+            contact_point_world=tt.contact_point,
+            stance_disp=disp,
+            terrain_height_at_feet=tt.ground[:4],
+            friction_at_feet=self._mu_feet.copy(),
+            nonfoot_contacts=tt.n_nonfoot,
+            contact=tt.contact,
+            foot_force_world=tt.foot_force,
+            joint_energy_j=self._energy_tick_j,
+            q=qpos[7:],
+            dq=d.qvel[6:].copy(),
+        )
+
+    def _check_fall(self, tt: TickTruth) -> None:
+        cfg, pos = self.config, self.data.qpos[0:3]
+        tilt = math.degrees(math.acos(min(max(float(tt.R[2, 2]), -1.0), 1.0)))
+        clearance = float(pos[2] - tt.ground[4])
+        trunk_touch = bool(self._touching[self._trunk_geom])
+        if not self.fell and (tilt > cfg.fall_tilt_deg or clearance < cfg.fall_min_height_m or trunk_touch):
+            self.fell = True
+            self.fall_xy = (float(pos[0]), float(pos[1]))
+
+
+__all__ = ["HardwareConfig", "SimulatedAliengo"]

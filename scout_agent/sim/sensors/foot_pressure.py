@@ -1,0 +1,64 @@
+"""Aliengo's 1-D foot pressure sensors: what each reads for the true normal ground force on its foot.
+
+An Aliengo has one pressure value per foot (Unitree low-level state `footForce`), not a 3-axis force sensor.
+The model reports the normal ground force on the foot sphere scaled by a per-foot gain error, plus an offset and
+white noise, as an uncalibrated resistive/piezo sensor in a rubber foot would: defaults are a ± 10 % gain spread
+(σ `gain_error`), a 0.5 N offset spread and 1.0 N noise per reading (assumed values for such sensors; Unitree
+publishes none). Realistic profile: the offset also drifts (a random walk of `offset_walk_n` N/√s: rubber
+creep and temperature; assumed 0.03 N/√s, ≈ 0.4 N after 3 min) and the reading saturates at `saturation_n`
+(Aliengo `footForce` is a raw int16 of an uncalibrated sensor; 120 N assumed as the sensor's linear range: a
+trotting Aliengo's foot carries 8–16 N at lunar g, impacts a few times that).
+
+Turning these readings into contact flags (a threshold with hysteresis, or contact from joint torques) is the
+robot's software: `scout_agent.onboard.drivers.ContactDetector`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+
+@dataclass(frozen=True)
+class ContactConfig:
+    """The foot pressure sensors' errors (the contact thresholds are `onboard.drivers.ContactDetection`)."""
+
+    gain_error: float = 0.10  # σ of each foot sensor's gain error (fraction)
+    offset_n: float = 0.5  # σ of each foot sensor's offset [N]
+    noise_n: float = 1.0  # σ of the reading's noise [N]
+    offset_walk_n: float = 0.0  # offset drift [N/√s] (realistic: 0.03)
+    saturation_n: float = math.inf  # readings clip here [N] (realistic: 120)
+
+
+class FootContactSensors:
+    """`reading(normal_force_n)` → the 4 pressure readings [N]."""
+
+    def __init__(self, config: ContactConfig, rng: np.random.Generator) -> None:
+        self.config = c = config
+        self.rng = rng
+        self.gain = 1.0 + rng.normal(0.0, c.gain_error, 4)
+        self.offset = rng.normal(0.0, c.offset_n, 4)
+
+    def reading(self, normal_force_n: np.ndarray, dt: float = 0.0) -> np.ndarray:
+        """Readings [N] for the true normal forces; `dt` [s] since the last reading drives the offset drift."""
+        c = self.config
+        if c.offset_walk_n and dt > 0:
+            self.offset = self.offset + self.rng.normal(0.0, c.offset_walk_n * math.sqrt(dt), 4)
+        noise = self.rng.normal(0.0, c.noise_n, 4)
+        return _readings(
+            np.asarray(normal_force_n, dtype=float), self.gain, self.offset, noise, c.saturation_n
+        )
+
+
+@njit(cache=True, nogil=True)
+def _readings(
+    normal_force_n: np.ndarray, gain: np.ndarray, offset: np.ndarray, noise: np.ndarray, saturation_n: float
+) -> np.ndarray:
+    """gain · max(f, 0) + offset + noise, saturated (compiled: every control tick)."""
+    r = np.empty(4)
+    for i in range(4):
+        r[i] = min(gain[i] * max(normal_force_n[i], 0.0) + offset[i] + noise[i], saturation_n)
+    return r
