@@ -1,6 +1,6 @@
 """Per-foot friction estimate from what the scout feels: the slip detector's events and the force ratios.
 
-Each stance foot's ground force comes from its joint torques (f = −J⁻ᵀτ, `sensors.leg_forces_from_torques`:
+Each stance foot's ground force comes from its joint torques (f = −J⁻ᵀτ, `robot.statics.leg_forces_from_torques`:
 an Aliengo has no 3-axis foot force sensors); split along the controller's foothold-plane normal n̂ it gives
 the ratio ρ = |f_t| / f_n the ground is bearing. A foot that slips was asking for more than the ground holds:
 while it slides the ground bears its kinetic friction, so the ratio filtered over the last ticks before the
