@@ -5,7 +5,8 @@
                  [--slippery-patches 4] [--patch x0,y0,x1,y1,MU …] --speed 0.2 [--sim-seconds S]
                  [--rrd PATH] [--json]
 
-`add_scout_arguments` and `config_from_args` are public so other commands (e.g. `evaluate`) reuse them.
+`psrmap evaluate` (the same walk scored against ground truth, `scout_agent.evaluate`) is registered here too, on
+the same arguments. `add_scout_arguments` and `config_from_args` are public so other commands reuse them.
 """
 
 from __future__ import annotations
@@ -17,14 +18,14 @@ from dataclasses import replace
 
 from protocol.keys import id_arg
 from psrmap_common.cli_parser import non_negative_int, positive_float
-from psrmap_common.defaults import DEFAULT_SEED
+from psrmap_common.defaults import DEFAULT_RES_M, DEFAULT_SEED
 from psrmap_common.errors import UsageError, ViewerUnavailable
 from psrmap_common.recording import use_viewer
-from scout_agent import component
+from scout_agent import component, evaluate
 from scout_agent.component import ScoutConfig
 from scout_agent.dem_reader import DemWindow
 from scout_agent.errors import ScoutConfigError, ScoutLinkError
-from scout_agent.evaluate import register_evaluate
+from scout_agent.evaluate import evaluate_run
 from scout_agent.localization import LOCALIZE_MODES
 from scout_agent.loop import STATE_SOURCES, SimConfig
 from scout_agent.mapping import add_mapping_arguments, publish_link
@@ -397,4 +398,40 @@ def register(subparsers) -> argparse.ArgumentParser:
     return p
 
 
-__all__ = ["add_scout_arguments", "cmd_scout", "config_from_args", "register", "scout_config"]
+def cmd_evaluate(args: argparse.Namespace) -> int:
+    if not args.res > 0:
+        raise UsageError(f"--res {args.res}: need a cell size > 0 [m]")
+    out = evaluate_run(config_from_args(args), args.res, progress=not args.quiet and not args.json)
+    if args.json:
+        print(json.dumps(out))
+    else:
+        for k, v in out.items():
+            print(f"{k}: {v}")
+    return 1 if out["fell"] else 0
+
+
+def register_evaluate(subparsers) -> argparse.ArgumentParser:
+    p = subparsers.add_parser(
+        "evaluate",
+        help="run one scout and score its map and detectors against ground truth",
+        description=(evaluate.__doc__ or "").split("\n\n")[0],
+    )
+    add_scout_arguments(p)
+    p.add_argument(
+        "--res", type=float, default=DEFAULT_RES_M, help=f"map cell size [m] (default {DEFAULT_RES_M})"
+    )
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_evaluate)
+    return p
+
+
+__all__ = [
+    "add_scout_arguments",
+    "cmd_evaluate",
+    "cmd_scout",
+    "config_from_args",
+    "register",
+    "register_evaluate",
+    "scout_config",
+]

@@ -37,8 +37,6 @@ Ground truth and scoring:
 
 from __future__ import annotations
 
-import argparse
-import json
 import math
 from collections import defaultdict
 from dataclasses import replace
@@ -48,14 +46,15 @@ import numpy as np
 
 from protocol.layers import cell_center, elevation_slope_deg, layer_value
 from psrmap_common.defaults import DEFAULT_DELTA_HZ, DEFAULT_RES_M
-from psrmap_common.errors import UsageError
+from scout_agent.errors import ScoutConfigError
 from scout_agent.estimators import EstimatorPipeline, TickEstimates
 from scout_agent.estimators.elevation import plane_from_moments, slope_deg
 from scout_agent.mapping import Mapper, MapperConfig, default_pipeline_config
+from scout_agent.run import ScoutRunConfig, build_world, run_scout
 from scout_agent.signals import GroundTruth, ProprioSample
 from scout_agent.sim.friction import unholdable
 
-__all__ = ["Evaluator", "cmd_evaluate", "register_evaluate"]
+__all__ = ["GT_SLIP_M", "Evaluator", "evaluate_run"]
 
 # the state estimate against the truth over the whole run (state_estimation/consistency.py)
 ERROR_KEYS = (
@@ -361,22 +360,14 @@ class Evaluator:
         return out
 
 
-def cmd_evaluate(args: argparse.Namespace) -> int:
-    from scout_agent.cli import config_from_args
-    from scout_agent.run import build_world, run_scout
-
-    if not args.res > 0:
-        raise UsageError(f"--res {args.res}: need a cell size > 0 [m]")
-    cfg = config_from_args(args)
+def evaluate_run(cfg: ScoutRunConfig, res: float = DEFAULT_RES_M, progress: bool = False) -> dict:
+    """Walk `cfg` with an `Evaluator` beside the robot (cells of `res` [m]) and return the scores as one dict
+    (`psrmap evaluate` prints it)."""
+    if not res > 0:
+        raise ScoutConfigError(f"--res {res}: need a cell size > 0 [m]")
     world = build_world(cfg)
-    ev = Evaluator(res=args.res)
-    summary = run_scout(
-        cfg,
-        on_tick=ev.on_tick,
-        progress=not args.quiet and not args.json,
-        world=world,
-        on_hazard=ev.on_hazard,
-    )
+    ev = Evaluator(res=res)
+    summary = run_scout(cfg, on_tick=ev.on_tick, progress=progress, world=world, on_hazard=ev.on_hazard)
     out = {
         "scene": cfg.scene,
         "terrain": summary["terrain"],
@@ -412,27 +403,4 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     }
     out.update(ev.result(world, cfg.friction_default))
     out["cot_whole_run_truth"] = summary["cot_whole_run_truth"]
-    if args.json:
-        print(json.dumps(out))
-    else:
-        for k, v in out.items():
-            print(f"{k}: {v}")
-    return 1 if summary["fell"] else 0
-
-
-def register_evaluate(subparsers: Any) -> argparse.ArgumentParser:
-    from scout_agent.cli import add_scout_arguments
-
-    p = subparsers.add_parser(
-        "evaluate",
-        help="run one scout and score its map and detectors against ground truth",
-        description=__doc__.split("\n\n")[0],
-    )
-    add_scout_arguments(p)
-    p.add_argument(
-        "--res", type=float, default=DEFAULT_RES_M, help=f"map cell size [m] (default {DEFAULT_RES_M})"
-    )
-    p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p.set_defaults(func=cmd_evaluate)
-    return p
+    return out
