@@ -26,6 +26,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numba import njit
 
 from scout_agent.errors import ScoutConfigError
 
@@ -118,23 +119,35 @@ def margins_fast(
     gia: list[float] | tuple[float, ...],
     absolute: bool = False,
 ) -> tuple[float, float]:
-    """`margins` for points already in face order, on Python scalars (the per-tick path).
+    """`margins` for points already in face order (the per-tick path: compiled, `_face_margins`).
 
     Uses GIIM_ab = asin(GIAM_ab / ‖a‖) (the identity above), so only the faces' GIAM is needed and the face
     with the least GIAM also has the least GIIM. `absolute` gives the paper variant's |min|.
     """
-    k = len(points)
-    gx, gy, gz = gia
+    if len(points) < 2:
+        return math.nan, math.nan
+    giim, giam = _face_margins(np.array(points, dtype=float), *p_g, *gia, _EPS_N)
+    if absolute:
+        return abs(giim), abs(giam)
+    return giim, giam
+
+
+@njit(cache=True, nogil=True)
+def _face_margins(
+    pts: np.ndarray, px: float, py: float, pz: float, gx: float, gy: float, gz: float, tol: float
+) -> tuple[float, float]:
+    """(GIIM, GIAM) of the support polygon `pts` (k, 3) in face order about the CoM (px, py, pz) under the
+    GIA (gx, gy, gz): the least GIAM over the faces whose normal is longer than `tol` (degenerate faces of a
+    robot's ~0.1 m² support are skipped), and its GIIM = asin(GIAM / ‖a‖); NaN without a face."""
+    k = pts.shape[0]
     a_norm = math.sqrt(gx * gx + gy * gy + gz * gz)
     if k < 2 or a_norm == 0.0:
         return math.nan, math.nan
-    px, py, pz = p_g
-    us = [(p[0] - px, p[1] - py, p[2] - pz) for p in points]
-    tol = _EPS_N  # faces of a robot's support are ~0.1 m²; a degenerate one is ~0
     best = math.inf
     for i in range(k):
-        ux, uy, uz = us[i]
-        wx, wy, wz = us[(i + 1) % k]
+        j = (i + 1) % k
+        ux, uy, uz = pts[i, 0] - px, pts[i, 1] - py, pts[i, 2] - pz
+        wx, wy, wz = pts[j, 0] - px, pts[j, 1] - py, pts[j, 2] - pz
         nx, ny, nz = uy * wz - uz * wy, uz * wx - ux * wz, ux * wy - uy * wx
         nn = math.sqrt(nx * nx + ny * ny + nz * nz)
         if nn <= tol:
@@ -144,7 +157,4 @@ def margins_fast(
             best = giam
     if best == math.inf:
         return math.nan, math.nan
-    giim = math.asin(max(-1.0, min(1.0, best / a_norm)))
-    if absolute:
-        return abs(giim), abs(best)
-    return giim, best
+    return math.asin(max(-1.0, min(1.0, best / a_norm))), best
