@@ -392,6 +392,8 @@ class TrotController:
         self.yaw_rate_cmd = 0.0  # [rad/s]
         self.mu_feet: np.ndarray | None = None  # each foot's friction for the stance QP (None: its constant)
         self.height_offset = 0.0  # trunk height change from the adaptive gait [m] (negative: lower)
+        self.terrain_tilt: float | None = None  # share of the foothold plane's tilt the trunk follows (None:
+        # the config's); 0 keeps the trunk level, so on a slope its CoM stands over the middle of its feet
         self._initialized = False
         self.t0 = 0.0
 
@@ -402,6 +404,13 @@ class TrotController:
     def set_friction(self, mu_feet: np.ndarray | None) -> None:
         """Each foot's friction coefficient the stance QP's cone uses from now on (None: the constant)."""
         self.mu_feet = None if mu_feet is None else np.asarray(mu_feet, dtype=float).copy()
+
+    def set_gait(self, gait: GaitConfig, t: float) -> None:
+        """Walk with `gait` from time `t` [s] on, its phases starting at its offsets (a leg scheduled in stance
+        that is still in the air keeps descending to its target until it touches down)."""
+        if gait != self.gait.config:
+            self.gait = TrotGait(gait)
+            self.t0 = t
 
     def reset(self, state: RobotState) -> None:
         feet_w = state.pos + K.fk(state.q) @ state.R.T
@@ -429,6 +438,7 @@ class TrotController:
         schedule(s.t - self.t0, g.freq_hz, g.duty, self.gait.offsets, phase, sched, sw)
         J, feet_w, pv = self._J, self._feet_w, self._plane_v
         self._limits[0] = self.config.height + self.height_offset
+        self._limits[2] = self.config.terrain_tilt if self.terrain_tilt is None else self.terrain_tilt
         _trunk_wrench(
             s.t,
             s.pos,

@@ -7,8 +7,13 @@ while it slides the ground bears its kinetic friction, so the ratio filtered ove
 slip event (`ratio_tau_s`) is an observation of μ. A stance that ends without a slip proves the ground held
 at least the largest ratio it bore. So, per foot:
 
-- slip event: μ̂ ← clip(largest ρ_filtered of the stance so far, `floor_mu`, μ̂) (never raised by a slip;
-  the ratio at the event tick itself read 0.06 on a μ 0.14 patch: the foot creeps on at a lower ratio);
+- slip event: the largest ρ_filtered of the stance so far is a candidate (the ratio at the event tick itself
+  read 0.06 on a μ 0.14 patch: the foot creeps on at a lower ratio);
+- the foot lost its hold: the slip detector's ΔP in this stance grew past `lost_dp_m` (well past the 2 cm of
+  its slip event): μ̂ ← clip(candidate, `floor_mu`, μ̂) (never raised by a slip). A stance whose slip stayed
+  below that is *creep*: MuJoCo's soft contact (like loose regolith) lets a loaded foot creep a few cm at
+  ratios well inside its cone, and on holdable patches those creeping slips read μ̂ 0.05–0.1 below the truth
+  and made 7 of 10 holdable walks stop (docs/results.md). Creep leaves μ̂ as it was (no recovery either);
 - stance ended without a slip: μ̂ ← max(μ̂ + `recover` · (prior − μ̂), the largest settled ρ of that stance),
   capped at the prior: the estimate recovers over a few clean stances once the ground grips again.
 
@@ -39,6 +44,7 @@ class FrictionEstimateConfig:
     min_normal_n: float = 8.0  # force ratios only from feet bearing at least this much [N]
     ratio_tau_s: float = 0.03  # low-pass of the force ratio within a stance [s]
     recover: float = 0.15  # share of the way back to the prior after each clean stance
+    lost_dp_m: float = 0.05  # a stance's slip ΔP beyond this: the foot lost its hold (below: creep) [m]
 
 
 @njit(cache=True, nogil=True)
@@ -62,7 +68,9 @@ class FrictionEstimate:
         self.mu = np.full(4, config.prior_mu)
         self._ratio = np.full(4, np.nan)  # filtered force ratio of the current stance
         self._held = np.zeros(4)  # largest filtered ratio borne in the current stance
-        self.observations = 0  # slip events that set an estimate
+        self._candidate = np.full(4, np.nan)  # the held ratio at this stance's slip event
+        self.observations = 0  # stances that lost their hold and set an estimate
+        self.creeps = 0  # stances whose slip stayed creep
 
     @property
     def area_mu(self) -> float:
@@ -91,13 +99,17 @@ class FrictionEstimate:
         slip_event: tuple[bool, ...],
         stance_end: tuple[bool, ...],
         slipped: tuple[bool, ...],
+        dp: tuple[float, ...],
         dt: float,
         forces_w: np.ndarray | None = None,
-    ) -> None:
-        """One tick; `forces_w` as in `ratios` (feet out of `contact` may read anything there)."""
+    ) -> bool:
+        """One tick; `dp` (4,): the slip detector's ΔP per foot this tick [m] (NaN where not settled);
+        `forces_w` as in `ratios` (feet out of `contact` may read anything there). True when a foot lost its
+        hold this tick."""
         c = self.config
         rho = self.ratios(q, tau, R, normal, forces_w)
         a = dt / (c.ratio_tau_s + dt) if dt > 0 else 1.0
+        lost = False
         for i in range(4):
             r = rho[i]
             if contact[i] and r == r:
@@ -107,11 +119,20 @@ class FrictionEstimate:
             if slip_event[i] and self._held[i] > 0:
                 # the largest ratio this stance bore before the event: where it started to slide (by the time
                 # the detector declares the slip, 2 cm later, a creeping foot bears less)
-                self.mu[i] = min(self.mu[i], max(c.floor_mu, float(self._held[i])))
+                self._candidate[i] = self._held[i]
+            cand = self._candidate[i]
+            if cand == cand and dp[i] == dp[i] and dp[i] > c.lost_dp_m:
+                self.mu[i] = min(self.mu[i], max(c.floor_mu, float(cand)))
                 self.observations += 1
+                self._candidate[i] = np.nan  # once per stance
+                lost = True
             if stance_end[i]:
-                if not slipped[i]:
+                if slipped[i] and self._candidate[i] == self._candidate[i]:
+                    self.creeps += 1
+                elif not slipped[i]:
                     up = self.mu[i] + c.recover * (c.prior_mu - self.mu[i])
                     self.mu[i] = min(c.prior_mu, max(up, float(self._held[i])))
                 self._ratio[i] = np.nan
                 self._held[i] = 0.0
+                self._candidate[i] = np.nan
+        return lost

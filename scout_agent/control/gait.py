@@ -1,4 +1,11 @@
-"""The trot schedule: diagonal pairs (FL+RR, FR+RL) half a cycle apart; stance while phase < duty."""
+"""Periodic gait schedules: each leg's phase runs at `freq_hz` from its offset; stance while phase < duty.
+
+- the trot (`GaitConfig()`): diagonal pairs (FL+RR, FR+RL) half a cycle apart, two feet down at a time;
+- the crawl (`CRAWL`): a statically stable walk, one leg at a time in the order RL, FL, RR, FR (each offset a
+  quarter cycle below the previous one), with all four feet down between swings (duty > 0.75), so three feet
+  always bear the trunk. Every offset lies below the duty: started at phase 0 (`TrotController.set_gait`), all
+  four legs begin in stance and the first leg lifts only after (duty − 0.75) / freq_hz.
+"""
 
 from __future__ import annotations
 
@@ -15,7 +22,12 @@ class GaitConfig:
     offsets: tuple[float, float, float, float] = (0.0, 0.5, 0.5, 0.0)  # FL, FR, RL, RR
 
 
+CRAWL = GaitConfig(freq_hz=0.5, duty=0.85, offsets=(0.5, 0.0, 0.75, 0.25))  # swing 0.3 s, stance 1.7 s
+
+
 class TrotGait:
+    """A periodic gait (the trot by default, or any `GaitConfig` such as `CRAWL`)."""
+
     def __init__(self, config: GaitConfig = GaitConfig()) -> None:
         self.config = config
         self.offsets = np.asarray(config.offsets)

@@ -36,6 +36,7 @@ from scout_agent.control.controller import RobotState, TrotController
 from scout_agent.control.detour import DetourConfig, plan_detour
 from scout_agent.control.follower import FollowerConfig, PathFollower
 from scout_agent.control.friction_estimate import FrictionEstimate, FrictionEstimateConfig
+from scout_agent.control.gait import CRAWL, GaitConfig
 from scout_agent.control.reflex import Felt, ReflexConfig, Senses
 from scout_agent.estimators import TickEstimates
 from scout_agent.estimators.pipeline import quat_to_matrix
@@ -56,7 +57,12 @@ class PilotConfig:
     senses: ReflexConfig = field(default_factory=ReflexConfig)
     detour: DetourConfig = field(default_factory=DetourConfig)
     stop_s: float = 0.05  # barely: a robot trotting in place on ground it cannot hold slides on
-    back_speed: float = 0.15  # [m/s]
+    trot: GaitConfig = field(default_factory=GaitConfig)  # the gait where the ground holds
+    crawl: GaitConfig = CRAWL  # one leg at a time (three feet down): the stop, the back-off, near hazards
+    crawl_near_m: float | None = None  # crawl while within this of a hazard felt, beyond the detour's hazard
+    # radius (None: trot everywhere)
+    crawl_speed: float = 0.1  # the most a crawl is asked to walk [m/s] (its feet reach 0.15 m from the hips)
+    back_speed: float = 0.1  # [m/s], crawling; no velocity loop: on ground that slips, pushing harder slides
     held_before_s: float = 1.0
     backoff_min_m: float = 0.4
     backoff_max_m: float = 2.5
@@ -117,6 +123,8 @@ class Pilot:
             self.reached = self.follower.reached
             if self.setting is not None:
                 v *= self.setting.speed_scale
+            if self.controller.gait.config == self.config.crawl:
+                v = min(v, self.config.crawl_speed)
             return v, w
         if self.mode == "back" and self._back is not None:
             v, w = self._back.command(s.pos[:2], yaw, s.vel[:2], dt)
@@ -138,9 +146,10 @@ class Pilot:
         if not self.trail or math.hypot(x - self.trail[-1][1], y - self.trail[-1][2]) >= c.trail_step_m:
             self.trail.append((t, x, y))
         grad, _ = self.controller.plane()
+        lost = False
         if c.adaptive and est is not None:
             sl = est.slip
-            self.friction.update(
+            lost = self.friction.update(
                 sample.q,
                 sample.tau,
                 R,
@@ -149,6 +158,7 @@ class Pilot:
                 sl.event,
                 sl.stance_end,
                 sl.slipped,
+                sl.dp,
                 dt,
                 est.foot_force_w,
             )
@@ -159,8 +169,9 @@ class Pilot:
                 self.controller.height_offset = setting.height_offset_m
         if not c.reflex or self.mode != "walk" or self.reached:
             return None
+        self.controller.set_gait(c.crawl if self._near_hazard(x, y) else c.trot, t)
         margin = self.setting.margin if self.setting is not None else math.inf
-        felt = self.senses.feel(t, est, R, margin)
+        felt = self.senses.feel(t, est, R, margin, lost)
         if felt is None:
             return None
         self._stop(felt, x, y)
@@ -177,6 +188,12 @@ class Pilot:
         return self._normal
 
     # ------------------------------------------------------------------ modes
+    def _near_hazard(self, x: float, y: float) -> bool:
+        if self.config.crawl_near_m is None:
+            return False
+        near = self.config.detour.hazard_radius_m + self.config.crawl_near_m
+        return any(math.hypot(x - hx, y - hy) < near for hx, hy in self.hazards)
+
     def _stop(self, felt: Felt, x: float, y: float) -> None:
         self.stops.append(
             {
@@ -218,8 +235,8 @@ class Pilot:
         if len(back) < 2 or walked < 0.05:
             self._go_around(pos, t)
             return
-        self._back = PathFollower(np.array(back), FollowerConfig(speed=c.back_speed, goal_tolerance_m=0.1),
-                                  reverse=True)  # fmt: skip
+        back_cfg = FollowerConfig(speed=c.back_speed, goal_tolerance_m=0.1, ki=0.0, max_boost=0.0)
+        self._back = PathFollower(np.array(back), back_cfg, reverse=True)
         self.mode, self._t_mode = "back", t
 
     def _go_around(self, pos: np.ndarray, t: float) -> None:

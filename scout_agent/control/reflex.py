@@ -2,10 +2,12 @@
 
 Four triggers, each from the scout's own estimates (`estimators.TickEstimates`) and sensors only:
 
-- **slip**: at least `slip_events` slip events within `slip_window_s`, *and* the ground's margin
-  μ̂ − tan θ̂ (`adaptation.GaitSetting.margin`) below `slip_hold_margin`; one slip event when the margin is
-  below `slip_sure_margin` (clearly unholdable: react with the first foot on it); or `slip_events_alone`
-  events in the window whatever the margin. Slippery ground the scout can still hold (the paper's patches) makes
+- **slip**: a foot lost its hold (its slip grew past creep, `friction_estimate`) *and* the ground's margin
+  μ̂ − tan θ̂ (`adaptation.GaitSetting.margin`) is below `lost_hold_margin` — react with the first foot that
+  loses its hold, before the others walk onto the ground (that margin is wide because the estimate a lost
+  hold gives, the largest force ratio the stance bore, read 0.07–0.11 above the patch's μ on 15–25° ramps); at least `slip_events` slip events within
+  `slip_window_s` with the margin below `slip_hold_margin`; one slip event when the margin is
+  below `slip_sure_margin` (clearly unholdable); or `slip_events_alone` events in the window whatever the margin. Slippery ground the scout can still hold (the paper's patches) makes
   slips too; there the adaptive gait slows down and walks on.
 - **margin**: GIIM below `min_giim_rad` or GIAM below `min_giam` on at least `margin_share` of the ticks
   of the last `margin_window_s` (single ticks dip to zero: the IMU's GIA sees the trunk's own jolts).
@@ -36,6 +38,7 @@ class ReflexConfig:
     slip_window_s: float = 3.0
     slip_hold_margin: float = 0.02  # μ̂ − tan θ̂ below which repeated slips mean "cannot hold" (walking
     # needs more than standing: on a 5° ramp the fixed trot fell on μ = tan 5° exactly)
+    lost_hold_margin: float = 0.08  # μ̂ − tan θ̂ below which one lost hold is enough
     slip_sure_margin: float = -0.05  # ... below which one slip is enough (the first foot on the patch)
     min_giim_rad: float = 0.087  # 5°: the planner's hard limit; GIIM fell below it 0.5–1 s before falls
     min_giam: float = -math.inf  # [m/s²]
@@ -75,7 +78,15 @@ class Senses:
     def first_slip_t(self) -> float | None:
         return self._slips[0][0] if self._slips else None
 
-    def feel(self, t: float, est: TickEstimates | None, R: np.ndarray, ground_margin: float) -> Felt | None:
+    def feel(
+        self,
+        t: float,
+        est: TickEstimates | None,
+        R: np.ndarray,
+        ground_margin: float,
+        hold_lost: bool = False,
+    ) -> Felt | None:
+        """`hold_lost`: a stance foot lost its hold this tick (`FrictionEstimate.update` returned True)."""
         c = self.config
         reasons: list[str] = []
         x = y = math.nan
@@ -86,13 +97,15 @@ class Senses:
                 self._slips.popleft()
             n = len(self._slips)
             if (
-                n >= c.slip_events_alone
+                (hold_lost and ground_margin < c.lost_hold_margin)
+                or n >= c.slip_events_alone
                 or (n >= c.slip_events and ground_margin < c.slip_hold_margin)
                 or (n >= 1 and ground_margin < c.slip_sure_margin)
             ):
                 reasons.append("slip")
-                x = float(np.mean([s[1] for s in self._slips]))
-                y = float(np.mean([s[2] for s in self._slips]))
+                if n:
+                    x = float(np.mean([s[1] for s in self._slips]))
+                    y = float(np.mean([s[2] for s in self._slips]))
             low = (est.giim == est.giim and est.giim < c.min_giim_rad) or (
                 est.giam == est.giam and est.giam < c.min_giam
             )

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from scout_agent.control.follower import FollowerConfig, PathFollower
-from scout_agent.control.gait import GaitConfig, TrotGait
+from scout_agent.control.gait import CRAWL, GaitConfig, TrotGait
 from scout_agent.control.stance import StanceQP, StanceQPConfig
 from scout_agent.control.swing import swing_point
 from scout_agent.run import ScoutRunConfig, run_scout
@@ -20,6 +20,19 @@ def test_trot_schedule_pairs_diagonals():
         assert st[0] == st[3] and st[1] == st[2]  # FL+RR, FR+RL
         assert st.sum() >= 2
     assert g.stance_s + g.swing_s == pytest.approx(1 / 1.4)
+
+
+def test_crawl_schedule_lifts_one_leg_at_a_time_in_walk_order():
+    g = TrotGait(CRAWL)
+    order = []
+    prev = np.ones(4, bool)
+    for t in np.arange(0.0, 2.0 / CRAWL.freq_hz, 0.005):
+        st = g.stance(g.phase(t))
+        assert st.sum() >= 3  # three feet always bear the trunk
+        order += [int(i) for i in np.flatnonzero(prev & ~st)]
+        prev = st
+    assert order[:4] == [2, 0, 3, 1]  # RL, FL, RR, FR
+    assert g.stance(g.phase(0.0)).all()  # started at phase 0 (set_gait), all four feet down
 
 
 def test_stance_qp_meets_wrench_within_friction_cone():

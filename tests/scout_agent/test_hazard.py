@@ -10,6 +10,7 @@ import pytest
 
 from scout_agent.control.adaptation import GaitAdaptation
 from scout_agent.control.detour import DetourConfig, plan_detour
+from scout_agent.control.friction_estimate import FrictionEstimate, FrictionEstimateConfig
 from scout_agent.control.pilot import PilotConfig
 from scout_agent.control.reflex import ReflexConfig
 from scout_agent.mapping import open_mapping
@@ -44,7 +45,7 @@ def test_slip_trigger_stops_at_an_unholdable_patch_and_backs_off():
     # μ 0.26 < tan 20° = 0.364: no robot stands on this patch (ground truth, `friction.unholdable`). (The fixed
     # trot slid into it and fell in 3 of 3 CLI runs with mapping, seeds 0–2, but reached the end of this short
     # patch in others: the outcome of sliding down it is chaotic; benchmarks/falls.py counts falls.)
-    cfg = ScoutRunConfig(scene="ramps", slope_deg=20.0, ramp=SHORT, slippery_mu=0.26, sim_seconds=30.0)
+    cfg = ScoutRunConfig(scene="ramps", slope_deg=20.0, ramp=SHORT, slippery_mu=0.26, sim_seconds=40.0)
     world = build_world(cfg)
     assert unholdable(world.friction.patches[0].mu, 20.0)
     s, hazard = _walk(cfg, world)
@@ -52,10 +53,10 @@ def test_slip_trigger_stops_at_an_unholdable_patch_and_backs_off():
     (stop,) = s["hazard_stops"][:1]
     assert "slip" in stop["reason"]
     assert abs(stop["x"] - 3.925) < 1.0  # within 1 m of the patch's edge (x 3.925)
-    # it felt friction too low for the slope: its estimate fell from the prior 0.6 as the feet slipped, to a
-    # margin μ̂ − tan θ̂ under the reflex's limit
+    # it felt friction too low for the slope: a foot lost its hold, its estimate fell from the prior 0.6 to a
+    # margin μ̂ − tan θ̂ under the reflex's limit for a lost hold
     assert (
-        0.2 < stop["mu_felt"] < 0.45 and stop["margin_felt"] <= ReflexConfig().slip_hold_margin
+        0.2 < stop["mu_felt"] < 0.45 and stop["margin_felt"] <= ReflexConfig().lost_hold_margin
     )  # (rounded to 3 digits)
     # the patch spans the testbed's width: no way around, and the scout says so
     assert not s["reached_goal"] and "no path to the goal" in s["gave_up"]
@@ -119,3 +120,44 @@ def test_detour_goes_around_hazards_or_says_there_is_none():
         assert np.min(np.hypot(seg[:, 0] - 5.0, seg[:, 1] - 5.0)) >= cfg.hazard_radius_m - cfg.res
     wall = [(5.0, y) for y in np.arange(0.5, 10.0, 1.0)]  # hazards across the whole field
     assert plan_detour((1.0, 5.0), (9.0, 5.0), wall, bounds, cfg) is None
+
+
+class _Ratios(FrictionEstimate):
+    """The friction estimate fed given force ratios (unit test: no robot behind the torques)."""
+
+    rho = np.full(4, np.nan)
+
+    def ratios(self, q, tau, R, normal, forces_w=None):  # type: ignore[override]
+        return self.rho
+
+
+def _tick(est: _Ratios, rho, event=(), end=(), slipped=(), dp=(np.nan,) * 4) -> bool:
+    est.rho = np.asarray(rho, dtype=float)
+    flags = lambda idx: tuple(i in idx for i in range(4))  # noqa: E731
+    z = np.zeros(12)
+    n = np.array([0.0, 0.0, 1.0])
+    contact = np.ones(4, bool)
+    return est.update(z, z, np.eye(3), contact, n, flags(event), flags(end), flags(slipped), tuple(dp), 0.01)
+
+
+def test_friction_estimate_tells_creep_from_a_lost_hold():
+    lost_dp = FrictionEstimateConfig().lost_dp_m
+    # foot 0 bears a ratio of up to 0.3, slips (the detector's 2 cm), creeps on to 3 cm and the stance ends:
+    # creep, the estimate stays at the prior
+    est = _Ratios()
+    for r in (0.1, 0.2, 0.3, 0.3, 0.3):
+        assert not _tick(est, (r, 0.1, 0.1, 0.1))
+    assert not _tick(est, (0.25, 0.1, 0.1, 0.1), event=(0,), slipped=(0,), dp=(0.021, 0.0, 0.0, 0.0))
+    assert not _tick(est, (0.25, 0.1, 0.1, 0.1), slipped=(0,), dp=(0.6 * lost_dp, 0.0, 0.0, 0.0))
+    assert not _tick(est, (0.25, 0.1, 0.1, 0.1), end=(0,), slipped=(0,), dp=(0.6 * lost_dp, 0.0, 0.0, 0.0))
+    assert est.mu[0] == FrictionEstimateConfig().prior_mu and est.creeps == 1 and est.observations == 0
+    # the same stance, but the foot slides on past lost_dp_m: it lost its hold, the estimate is the largest
+    # ratio it bore before it started to slide (low-passed: 0.23 here), and the tick says so
+    for r in (0.1, 0.2, 0.3, 0.3, 0.3):
+        _tick(est, (r, 0.1, 0.1, 0.1))
+    _tick(est, (0.25, 0.1, 0.1, 0.1), event=(0,), slipped=(0,), dp=(0.021, 0.0, 0.0, 0.0))
+    assert _tick(est, (0.25, 0.1, 0.1, 0.1), slipped=(0,), dp=(1.5 * lost_dp, 0.0, 0.0, 0.0))
+    assert 0.2 < est.mu[0] < 0.3 and est.observations == 1
+    assert np.all(est.mu[1:] == FrictionEstimateConfig().prior_mu)
+    # once per stance: sliding on does not count again
+    assert not _tick(est, (0.2, 0.1, 0.1, 0.1), slipped=(0,), dp=(2 * lost_dp, 0.0, 0.0, 0.0))
