@@ -126,7 +126,8 @@ def margins_fast(
     """
     if len(points) < 2:
         return math.nan, math.nan
-    giim, giam = _face_margins(np.array(points, dtype=float), *p_g, *gia, _EPS_N)
+    (px, py, pz), (gx, gy, gz) = p_g, gia
+    giim, giam = _face_margins(np.array(points, dtype=float), px, py, pz, gx, gy, gz, _EPS_N)
     if absolute:
         return abs(giim), abs(giam)
     return giim, giam
