@@ -1,13 +1,20 @@
-"""Real-time factor of the whole scout loop (physics + control + signals) on the lunar field, and in the same
-run the raw MuJoCo step rate on the same scene. Prints one JSON object. Wall-clock figures depend on what
-else the (shared, 2-core) machine runs; the `_cpu` figures divide by this process's CPU time instead.
+"""Real-time factor of the whole scout loop on the lunar field, and in the same run the raw MuJoCo step rate on
+the same scene. Prints one JSON object. Wall-clock figures depend on what else the (shared, 2-core) machine runs;
+the `_cpu` figures divide by this process's CPU time instead.
+
+The scout loop is what the scout runs every control tick: physics (5 steps), the sensor models at every physics
+step, the state estimator, the trot controller with its stance QP, the pilot (path follower, friction estimate,
+adaptive gait, hazard reflex), the localizer's bookkeeping, and the estimators the pilot feels (slip detector,
+CoT, GIIM/GIAM, non-foot contacts: `EstimatorPipeline`, without the map's cell statistics). Without those
+estimators the friction estimate never moves and the reflex feels only attitude, so they are in the headline
+figures; `--no-estimators` measures the loop without them (the definition before issue 24's control).
 
 Both are measured warm: raw MuJoCo after 200 untimed steps, the scout loop after an untimed 0.2 s walk (which
 loads the compiled kernels from numba's cache, a one-time cost per process). With `--repeats N` the two are
 measured alternately N times and the figures are medians; `ratio` is the median of the per-repeat ratios
 scout_loop_real_time_factor / raw_real_time_factor (`ratio_cpu` the same on CPU time).
 
-    python3 benchmarks/sim.py [--seed 0] [--sim-seconds 30] [--repeats 1]
+    python3 benchmarks/sim.py [--seed 0] [--sim-seconds 30] [--repeats 1] [--no-estimators]
 """
 
 from __future__ import annotations
@@ -21,8 +28,11 @@ from dataclasses import replace
 import mujoco
 import numpy as np
 
+from scout_agent.estimators import EstimatorPipeline
+from scout_agent.estimators.feet import PinocchioFeet
+from scout_agent.mapping import default_pipeline_config
 from scout_agent.robot import constants as C
-from scout_agent.run import ScoutRunConfig, build_world, run_scout
+from scout_agent.run import OnTick, ScoutRunConfig, build_world, run_scout
 from scout_agent.sim.aliengo import SimulatedAliengo
 
 
@@ -40,6 +50,13 @@ def raw_step_rate(world, steps: int) -> float:
     return steps / (time.perf_counter() - t0), steps / (time.process_time() - c0)
 
 
+def pilot_estimators() -> OnTick:
+    """The estimators the pilot feels, as the run loop's `on_tick` (a fresh pipeline per walk)."""
+    feet = PinocchioFeet()
+    pipeline = EstimatorPipeline(feet, default_pipeline_config(feet))
+    return lambda sample, truth, sim: pipeline.update(sample)
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(allow_abbrev=False, description=__doc__.splitlines()[0])
     ap.add_argument("--seed", type=int, default=0)
@@ -47,17 +64,27 @@ def main() -> int:
     ap.add_argument(
         "--repeats", type=int, default=1, help="measure scout loop and raw MuJoCo N times (medians)"
     )
+    ap.add_argument(
+        "--no-estimators",
+        action="store_true",
+        help="leave out the estimators the pilot feels (slip, CoT, margins): the loop as measured before",
+    )
     args = ap.parse_args()
     if args.repeats < 1:
         ap.error(f"--repeats {args.repeats}: give 1 or more")
     cfg = ScoutRunConfig(scene="lunar", seed=args.seed, route="direct", sim_seconds=args.sim_seconds)
     world = build_world(cfg)
-    run_scout(replace(cfg, sim_seconds=0.2), progress=False, world=world)  # warm-up (numba cache loads)
+
+    def on_tick() -> OnTick | None:
+        return None if args.no_estimators else pilot_estimators()
+
+    warm = replace(cfg, sim_seconds=0.2)
+    run_scout(warm, on_tick=on_tick(), progress=False, world=world)  # warm-up (numba cache loads)
     dt = 0.002
     runs = []
     for _ in range(args.repeats):
         c0 = time.process_time()
-        summary = run_scout(cfg, progress=False, world=world)
+        summary = run_scout(cfg, on_tick=on_tick(), progress=False, world=world)
         cpu = time.process_time() - c0
         rate, rate_cpu = raw_step_rate(world, 20000)
         runs.append(
@@ -87,6 +114,7 @@ def main() -> int:
                 "control_hz": round(1.0 / (dt * cfg.sim.decimation), 1),
                 "physics_hz": 1.0 / dt,
                 "repeats": args.repeats,
+                "estimators": not args.no_estimators,
                 "scout_loop_real_time_factor": round(med("rtf"), 2),
                 "scout_sim_seconds": summary["sim_seconds"],
                 "scout_wall_seconds": round(med("wall"), 2),
@@ -102,9 +130,8 @@ def main() -> int:
                 "ratios": [round(v, 3) for v in ratios],
                 "ratios_cpu": [round(v, 3) for v in ratios_cpu],
                 "goal_ratio": 0.25,
-                "goal_real_time_factor": 8.0,
-                "meets_goal": bool(med("rtf") >= 8.0),
-                "meets_goal_per_cpu_second": bool(med("rtf_cpu") >= 8.0),
+                "meets_goal": bool(statistics.median(ratios) >= 0.25),
+                "meets_goal_cpu": bool(statistics.median(ratios_cpu) >= 0.25),
                 "cpu_load_1min": round(float(np.loadtxt("/proc/loadavg", usecols=0)), 2),
             }
         )
