@@ -20,6 +20,7 @@ from protocol.keys import id_arg
 from psrmap_common.cli_parser import non_negative_int, positive_float
 from psrmap_common.defaults import DEFAULT_RES_M, DEFAULT_SEED
 from psrmap_common.errors import UsageError, ViewerUnavailable
+from psrmap_common.jit import COMPILE_NOTICE, uncached
 from psrmap_common.recording import use_viewer
 from scout_agent import component, evaluate
 from scout_agent.component import ScoutConfig
@@ -35,6 +36,7 @@ from scout_agent.sim.friction import Patch
 from scout_agent.sim.sensors import IMU_PRESETS, SENSOR_PROFILES, SensorConfig
 from scout_agent.sim.sensors.imu import IMU_ERROR_PRESETS
 from scout_agent.sim.terrain import LUNAR_ROUTES, PAPER_FIELD_M, RampConfig
+from scout_agent.state_estimation import kernels
 from scout_agent.state_estimation.launch import LAUNCH_MODES, LaunchSurvey
 
 
@@ -305,9 +307,6 @@ def _dem(args: argparse.Namespace) -> DemWindow | None:
 
 def _compile_notice(args: argparse.Namespace) -> None:
     """One line before a first run's silent numba compile of the state estimator's kernels."""
-    from psrmap_common.jit import COMPILE_NOTICE, uncached
-    from scout_agent.state_estimation import kernels
-
     if not args.quiet and args.state != "exact" and uncached([kernels.propagate, kernels.update]):
         print(f"psrmap scout: {COMPILE_NOTICE}", file=sys.stderr, flush=True)
 

@@ -9,8 +9,12 @@
         sample = robot.sense(readings)   # ProprioSample: the readings and the state estimate
         truth = hardware.truth(...)      # GroundTruth: evaluation only, never handed to the robot
 
-This is the only module (with `run.py`, which walks a path with it) that imports both sides; on a real
-Aliengo the same `OnboardSoftware` would talk to `unitree_legged_sdk` instead of `SimulatedAliengo`.
+On the real robot the same cycle reads `state = sdk.read(); cmd = robot.step(state); sdk.write(cmd)`. Here it is
+written from the command on, with the robot's tick split at its record: between `sense` (readings → the tick's
+`ProprioSample`) and the next `command`, the run (`run.py`) lets the localizer, the map estimators, evaluation and
+the pilot see the record — the pilot's speed and turn rate are the `v, w` of the next command. This is the only
+module (with `run.py`, which walks a path with it) that imports both sides; on a real Aliengo the same
+`OnboardSoftware` would talk to `unitree_legged_sdk` instead of `SimulatedAliengo`.
 
 Two things cross from the simulator to the robot here, both named and both for evaluation or set-up only:
 - the launch: the lander's survey of where it put the robot (`state_estimation.launch.initial_pose`, given the

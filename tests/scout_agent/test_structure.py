@@ -5,6 +5,8 @@ simulator never imports the robot's software (issue 27). Imports are read from t
 from __future__ import annotations
 
 import ast
+import subprocess
+import sys
 from pathlib import Path
 
 PACKAGE = Path(__file__).resolve().parents[2] / "scout_agent"
@@ -122,4 +124,21 @@ def test_the_import_reader_sees_both_kinds_of_import() -> None:
     g = _graph()
     assert {"scout_agent.sim.aliengo", "scout_agent.onboard.software"} <= g["scout_agent.loop"]
     assert "scout_agent.sim.sensors.imu" in g["scout_agent.sim.sensors.suite"]  # `from .imu import …`
-    assert "scout_agent.errors" in g["scout_agent.sim.sensors.suite"]  # inside SensorConfig.named
+    assert "scout_agent.localization.shared_map" in g["scout_agent.component"]  # inside a function
+
+
+def _loaded_after_import(module: str) -> list[str]:
+    """The scout_agent modules a fresh interpreter has loaded after importing `module` alone."""
+    code = f"import sys, {module}; print(' '.join(m for m in sys.modules if m.startswith('scout_agent')))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    return out.stdout.split()
+
+
+def test_importing_either_side_loads_none_of_the_other():
+    """The same at run time: the robot's software loads without the simulator, the simulator without it."""
+    robot = _loaded_after_import("scout_agent.onboard.software")
+    assert "scout_agent.state_estimation.estimator" in robot
+    assert not [m for m in robot if _part(m) == "simulator"]
+    hardware = _loaded_after_import("scout_agent.sim.aliengo")
+    assert "scout_agent.sim.sensors.suite" in hardware
+    assert not [m for m in hardware if _part(m) == "robot software"]

@@ -32,6 +32,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from scout_agent.errors import ScoutConfigError
 from scout_agent.lowlevel import LowState
 
 from .foot_pressure import ContactConfig, FootContactSensors
@@ -94,8 +95,6 @@ class SensorConfig:
     @classmethod
     def named(cls, profile: str, **kw) -> SensorConfig:
         if profile not in SENSOR_PROFILES:
-            from scout_agent.errors import ScoutConfigError
-
             raise ScoutConfigError(
                 f"sensor profile {profile!r} unknown; profiles: {', '.join(SENSOR_PROFILES)}"
             )
