@@ -25,11 +25,10 @@ from pathlib import Path
 import numpy as np
 import zenoh
 
-from map_server.service import free_endpoint
 from protocol import decode
 from protocol.keys import status_key
 from protocol.testing import layer_cells
-from psrmap_common.session import zenoh_config
+from psrmap_common.session import free_endpoint, zenoh_config
 from psrmap_mapcore import TiledMap
 from scout_agent.delivery import DeltaPublisher
 from scout_agent.publisher import ScoutLink, ZenohTransport

@@ -196,10 +196,10 @@ def _live(samples: list[tuple[str, bytes]]) -> dict:
     merge of the same stream."""
     import zenoh
 
-    from map_server.service import MapService, ServerConfig, free_endpoint
+    from map_server.service import MapService, ServerConfig
     from protocol.keys import status_key
     from psrmap_common.query import wait_for_server
-    from psrmap_common.session import zenoh_config
+    from psrmap_common.session import free_endpoint, zenoh_config
 
     ep = free_endpoint()
     ref = Merger(TiledMap(RES), MAP, limits=Limits(max_new_tiles_per_delta=8))

@@ -187,13 +187,12 @@ def run_load(n: int, endpoint: str, rate_total: float, seconds: float, offset: i
 def main() -> None:
     import zenoh
 
-    from map_server.service import free_endpoint
     from protocol import decode, encode
     from protocol.keys import ack_key, delta_key, map_key, status_key
     from protocol.messages import CellDelta, RegionQuery
     from protocol.testing import layer_cells
     from psrmap_common.query import wait_for_server
-    from psrmap_common.session import zenoh_config
+    from psrmap_common.session import free_endpoint, zenoh_config
 
     ap = argparse.ArgumentParser(allow_abbrev=False)
     ap.add_argument("--publishers", type=int, default=4)

@@ -27,12 +27,11 @@ MAPS = ("paged", "whole")
 def main() -> None:
     import zenoh
 
-    from map_server.service import free_endpoint
     from protocol import decode
     from protocol.keys import map_key
     from protocol.messages import MapRegion, RegionQuery
     from psrmap_common.query import get_replies, get_status, wait_for_server
-    from psrmap_common.session import zenoh_config
+    from psrmap_common.session import free_endpoint, zenoh_config
     from psrmap_mapcore import TiledMap
     from scout_agent.delivery import DeltaPublisher
     from scout_agent.publisher import ScoutLink, ZenohTransport

@@ -121,7 +121,7 @@ def pct(a: list[float], q: float) -> float:
 
 
 def run(n_queries: int, seconds: float, rate: float, n_scouts: int) -> dict:
-    from map_server.service import free_endpoint
+    from psrmap_common.session import free_endpoint
 
     ctx = mp.get_context("spawn")
     router = free_endpoint()

@@ -23,14 +23,13 @@ import psutil
 import zenoh
 from ingest import shutdown, spawn
 
-from map_server.service import free_endpoint
 from protocol import decode, encode
 from protocol.keys import delta_key, status_key
 from protocol.layers import LAYERS
 from protocol.messages import CellDelta, Status
 from protocol.testing import layer_cells
 from psrmap_common.query import wait_for_server
-from psrmap_common.session import zenoh_config
+from psrmap_common.session import free_endpoint, zenoh_config
 
 MAP, RES = "flood", 0.4
 

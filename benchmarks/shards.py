@@ -108,9 +108,8 @@ def publisher(pid: int, endpoint: str, shards: int, n: int, window: int, ready, 
 def run(k: int, args: argparse.Namespace) -> dict:
     import zenoh
 
-    from map_server.service import free_endpoint
     from psrmap_common.query import aggregate_status, get_statuses, wait_for_server
-    from psrmap_common.session import zenoh_config
+    from psrmap_common.session import free_endpoint, zenoh_config
 
     ep = free_endpoint()
     tmp = tempfile.TemporaryDirectory()

@@ -228,9 +228,8 @@ def main() -> None:
     rec = record(args.record_seconds)
     import zenoh
 
-    from map_server.service import free_endpoint
     from psrmap_common.query import aggregate_status, get_statuses, wait_for_server
-    from psrmap_common.session import zenoh_config
+    from psrmap_common.session import free_endpoint, zenoh_config
 
     ep = free_endpoint()
     tmp = tempfile.TemporaryDirectory()

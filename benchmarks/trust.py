@@ -19,10 +19,10 @@ from pathlib import Path
 def main() -> None:
     import zenoh
 
-    from map_server.service import MapService, ServerConfig, free_endpoint
+    from map_server.service import MapService, ServerConfig
     from psrmap.secure import secure_init
     from psrmap_common.query import get_statuses, wait_for_server
-    from psrmap_common.session import zenoh_config
+    from psrmap_common.session import free_endpoint, zenoh_config
     from psrmap_common.trust import Trust
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])

@@ -669,12 +669,3 @@ class MapService:
                 layers = self.map.region(ix0, iy0, ix1, iy1, rq.layers, rq.stats)
             version = self.merger.book.version
         return MapRegion(self.config.map_id, res, ix0, iy0, ix1 - ix0 + 1, iy1 - iy0 + 1, version, layers)
-
-
-def free_endpoint(host: str = "127.0.0.1") -> str:
-    """A `tcp/<host>:<port>` endpoint on a port that was free a moment ago (tests, benchmarks)."""
-    import socket
-
-    with socket.socket() as s:
-        s.bind((host, 0))
-        return f"tcp/{host}:{s.getsockname()[1]}"

@@ -25,6 +25,7 @@ from urllib.parse import urlsplit
 import numpy as np
 
 from psrmap_common.errors import ViewerUnavailable
+from psrmap_common.session import free_port
 
 __all__ = [
     "APP_ID",
@@ -119,9 +120,7 @@ def spawn_viewer() -> str:
         )
     import rerun as rr
 
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
+    port = free_port()
     # rr.spawn needs an enabled recording to act on (without one it only warns); it waits for the viewer
     rr.spawn(port=port, connect=False, recording=rr.RecordingStream(APP_ID, recording_id=recording_id()))
     if (why := _listening("127.0.0.1", port)) is not None:

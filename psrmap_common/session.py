@@ -7,6 +7,7 @@ import argparse
 import ipaddress
 import json
 import re
+import socket
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -20,6 +21,8 @@ __all__ = [
     "check_endpoint",
     "endpoint_arg",
     "file_endpoints",
+    "free_endpoint",
+    "free_port",
     "open_session",
     "why_refused",
     "zenoh_config",
@@ -31,6 +34,18 @@ MODES = ("peer", "client", "router")
 _IP_PROTOCOLS = ("tcp", "udp", "tls", "quic", "ws")
 _OTHER_PROTOCOLS = ("unixsock-stream", "unixpipe", "serial", "vsock")
 _HOST_PORT = re.compile(r"^(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):(\d{1,5})$")
+
+
+def free_port(host: str = "127.0.0.1") -> int:
+    """A TCP port on `host` that was free a moment ago (the mission's router, tests, benchmarks)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind((host, 0))
+        return int(s.getsockname()[1])
+
+
+def free_endpoint(host: str = "127.0.0.1") -> str:
+    """A `tcp/<host>:<port>` endpoint on a port that was free a moment ago."""
+    return f"tcp/{host}:{free_port(host)}"
 
 
 def check_endpoint(endpoint: str) -> str:

@@ -1,7 +1,7 @@
 """Scout-side delta publishing: seq numbering, a bounded buffer of unacknowledged deltas, resend.
 
-The transport is anything with `put(key, payload)`; `InMemoryTransport` records puts for tests, the
-Zenoh one lives in `scout_agent.publisher`. Thread-safe: acks arrive on the network thread.
+The transport is anything with `put(key, payload)` (`Transport`); the Zenoh one lives in
+`scout_agent.publisher`. Thread-safe: acks arrive on the network thread.
 """
 
 from __future__ import annotations
@@ -23,24 +23,11 @@ from scout_agent.errors import ScoutConfigError, ScoutError
 
 log = logging.getLogger(__name__)
 
-__all__ = ["DeltaPublisher", "InMemoryTransport", "Outbox", "Transport", "UnackedBufferFull", "new_epoch"]
+__all__ = ["DeltaPublisher", "Outbox", "Transport", "UnackedBufferFull", "new_epoch"]
 
 
 class Transport(Protocol):
     def put(self, key: str, payload: bytes) -> None: ...
-
-
-class InMemoryTransport:
-    """A transport double: remembers every `(key, payload)` put, optionally forwards to a sink."""
-
-    def __init__(self, sink: Callable[[str, bytes], None] | None = None) -> None:
-        self.sent: list[tuple[str, bytes]] = []
-        self.sink = sink
-
-    def put(self, key: str, payload: bytes) -> None:
-        self.sent.append((key, payload))
-        if self.sink is not None:
-            self.sink(key, payload)
 
 
 class Outbox(Protocol):

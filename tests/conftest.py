@@ -10,9 +10,9 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from map_server.service import MapService, ServerConfig, free_endpoint
+from map_server.service import MapService, ServerConfig
 from psrmap_common.query import wait_for_server
-from psrmap_common.session import zenoh_config
+from psrmap_common.session import free_endpoint, zenoh_config
 
 
 @pytest.fixture(autouse=True)

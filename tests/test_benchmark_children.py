@@ -18,7 +18,7 @@ SCRIPT = """
 import sys, time
 sys.path.insert(0, {bench!r})
 from ingest import spawn
-from map_server.service import free_endpoint
+from psrmap_common.session import free_endpoint
 ep = free_endpoint()
 r = spawn("router", "--listen", ep)
 s = spawn("router", "--listen", free_endpoint(), "--connect", ep)

@@ -11,7 +11,11 @@ given a way to run here):
     runs `--scouts 1 --sim-seconds 2`, the ROS 2 bridge (which runs until stopped) publishes `--once`; on such a
     small map a `plan` may answer that its goal cell is impassable (exit 1 with that message: the planner ran);
   * `router` and `server` lines (and any line ending in `&`) start in the background; the test waits for their
-    "up" line and stops them at the end;
+    "up" line and stops them when their group of sections is done;
+  * a group — a section that starts its own network (or uses none) and the sections after it that use that
+    network — runs in document order; independent groups run side by side in two lanes, and the mission beside
+    them (most of the time here is waiting on subprocesses, not computing); `export VAR=...` lines hold for
+    every later group as they would in one shell;
   * `runs/<ts>` is the run folder of the mission run before; the DEM `LDEM_875S_5M.tif` is a small GeoTIFF the
     test writes at the window the README names (the real LOLA tile is a 1 GB download);
   * `--viewer` and `--connect-viewer` run with no display and nothing at the viewer's port (as on CI): they must
@@ -28,7 +32,6 @@ import os
 import re
 import shlex
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -37,6 +40,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import pytest
+
+from psrmap_common.session import free_port
 
 ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
@@ -93,12 +98,6 @@ def _block_commands(section: str, lines: list[str]) -> list[Command]:
     return out
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
 @dataclass
 class Network:
     """The loopback ports standing in for the README's endpoints in one section."""
@@ -107,7 +106,7 @@ class Network:
     local: int = 0
 
     def fresh(self) -> None:
-        self.base = self.local = _free_port()
+        self.base = self.local = free_port()
 
     def sub(self, word: str) -> str:
         for host in ("0.0.0.0", "base"):
@@ -125,7 +124,7 @@ class Readme:
     started_network: bool = False
     log: list[str] = field(default_factory=list)
     pool: ThreadPoolExecutor = field(default_factory=lambda: ThreadPoolExecutor(1))
-    mission: Future[Path] | None = None
+    mission: Future[Path] = field(default_factory=Future)  # shared by the groups: the mission's run folder
 
     def cwd(self) -> Path:
         d = self.tmp / (re.sub(r"[^A-Za-z0-9]+", "-", self.section).strip("-").lower() or "top")
@@ -174,10 +173,10 @@ class Readme:
             self.net.fresh()
             self.started_network = True
         elif sub == "router":  # a router on another host, meshed to the base
-            self.net.local = _free_port()
+            self.net.local = free_port()
         args = [self.net.sub(a) for a in args]
         if "runs/<ts>" in args:
-            assert self.mission is not None, f"`{cmd.text}`: no mission ran before it"
+            assert self.mission.running() or self.mission.done(), f"`{cmd.text}`: no mission ran before it"
             args = [str(self.mission.result()) if a == "runs/<ts>" else a for a in args]
         if "--viewer" in args or "--connect-viewer" in args:
             return self._viewer(cmd, args)
@@ -192,7 +191,8 @@ class Readme:
         if cmd.background or sub in ("router", "server"):
             return self._background(cmd, args)
         if sub == "mission":  # the longest command: it runs beside the others, `runs/<ts>` waits for it
-            self.mission = self.pool.submit(self._foreground, cmd, args, self.cwd(), self.environ())
+            assert self.mission.set_running_or_notify_cancel(), "the README runs one mission"
+            self.pool.submit(self._mission, cmd, args, self.cwd(), self.environ())
             return
         self._foreground(cmd, args, self.cwd(), self.environ())
 
@@ -211,6 +211,12 @@ class Readme:
         self.log.append(f"{cmd.text}  -> exit 0 in {took:.1f} s: {_last_line(res.stdout)}")
         return max((cwd / "runs").iterdir()) if sub == "mission" else cwd
 
+    def _mission(self, cmd: Command, args: list[str], cwd: Path, env: dict[str, str]) -> None:
+        try:
+            self.mission.set_result(self._foreground(cmd, args, cwd, env))
+        except BaseException as exc:  # handed to whoever waits for the run folder
+            self.mission.set_exception(exc)
+
     def _background(self, cmd: Command, args: list[str]) -> None:
         log = self.cwd() / f"bg{len(self.procs)}.log"
         with log.open("w") as out:  # a file, not a pipe: a chatty server never blocks on a full pipe
@@ -227,7 +233,7 @@ class Readme:
         pytest.fail(f"`{cmd.text}` ({cmd.section}) never said it was up:\n{log.read_text()[-3000:]}")
 
     def _viewer(self, cmd: Command, args: list[str]) -> None:
-        args = [re.sub(r":9876/", f":{_free_port()}/", a) for a in args]  # nothing listens there
+        args = [re.sub(r":9876/", f":{free_port()}/", a) for a in args]  # nothing listens there
         t0 = time.monotonic()
         res = subprocess.run([*PSRMAP, *args], cwd=self.cwd(), env=self.environ(), capture_output=True,
                              text=True, timeout=60, check=False)  # fmt: skip
@@ -269,9 +275,7 @@ class Readme:
         )
 
     def stop(self) -> None:
-        if self.mission is not None:
-            self.mission.result()  # its failure fails the test
-        self.pool.shutdown()
+        """Stop this group's background processes (SIGINT, then SIGKILL after 10 s)."""
         for p in self.procs:
             if p.poll() is None:
                 os.killpg(p.pid, signal.SIGINT)
@@ -313,16 +317,63 @@ def test_the_readme_parser_finds_the_commands() -> None:
     assert any("--route 1.5,1.5 18.5,18.5" in t for t in texts)  # quoted words and a continuation line
 
 
-@pytest.mark.slow
-def test_every_readme_command_runs(tmp_path: Path) -> None:
-    cmds = readme_commands(README.read_text())
-    assert len(cmds) > 30
-    r = Readme(tmp_path)
-    t0 = time.monotonic()
+def _uses_network(cmd: Command) -> bool:
+    return any("tcp/" in a or a == "--zenoh-config" for a in cmd.argv)
+
+
+def _starts_network(cmd: Command) -> bool:
+    a = cmd.argv[cmd.argv.index("psrmap") + 1 :] if "psrmap" in cmd.argv else ()
+    return a[:1] == ("router",) and "--connect" not in a or a[:2] == ("secure", "init")
+
+
+def readme_groups(cmds: list[Command]) -> list[list[Command]]:
+    """The commands in groups that can run side by side: a section that starts its own network or uses none
+    opens a group; a section that uses a network without starting one joins the group before it."""
+    groups: list[list[Command]] = []
+    by_section: dict[str, list[Command]] = {}
+    for c in cmds:
+        by_section.setdefault(c.section, []).append(c)
+    for section in by_section.values():
+        own = any(_starts_network(c) for c in section) or not any(_uses_network(c) for c in section)
+        if own or not groups:
+            groups.append([])
+        groups[-1].extend(section)
+    return groups
+
+
+def _exports(cmds: list[Command]) -> dict[str, str]:
+    return dict(c.argv[1].split("=", 1) for c in cmds if c.argv[0] == "export" and "=" in c.argv[1])
+
+
+def _run_group(r: Readme, cmds: list[Command]) -> Readme:
     try:
         for cmd in cmds:
             r.run(cmd)
     finally:
         r.stop()
-        print(f"\nREADME: {len(cmds)} commands in {time.monotonic() - t0:.0f} s")
-        print("\n".join(r.log))
+    return r
+
+
+@pytest.mark.slow
+def test_every_readme_command_runs(tmp_path: Path) -> None:
+    cmds = readme_commands(README.read_text())
+    assert len(cmds) > 30
+    groups = readme_groups(cmds)
+    assert [c for g in groups for c in g] == cmds  # every command, in document order within its group
+    mission: Future[Path] = Future()
+    t0 = time.monotonic()
+    env: dict[str, str] = {}
+    runners = []
+    with ThreadPoolExecutor(1) as mission_lane, ThreadPoolExecutor(2) as lanes:
+        for g in groups:
+            r = Readme(tmp_path, env=dict(env), pool=mission_lane, mission=mission)
+            env |= _exports(g)
+            runners.append((r, lanes.submit(_run_group, r, g)))
+        try:
+            for _, fut in runners:
+                fut.result()  # a group's failure fails the test (the others still finish and stop)
+            if mission.running() or mission.done():
+                mission.result()
+        finally:
+            print(f"\nREADME: {len(cmds)} commands in {len(groups)} groups in {time.monotonic() - t0:.0f} s")
+            print("\n".join(line for r, _ in runners for line in r.log))

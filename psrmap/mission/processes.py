@@ -6,19 +6,12 @@ file, and `Proc.result()` returns the typed summary it sent back through a pipe,
 from __future__ import annotations
 
 import os
-import socket
 import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-__all__ = ["Proc", "free_port", "spawn"]
-
-
-def free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
+__all__ = ["Proc", "spawn"]
 
 
 def _run_component(target: Any, config: Any, conn: Any, log_path: str, env: dict[str, str]) -> None:

@@ -25,10 +25,11 @@ from psrmap.errors import MissionRunError
 from psrmap.mission.compile import compile_ahead
 from psrmap.mission.components import plan_and_compare, scout_config
 from psrmap.mission.config import DRIFT_KEYS, MissionConfig, _credential_files, server_names, validate
-from psrmap.mission.processes import Proc, free_port, spawn
+from psrmap.mission.processes import Proc, spawn
 from psrmap.mission.recording import merge_recordings
 from psrmap.mission.report import config_json, deltas_sent, json_default, print_report
 from psrmap.progress import progress as progress_bar
+from psrmap_common.session import free_endpoint
 
 __all__ = ["run_mission"]
 
@@ -75,7 +76,7 @@ def run_mission(cfg: MissionConfig, run_dir: Path | None = None, progress: bool 
     (run_dir / "recordings").mkdir(exist_ok=True)
     recording_id = f"psrmap-{cfg.map}-{uuid.uuid4().hex[:12]}"
     env = {"PSRMAP_RECORDING_ID": recording_id, "PYTHONUNBUFFERED": "1"}
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    endpoint = free_endpoint()
     ctx = mp.get_context("spawn")
     t0 = time.monotonic()
     deadline = t0 + max(cfg.timeout_s, 8.0 * cfg.sim_seconds)  # a 100 m field's walks take ~700 s each

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import socket
-
 import numpy as np
 import pytest
 import zenoh
@@ -13,13 +11,7 @@ from consumer_planner.errors import PlannerError
 from protocol.codec import encode
 from protocol.keys import map_key
 from protocol.messages import MapRegion
-from psrmap_common.session import zenoh_config
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+from psrmap_common.session import free_port, zenoh_config
 
 
 def _shard(ix0: int, n: float, cot: float) -> bytes:
@@ -29,7 +21,7 @@ def _shard(ix0: int, n: float, cot: float) -> bytes:
 
 @pytest.fixture
 def server():
-    endpoint = f"tcp/127.0.0.1:{_free_port()}"
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
     with zenoh.open(zenoh_config(listen=[endpoint])) as session:
         yield session, endpoint
 

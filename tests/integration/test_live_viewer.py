@@ -15,21 +15,16 @@ from pathlib import Path
 import pytest
 
 from psrmap.mission import rerun_exe
+from psrmap_common.session import free_port
 
 pytestmark = pytest.mark.slow
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 class _Receiver:
     """`rerun --serve-grpc --save FILE` on a free loopback port."""
 
     def __init__(self, path: Path) -> None:
-        self.path, self.port = path, _free_port()
+        self.path, self.port = path, free_port()
         self.url = f"rerun+http://127.0.0.1:{self.port}/proxy"
         # SIGINT stops it (entities()); a suite started in the background has SIGINT ignored, which a child
         # would inherit: a handler here instead makes the child start with the default action

@@ -3,25 +3,21 @@ restarted mid-stream), two publishing scouts and a hand-made reordered stream; e
 
 from __future__ import annotations
 
-import os
-import selectors
 import signal
-import subprocess
-import sys
 import threading
 import time
 from pathlib import Path
 
 import numpy as np
 import zenoh
+from helpers import spawn, stop, wait_line
 
-from map_server.service import free_endpoint
 from protocol import decode, encode
 from protocol.keys import delta_key, map_key, status_key
 from protocol.messages import CellDelta, MapRegion, RegionQuery, Status
 from protocol.testing import layer_cells
 from psrmap_common.query import wait_for_server
-from psrmap_common.session import zenoh_config
+from psrmap_common.session import free_endpoint, zenoh_config
 from psrmap_mapcore import TiledMap
 from scout_agent.delivery import DeltaPublisher
 from scout_agent.publisher import ScoutLink, ZenohTransport
@@ -29,42 +25,6 @@ from scout_agent.publisher import ScoutLink, ZenohTransport
 MAP, RES = "itest", 0.4
 LAYERS5 = ("elevation", "slip", "cot", "giim", "giam")
 ROOT = Path(__file__).resolve().parents[2]
-
-
-def spawn(*args: str) -> subprocess.Popen:
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    return subprocess.Popen(
-        [sys.executable, "-m", "map_server", *args],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.DEVNULL,
-        env=env,
-        cwd=ROOT,
-    )
-
-
-def wait_line(proc: subprocess.Popen, word: str, timeout_s: float = 20.0) -> str:
-    """Block until the process prints a line containing `word` (its readiness message)."""
-    sel = selectors.DefaultSelector()
-    sel.register(proc.stdout, selectors.EVENT_READ)
-    deadline = time.monotonic() + timeout_s
-    while (left := deadline - time.monotonic()) > 0:
-        if sel.select(left):
-            line = proc.stdout.readline().decode()
-            if word in line:
-                return line
-            if not line:
-                break
-    raise AssertionError(f"process {proc.args} did not print {word!r} (rc={proc.poll()})")
-
-
-def stop(proc: subprocess.Popen, sig: int = signal.SIGTERM, timeout_s: float = 10.0) -> int:
-    proc.send_signal(sig)
-    try:
-        return proc.wait(timeout_s)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        proc.wait()
-        raise AssertionError(f"{proc.args} hung on signal {sig}") from None
 
 
 def get_one(session, selector: str, timeout_s: float = 10.0) -> bytes:

@@ -20,8 +20,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_map_service import wait_line
-from test_shards import TILE, walk
+from helpers import TILE, wait_line, walk
 
 from protocol.partition import Partition
 from protocol.testing import RES
@@ -35,7 +34,7 @@ CUT_AT, CUT_S = 25, 10.0  # cut the scout host's link after this many deltas, fo
 SCOUT = """
 import json, sys, time
 sys.path.insert(0, {tests!r})
-from test_shards import walk
+from helpers import walk
 from protocol.partition import Partition
 from scout_agent.publisher import ScoutPublisher
 ep, n, conf = sys.argv[1], int(sys.argv[2]), sys.argv[3] or None
@@ -145,7 +144,7 @@ def test_scout_host_link_cut_for_10s_loses_and_doubles_nothing(hosts, procs, tmp
             procs.append(anon)
             assert anon.wait(60) != 0
     script = tmp_path / "scout.py"
-    script.write_text(SCOUT.format(tests=str(ROOT / "tests" / "integration"), map=MAP, res=RES, tile=TILE))
+    script.write_text(SCOUT.format(tests=str(ROOT / "tests"), map=MAP, res=RES, tile=TILE))
     scout = in_ns(ns["scout"], str(script), robot_ep, str(N_DELTAS), cred["s1"][1] if secured else "")
     procs.append(scout)
     wait_line(scout, "scout up", 30)

@@ -17,9 +17,10 @@ import msgpack
 import numpy as np
 import pytest
 import zenoh
+from helpers import plannable_delta, wait_until
 
 from consumer_planner.client import ClientConfig, RegionWatch, query_region
-from map_server.service import MapService, ServerConfig, free_endpoint
+from map_server.service import MapService, ServerConfig
 from protocol import encode
 from protocol.keys import (
     alive_key,
@@ -37,21 +38,12 @@ from protocol.partition import Partition
 from protocol.testing import MAP, RES, make_delta
 from psrmap.secure import secure_init
 from psrmap_common.query import get_partition, get_replies, get_statuses, wait_for_server
-from psrmap_common.session import zenoh_config
+from psrmap_common.session import free_endpoint, zenoh_config
 from psrmap_common.trust import Trust
 from scout_agent.publisher import ScoutPublisher
 
 FAKE_VERSION = 10**12
 ATTESTED = Trust(attested=True)
-
-
-def _wait(pred, timeout_s: float = 10.0) -> bool:
-    ev = threading.Event()
-    for _ in range(int(timeout_s / 0.05)):
-        if pred():
-            return True
-        ev.wait(0.05)
-    return pred()
 
 
 @pytest.fixture
@@ -91,7 +83,7 @@ def _plain(ep: str):
 
 def _heard(session, key: str, zid: str) -> bool:
     """Wait until a reply from `zid` on `key` comes back (the impostor's queryable reached the router)."""
-    return _wait(lambda: any(str(r.replier_id.zid) == zid for r in session.get(key, timeout=1.0,
+    return wait_until(lambda: any(str(r.replier_id.zid) == zid for r in session.get(key, timeout=1.0,
                  target=zenoh.QueryTarget.ALL, consolidation=zenoh.ConsolidationMode.NONE) if r.replier_id))  # fmt: skip
 
 
@@ -245,7 +237,7 @@ def test_router_refuses_server_tokens_of_scouts_and_planners(tmp_path):
                 return [str(r.ok.key_expr) for k in (alive_pattern(MAP), server_id_pattern(MAP))
                         for r in p2.liveliness().get(k, timeout=2) if r.ok is not None]  # fmt: skip
 
-            assert _wait(lambda: len(tokens()) == 1)
+            assert wait_until(lambda: len(tokens()) == 1)
             assert tokens() == [alive_key(MAP, "s1")]
             assert not wait_for_server(p2, MAP, 1.0) and not wait_for_server(p2, MAP, 1.0, shard=0)
             assert get_statuses(p2, MAP, 1.0, ATTESTED) == []  # and nobody is attested as a server
@@ -265,7 +257,7 @@ def test_router_refuses_tile_change_notices_of_a_planner(secured):
         p1.put(changes_key(MAP), _fake_notice())
         p1.declare_publisher(changes_key(MAP)).put(_fake_notice())
         _feed(service, ep, lay)  # a real notice follows
-        assert _wait(lambda: bool(watch.versions))
+        assert wait_until(lambda: bool(watch.versions))
         changes = watch.changed(1.0)
         assert changes and all(c.version < FAKE_VERSION for c in changes)
         assert watch.versions[None] < FAKE_VERSION
@@ -278,11 +270,11 @@ def test_a_watch_ignores_notices_from_others(open_router, caplog):
         with caplog.at_level(logging.WARNING, logger="psrmap_common.trust"):
             imp.put(changes_key(MAP), _fake_notice())  # no sender id
             pub.put(_fake_notice(), source_info=zenoh.SourceInfo(pub.id, 1))  # its own id
-            assert _wait(lambda: watch.ignored == 2)
+            assert wait_until(lambda: watch.ignored == 2)
         assert "it carries no sender id" in caplog.text, caplog.text
         assert f"from Zenoh id {imp.info.zid()}" in caplog.text, caplog.text
         _feed(service, ep)
-        assert _wait(lambda: bool(watch.versions))
+        assert wait_until(lambda: bool(watch.versions))
         changes = watch.changed(1.0)
         assert changes and all(c.version < FAKE_VERSION for c in changes)
 
@@ -291,20 +283,10 @@ def test_a_watching_planner_does_not_replan_on_notices_from_others(open_router):
     """`psrmap plan --watch` with a servers.json: an impostor's notices inside the corridor cost no replan; the
     server's own notice for a real change triggers exactly one."""
     from consumer_planner.component import MapSource, PlanConfig, watch_plan
-    from protocol.messages import CellDelta
-    from protocol.testing import layer_cells
 
     ep, conf, service = open_router
 
-    def delta(seq: int, cells: list[tuple[int, int]]) -> CellDelta:  # plausible values: costs >= 0
-        ix, iy = np.array([c[0] for c in cells]), np.array([c[1] for c in cells])
-        one, rng = np.ones(ix.size), np.random.default_rng(seq)
-        layers = {
-            "slip": {"ix": ix, "iy": iy, "n": 10 * one, "events": np.zeros(ix.size)},
-            "cot": layer_cells("cot", ix, iy, rng, scale=1.0)
-            | {"work": rng.uniform(1, 3, ix.size), "dist": one},
-        }
-        return CellDelta(MAP, "s1", 7, seq, 1.0 + seq, RES, layers)  # fmt: skip
+    delta = plannable_delta
 
     cfg = PlanConfig(MapSource(map_id=MAP, connect=(ep,), zenoh_config=str(conf), margin_m=0.4), (0.0, 0.0),
                      (3.0, 0.8))  # fmt: skip
@@ -318,7 +300,7 @@ def test_a_watching_planner_does_not_replan_on_notices_from_others(open_router):
                                                                   resync_s=60.0, period_s=0.05)), daemon=True)  # fmt: skip
         t.start()
         try:
-            assert _wait(lambda: len(plans) == 1)
+            assert wait_until(lambda: len(plans) == 1)
             _settle()  # the watch's subscription has reached the router
             fake = imp.declare_publisher(changes_key(MAP))
             for k in range(5):  # the corridor's tile, a version far ahead, its own id and none
@@ -328,7 +310,7 @@ def test_a_watching_planner_does_not_replan_on_notices_from_others(open_router):
             n_after_fake = len(plans)
             near = delta(1, [(5, 2)])
             assert pub.send(near.layers, near.t) and pub.wait_acked(10)
-            assert _wait(lambda: len(plans) == 2, 5.0)
+            assert wait_until(lambda: len(plans) == 2, 5.0)
         finally:
             stop.set()
             t.join(timeout=20)
@@ -419,7 +401,7 @@ def test_a_planners_certificate_cannot_carry_a_scouts_password(tmp_path):
             with zenoh.open(mixed) as m:
                 m.put(delta_key(MAP, "s1"), encode(make_delta(seq=0, scout="s1", layers=("slip",))))
                 token = m.liveliness().declare_token(alive_key(MAP, "s1"))
-                assert not _wait(lambda: service.alive.get("s1", False), 1.0)
+                assert not wait_until(lambda: service.alive.get("s1", False), 1.0)
                 token.undeclare()
             # the matching pair still works, and its delta is the only one merged
             with ScoutPublisher(MAP, "s1", RES, [tls_ep], outbox=None,
@@ -486,7 +468,7 @@ def test_a_secured_bridge_publishes_ros_topics_a_planner_reads_but_speaks_for_no
         sub = p1.declare_subscriber(grid_key, lambda s: live.append(s.payload.to_bytes()))
         t.start()
         try:
-            assert _wait(lambda: bool(live), 20.0), "the planner received no grid map"
+            assert wait_until(lambda: bool(live), 20.0), "the planner received no grid map"
             tokens = [str(r.ok.key_expr) for r in p1.liveliness().get("@ros2_lv/0/**", timeout=3.0) if r.ok]
             assert any("/NN/%/%/psrmap_bridge" in k for k in tokens), tokens
             assert any("/MP/%/%/psrmap_bridge/%psrmap%grid_map/" in k for k in tokens), tokens
@@ -495,7 +477,7 @@ def test_a_secured_bridge_publishes_ros_topics_a_planner_reads_but_speaks_for_no
                 asub = zext.declare_advanced_subscriber(
                     p2, grid_key, lambda s: late.append(s.payload.to_bytes()),
                     history=zext.HistoryConfig(detect_late_publishers=True, max_samples=1))  # fmt: skip
-                assert _wait(lambda: bool(late), 10.0), "a late planner got nothing from the cache"
+                assert wait_until(lambda: bool(late), 10.0), "a late planner got nothing from the cache"
                 asub.undeclare()
             assert late[0] == live[0] and late[0][:4] == b"\x00\x01\x00\x00"  # CDR little endian
             # the bridge's credentials speak for no map: a delta and a map queryable are refused

@@ -11,17 +11,18 @@ import threading
 import numpy as np
 import pytest
 import zenoh
+from helpers import wait_until
 
 from consumer_planner.client import ClientConfig, query_region
 from consumer_planner.errors import PlannerError
-from map_server.service import MapService, ServerConfig, free_endpoint
+from map_server.service import MapService, ServerConfig
 from protocol import encode
 from protocol.keys import ack_key, delta_key, map_key
 from protocol.messages import Ack, RegionQuery
 from protocol.testing import MAP, RES, make_delta
 from psrmap.secure import secure_init
 from psrmap_common.query import wait_for_server
-from psrmap_common.session import zenoh_config
+from psrmap_common.session import free_endpoint, zenoh_config
 from psrmap_common.trust import Trust, load_trust
 from scout_agent.publisher import ScoutPublisher
 
@@ -45,15 +46,6 @@ def secured(tmp_path):
 
 def _open(lay, who: str):
     return zenoh.open(zenoh_config(config_file=lay.agents[who]))
-
-
-def _wait(pred, timeout_s: float = 10.0) -> bool:
-    ev = threading.Event()
-    for _ in range(int(timeout_s / 0.05)):
-        if pred():
-            return True
-        ev.wait(0.05)
-    return pred()
 
 
 def test_anonymous_and_wrong_password_are_refused(secured):
@@ -205,7 +197,7 @@ def test_a_sharded_map_works_under_the_acl(tmp_path):
                     d = make_delta(seq=0, scout="s1", layers=("slip",), cells=((0, 0), (9, 0)))  # both shards
                     assert pub.send(d.layers, d.t) == 2
                     assert pub.wait_acked(10)
-                assert _wait(lambda: len({c.shard for c in watch.changed(0.2)}) > 0)
+                assert wait_until(lambda: len({c.shard for c in watch.changed(0.2)}) > 0)
             st = get_status(p1, MAP)
             assert st is not None and st.merged == 2 and st.cells == 2 and st.health["shards_answered"] == 2
             grid = query_region(p1, MAP, (0.0, 0.0, 4.0, 0.3), ClientConfig(connect=(ep,)))

@@ -12,22 +12,19 @@ from collections.abc import Iterator
 import numpy as np
 import pytest
 import zenoh
-from test_map_service import spawn, wait_line
+from helpers import TILE, plannable_delta, spawn, wait_line, walk
 
 from consumer_planner.client import ClientConfig, RegionWatch, query_region
 from map_server.merge import Merger
-from map_server.service import MapService, ServerConfig, free_endpoint
+from map_server.service import MapService, ServerConfig
 from protocol import encode
 from protocol.keys import delta_key
-from protocol.messages import CellDelta
 from protocol.partition import Partition
-from protocol.testing import MAP, RES, layer_cells, make_delta
+from protocol.testing import MAP, RES, make_delta
 from psrmap_common.query import aggregate_status, get_partition, get_status, get_statuses, wait_for_server
-from psrmap_common.session import zenoh_config
+from psrmap_common.session import free_endpoint, zenoh_config
 from psrmap_mapcore import TiledMap
 from scout_agent.publisher import ScoutPublisher
-
-TILE = 8  # small tiles: a few metres of walk cross many, so both shards get cells
 
 
 @contextlib.contextmanager
@@ -42,14 +39,6 @@ def shards(router: str, tmp_path, k: int = 2) -> Iterator[tuple[list[MapService]
         for i in range(k):
             assert wait_for_server(client, MAP, shard=i)
         yield services, client
-
-
-def walk(n: int, scout: str = "s1") -> list:
-    """n deltas of a scout walking along x: 3 cells each, crossing a tile every few deltas."""
-    return [
-        make_delta(seq=i, scout=scout, cells=((2 * i, 1), (2 * i + 1, 1), (2 * i, 9)), layers=("slip", "cot"), seed=i)
-        for i in range(n)
-    ]  # fmt: skip
 
 
 def test_partition_is_deterministic_and_splits_every_cell_once():
@@ -213,15 +202,7 @@ def test_a_watching_planner_replans_only_when_its_corridor_changes_on_any_shard(
 
     from consumer_planner.component import MapSource, PlanConfig, watch_plan
 
-    def delta(seq: int, cells: list[tuple[int, int]]) -> CellDelta:  # plausible values: costs >= 0
-        ix, iy = np.array([c[0] for c in cells]), np.array([c[1] for c in cells])
-        one, rng = np.ones(ix.size), np.random.default_rng(seq)
-        layers = {
-            "slip": {"ix": ix, "iy": iy, "n": 10 * one, "events": np.zeros(ix.size)},
-            "cot": layer_cells("cot", ix, iy, rng, scale=1.0)
-            | {"work": rng.uniform(1, 3, ix.size), "dist": one},
-        }
-        return CellDelta(MAP, "s1", 7, seq, 1.0 + seq, RES, layers)
+    delta = plannable_delta
 
     part = Partition(2, TILE)
     # corridor (0, 0)-(3, 0.8) with 0.4 m margin: cells -1..8 x -1..3, tiles (-1..1, -1..0)

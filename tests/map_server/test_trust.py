@@ -3,10 +3,9 @@ writes (disk full), an unexpected error in the merge worker — none may fail si
 
 from __future__ import annotations
 
-import threading
-
 import numpy as np
 import pytest
+from helpers import InMemoryTransport, wait_until
 
 from map_server.merge import Merger
 from map_server.store import MapStore
@@ -15,7 +14,7 @@ from protocol.keys import delta_key, status_key
 from protocol.messages import Ack, Status
 from protocol.testing import MAP, RES, SCOUT, make_delta
 from psrmap_mapcore import TiledMap
-from scout_agent.delivery import DeltaPublisher, InMemoryTransport
+from scout_agent.delivery import DeltaPublisher
 from scout_agent.publisher import ScoutLink, ZenohTransport
 
 KEY = delta_key(MAP, SCOUT)
@@ -67,15 +66,6 @@ def _status(client) -> Status:
     return st
 
 
-def _wait(pred, timeout_s: float = 15.0) -> bool:
-    ev = threading.Event()
-    for _ in range(int(timeout_s / 0.05)):
-        if pred():
-            return True
-        ev.wait(0.05)
-    return pred()
-
-
 def test_a_full_disk_is_reported_and_the_service_recovers_without_restart(served_map):
     with served_map(MAP, RES) as (service, client):
         pub = DeltaPublisher(ZenohTransport(client), MAP, "s1", RES, resend_after_s=0.5)
@@ -96,7 +86,7 @@ def test_a_full_disk_is_reported_and_the_service_recovers_without_restart(served
                 )
                 pub.send(d.layers, d.t)
                 sent.append(d)
-            assert _wait(lambda: _status(client).health.get("store") == "error")
+            assert wait_until(lambda: _status(client).health.get("store") == "error", 15.0)
             st = _status(client)
             assert "full" in str(st.health["store_error"]) and st.health["worker"] == "waiting_for_store"
             assert pub.unacked > 0  # nothing uncommitted is acked
@@ -183,5 +173,5 @@ def test_a_burst_of_huge_messages_is_dropped_before_the_server_copies_it(served_
                 client.put(KEY, good)
             return service.merger.book.merged == 1
 
-        assert _wait(resent_until_merged, timeout_s=60)
+        assert wait_until(resent_until_merged, timeout_s=60)
         assert _status(client).health["worker"] == "ok" and service.merger.book.merged == 1

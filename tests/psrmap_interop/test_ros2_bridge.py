@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 import xxhash
 import zenoh
+from helpers import wait_until
 from test_rmw_zenoh_wire import parse_qos_field, read_rmw_zenoh_attachment
 
 from consumer_planner.client import ClientConfig, query_region
@@ -366,12 +367,6 @@ def test_a_lost_notice_is_caught_by_the_resync(router, tmp_path) -> None:
     assert res["changes_in_box"] == 0 and res["resyncs"] >= 1 and res["published"]["grid_map"] == 2, res
 
 
-def _wait_for(cond, timeout_s: float = 10.0) -> None:
-    end = time.monotonic() + timeout_s
-    while not cond() and time.monotonic() < end:
-        time.sleep(0.05)
-
-
 def test_without_a_box_the_bridge_and_export_cover_the_whole_map_as_it_grows(
     router, served_map, store, tmp_path, capsys
 ) -> None:
@@ -390,10 +385,10 @@ def test_without_a_box_the_bridge_and_export_cover_the_whole_map_as_it_grows(
         stop = threading.Event()
         t, done = _start_bridge(BridgeConfig(map_id, None, (router,), rate_hz=10.0, resync_s=60.0), stop)
         try:
-            _wait_for(lambda: len(got) >= 1)
+            wait_until(lambda: len(got) >= 1)
             _put_cells(client, map_id, 1, np.array([30]), np.array([7]))  # far east and north: the map grows
             _merged(client, map_id, 2)
-            _wait_for(lambda: len(got) >= 2)
+            wait_until(lambda: len(got) >= 2)
         finally:
             stop.set()
             t.join(timeout=20)

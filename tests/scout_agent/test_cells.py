@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers import InMemoryTransport
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -11,7 +12,7 @@ from protocol.codec import decode
 from protocol.layers import LAYERS, layer_value
 from psrmap_mapcore import read_npz
 from scout_agent.cells import CellAccumulator, LocalMap
-from scout_agent.delivery import DeltaPublisher, InMemoryTransport
+from scout_agent.delivery import DeltaPublisher
 
 
 def test_flush_reduces_per_cell_with_each_stats_merge_op():

@@ -1,10 +1,11 @@
 from __future__ import annotations
 
 import pytest
+from helpers import InMemoryTransport
 
 from protocol import Ack, decode
 from protocol.testing import MAP, RES, SCOUT, make_delta
-from scout_agent.delivery import DeltaPublisher, InMemoryTransport, UnackedBufferFull
+from scout_agent.delivery import DeltaPublisher, UnackedBufferFull
 
 
 class Clock:

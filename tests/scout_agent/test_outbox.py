@@ -9,11 +9,12 @@ import signal
 
 import numpy as np
 import pytest
+from helpers import InMemoryTransport
 
 from map_server.service import MapService, ServerConfig
 from protocol.testing import MAP, RES, make_delta
 from psrmap_common.query import wait_for_server
-from scout_agent.delivery import DeltaPublisher, InMemoryTransport
+from scout_agent.delivery import DeltaPublisher
 from scout_agent.outbox import SQLiteOutbox
 
 N_BEFORE_KILL = 30
