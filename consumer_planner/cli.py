@@ -15,6 +15,8 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import signal
+import threading
 from dataclasses import asdict, replace
 
 from consumer_planner import component
@@ -25,7 +27,7 @@ from consumer_planner.costs import TERMS, UNKNOWN_POLICIES, CostConfig, parse_we
 from consumer_planner.errors import PlannerError
 from consumer_planner.table import route_table, term_lines
 from protocol.keys import id_arg
-from psrmap_common.cli_parser import positive_float
+from psrmap_common.cli_parser import Subparsers, positive_float
 from psrmap_common.errors import UsageError
 from psrmap_common.link import add_link_arguments, link_from_args
 
@@ -123,7 +125,7 @@ def _common(p: argparse.ArgumentParser) -> None:
     )
 
 
-def register(subparsers) -> None:
+def register(subparsers: Subparsers) -> None:
     p = subparsers.add_parser(
         "plan",
         help="cheapest path on the shared map, with its breakdown",
@@ -239,9 +241,6 @@ def _run_plan(args: argparse.Namespace) -> int:
 
 
 def _watch(args: argparse.Namespace, cfg: PlanConfig) -> int:
-    import signal
-    import threading
-
     if args.npz is not None:
         raise UsageError("--watch follows map servers: give --connect and --map, not --npz")
     if not args.resync_s > 0:

@@ -10,15 +10,18 @@ from __future__ import annotations
 
 import math
 import threading
+import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
 
+from consumer_planner.client import ClientConfig, MapClient, RegionFollower
 from consumer_planner.compare import Route, evaluate_route, plan_route
 from consumer_planner.costs import CostConfig, CostMap, build_costs
 from consumer_planner.errors import PlannerError
+from psrmap_common.trust import load_trust
 from psrmap_mapcore import LayerGrid, MapFileError, read_npz
 
 __all__ = [
@@ -114,7 +117,6 @@ def load_map(
             raise PlannerError(str(exc)) from None
     if not source.map_id:
         raise PlannerError("a map server query needs the map id")
-    from consumer_planner.client import MapClient  # zenoh only when asked
 
     with MapClient(_client_config(source)) as client:
         grid = client.region(source.map_id, _box(source, points))
@@ -129,10 +131,7 @@ def _box(source: MapSource, points: list[Point]) -> tuple[float, float, float, f
     return (min(xs) - m, min(ys) - m, max(xs) + m, max(ys) + m)
 
 
-def _client_config(source: MapSource) -> Any:
-    from consumer_planner.client import ClientConfig
-    from psrmap_common.trust import load_trust
-
+def _client_config(source: MapSource) -> ClientConfig:
     try:
         trust = load_trust(source.trust_servers, source.zenoh_config)
     except ValueError as exc:
@@ -145,7 +144,7 @@ def _log(
     rrd: str | None, grid: LayerGrid, costs: CostMap, routes: list[Route], sim_time: float | None
 ) -> None:
     if rrd:
-        from consumer_planner.viz import log_plan, open_recording
+        from consumer_planner.viz import log_plan, open_recording  # lazy: Rerun only when recording
 
         rec = open_recording(rrd)
         log_plan(rec, grid, costs, routes, sim_time=sim_time or 0.0)
@@ -198,10 +197,6 @@ def watch_plan(
     """Plan, then replan each time the corridor (the map area `plan` fetches) changes: the shards' tile-change
     notices (`client.RegionFollower`), never on changes elsewhere on the map. `on_plan(summary, error, changes)`
     after every plan (error: why no route this time). Runs until `stop` is set or `max_seconds` passed."""
-    import time
-
-    from consumer_planner.client import MapClient, RegionFollower
-
     source = config.source
     if source.npz is not None or not source.connect or not source.map_id:
         raise PlannerError("a watch follows map servers: give a map id and an endpoint, not a saved map")

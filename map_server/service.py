@@ -236,7 +236,7 @@ class MapService:
         self._changes_pub: Any = None
         self._last_step = 0.0  # monotonic time of the last snapshot slice
         if config.rrd:
-            from map_server.viz import MapViz
+            from map_server.viz import MapViz  # lazy: Rerun only with --rrd
 
             self._viz = MapViz(config.rrd, config.map_id)
 

@@ -6,12 +6,15 @@ from __future__ import annotations
 
 from itertools import combinations
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from protocol.layers import layer_value
-from psrmap_mapcore import read_npz
+from psrmap_mapcore import LayerGrid, read_npz
+
+if TYPE_CHECKING:  # the terrain type only: scout_agent.sim is not imported to score a map
+    from scout_agent.sim.terrain import Terrain
 
 
 def _elevation_by_cell(path: Path) -> dict[tuple[int, int], float]:
@@ -56,7 +59,7 @@ def cross_scout_rms(agreement: dict[str, Any]) -> float | None:
     )
 
 
-def map_elevation_rmse(grid: Any, terrain: Any) -> tuple[float | None, int]:
+def map_elevation_rmse(grid: LayerGrid, terrain: Terrain) -> tuple[float | None, int]:
     """`map_elevation_rmse_m`: the shared map's elevation (`layer_value`, the plane-fit height at each cell's
     centre) against the exact terrain height there, RMS over the cells with data; and that cell count.
     `grid`: a `mapcore.LayerGrid` of the map; `terrain`: the mission's `scout_agent.sim.terrain.Terrain`."""

@@ -13,20 +13,24 @@ import json
 import sys
 from typing import Any
 
+import numpy as np
+
 from protocol.errors import MAX_CLIENT_CELLS
 from protocol.keys import id_arg
 from psrmap.export import add_out_arguments, format_of, origin_from_args, write_export
-from psrmap_common.cli_parser import positive_float, positive_int
-from psrmap_common.errors import UsageError
+from psrmap_common.cli_parser import Subparsers, positive_float, positive_int
+from psrmap_common.errors import QueryError, UsageError
 from psrmap_common.link import Link, add_link_arguments, link_from_args, open_link
+from psrmap_common.query import aggregate_status, get_statuses, map_extent
+from psrmap_common.region import NoAnswer, fetch_region
+from psrmap_common.trust import Trust, load_trust
+from psrmap_mapcore import LayerGrid
 
 __all__ = ["cmd_query", "cmd_status", "register"]
 
 
-def _trust(link: Link) -> Any:
+def _trust(link: Link) -> Trust:
     """Whose replies to believe (psrmap_common.trust): the servers.json beside --zenoh-config, if there is one."""
-    from psrmap_common.trust import load_trust
-
     try:
         return load_trust(None, link.zenoh_config)
     except ValueError as exc:
@@ -35,8 +39,6 @@ def _trust(link: Link) -> Any:
 
 def cmd_status(args: argparse.Namespace) -> int:
     """The map's status; for a sharded map the aggregate over its shards, each shard's own under `shards`."""
-    from psrmap_common.query import aggregate_status, get_statuses
-
     link = link_from_args(args)
     trust = _trust(link)
     with open_link(link) as s:
@@ -51,7 +53,7 @@ def cmd_status(args: argparse.Namespace) -> int:
     return 0
 
 
-def _box(args: argparse.Namespace, link: Link, trust: Any) -> tuple[float, float, float, float] | None:
+def _box(args: argparse.Namespace, link: Link, trust: Trust) -> tuple[float, float, float, float] | None:
     """`--box`, else the whole map as far as it holds data (every server's status); None (said why) if none."""
     if args.box is not None:
         try:
@@ -59,8 +61,6 @@ def _box(args: argparse.Namespace, link: Link, trust: Any) -> tuple[float, float
         except ValueError:
             raise UsageError(f"--box {args.box!r}: give x0,y0,x1,y1 in map-frame metres") from None
         return x0, y0, x1, y1
-    from psrmap_common.errors import QueryError
-    from psrmap_common.query import get_statuses, map_extent
 
     with open_link(link) as s:
         try:
@@ -70,13 +70,12 @@ def _box(args: argparse.Namespace, link: Link, trust: Any) -> tuple[float, float
             return None
 
 
-def _region(args: argparse.Namespace, link: Link, trust: Any, box: tuple[float, float, float, float]) -> Any:
+def _region(
+    args: argparse.Namespace, link: Link, trust: Trust, box: tuple[float, float, float, float]
+) -> LayerGrid | None:
     """The box from every server (shard) that answers, stitched (`psrmap_common.region.fetch_region`, as the planner
     and the bridge fetch it: each reply's size and box checked before anything is allocated); None (said why)
     when there is none or a reply is bad."""
-    from psrmap_common.errors import QueryError
-    from psrmap_common.region import NoAnswer, fetch_region
-
     layers = tuple(args.layers.split(",")) if args.layers else None
     with open_link(link) as s:
         try:
@@ -92,8 +91,6 @@ def _region(args: argparse.Namespace, link: Link, trust: Any, box: tuple[float, 
 
 
 def _layer_summary(stats: dict[str, Any]) -> dict[str, Any]:
-    import numpy as np
-
     n = stats.get("n")
     entry: dict[str, Any] = {"cells_with_data": int(np.count_nonzero(n > 0)) if n is not None else None}
     if "value" in stats and np.isfinite(stats["value"]).any():
@@ -128,7 +125,7 @@ def cmd_query(args: argparse.Namespace) -> int:
     return 0
 
 
-def register(subparsers: Any) -> None:
+def register(subparsers: Subparsers) -> None:
     """Add `status` and `query` to the `psrmap` CLI."""
     for name, fn, helptext in (
         ("status", cmd_status, "print a map server's status"),

@@ -26,8 +26,23 @@ import time
 from pathlib import Path
 from typing import Any
 
+from protocol.keys import id_arg
+from psrmap.mission.config import load_config
+from psrmap.ros2 import box_arg
+from psrmap_common.cli_parser import Subparsers
 from psrmap_common.errors import UsageError
-from psrmap_common.link import link_from_args
+from psrmap_common.link import add_link_arguments, link_from_args
+from psrmap_interop.geotiff import MoonOrigin, pam_path, write_geotiff
+from psrmap_interop.ros2_messages import (
+    GRID_MAP,
+    OCCUPANCY_GRID,
+    PATH,
+    grid_map_msg,
+    occupancy_grid_msg,
+    path_msg,
+)
+from psrmap_interop.rosbag import BagMessage, write_mcap_bag
+from psrmap_mapcore import LayerGrid, MapCoreError, MapFileError, read_npz, write_npz
 
 __all__ = ["FORMATS", "export_geotiff", "export_mcap", "format_of", "register", "write_export"]
 
@@ -43,7 +58,11 @@ def format_of(out: str | Path, fmt: str | None = None) -> str:
 
 
 def write_export(
-    grid: Any, out: str | Path, fmt: str, origin: Any = None, run_summary: dict | None = None
+    grid: LayerGrid,
+    out: str | Path,
+    fmt: str,
+    origin: MoonOrigin | None = None,
+    run_summary: dict | None = None,
 ) -> Path:
     """`grid` (a mapcore LayerGrid) written to `out` as `fmt` (one of FORMATS); `origin` (interop MoonOrigin)
     places a GeoTIFF on the Moon, `run_summary` adds a mission's paths to a rosbag2. A `UsageError` when the
@@ -51,10 +70,7 @@ def write_export(
     if fmt not in FORMATS:
         raise UsageError(f"--format {fmt!r}; formats: {', '.join(FORMATS)}")
     if fmt == "npz":
-        from psrmap_mapcore import write_npz
-
         return write_npz(out, grid)
-    from psrmap_mapcore import MapCoreError
 
     try:
         for name in grid.layers:
@@ -68,10 +84,8 @@ def write_export(
     return export_mcap(grid, out, run_summary)
 
 
-def export_geotiff(grid: Any, out: str | Path, origin: Any = None) -> Path:
-    """`grid` (consumer_planner LayerGrid) -> GeoTIFF at `out`."""
-    from psrmap_interop.geotiff import write_geotiff
-
+def export_geotiff(grid: LayerGrid, out: str | Path, origin: MoonOrigin | None = None) -> Path:
+    """`grid` -> GeoTIFF at `out`."""
     xa, ya, _, _ = grid.bounds_m()
     names = [n for n in grid.layers if n != "cost"]
     return write_geotiff(out, {n: grid.value(n) for n in names}, {n: grid.count(n) for n in names}, grid.res, xa, ya,
@@ -82,16 +96,7 @@ def export_mcap(
     grid: Any, out: str | Path, run_summary: dict | None = None, stamp_ns: int | None = None
 ) -> Path:
     """`grid` (and a mission's summary: scouts' estimated paths, the plan) -> rosbag2/MCAP folder `out`."""
-    from consumer_planner.costs import build_costs
-    from psrmap_interop.ros2_messages import (
-        GRID_MAP,
-        OCCUPANCY_GRID,
-        PATH,
-        grid_map_msg,
-        occupancy_grid_msg,
-        path_msg,
-    )
-    from psrmap_interop.rosbag import BagMessage, write_mcap_bag
+    from consumer_planner.costs import build_costs  # lazy: the planner package loads its numba kernels
 
     t0 = time.time_ns() if stamp_ns is None else stamp_ns
     xa, ya, _, _ = grid.bounds_m()
@@ -116,11 +121,7 @@ def export_mcap(
     return write_mcap_bag(out, msgs)
 
 
-def register(sub: Any) -> None:
-    from protocol.keys import id_arg
-    from psrmap.ros2 import box_arg
-    from psrmap_common.link import add_link_arguments
-
+def register(sub: Subparsers) -> None:
     p = sub.add_parser("export", help="write a map region as GeoTIFF (GIS) or rosbag2/MCAP (ROS tools)",
                        description=__doc__.split("\n\n")[0])  # fmt: skip
     add_out_arguments(p)
@@ -139,7 +140,7 @@ def register(sub: Any) -> None:
     p.set_defaults(func=_cmd)
 
 
-def add_out_arguments(p: Any, required: bool = True) -> None:
+def add_out_arguments(p: argparse.ArgumentParser, required: bool = True) -> None:
     """`--out`, `--format`, `--origin`: where and how `write_export` writes (`psrmap export`, `psrmap query`)."""
     p.add_argument(
         "--out",
@@ -159,16 +160,12 @@ def add_out_arguments(p: Any, required: bool = True) -> None:
     )
 
 
-def origin_from_args(args: argparse.Namespace) -> Any:
+def origin_from_args(args: argparse.Namespace) -> MoonOrigin | None:
     """The `--origin` (or `--config`'s [mission] origin) as an interop MoonOrigin, None without one."""
-    from psrmap_interop.geotiff import MoonOrigin
-
     try:
         if args.origin:
             return MoonOrigin.parse(args.origin)
         if getattr(args, "config", None):
-            from psrmap.mission.config import load_config
-
             o = load_config(args.config).origin
             return MoonOrigin(*o) if o else None
     except ValueError as exc:  # a bad --origin; MissionError (a ValueError): a bad --config
@@ -177,8 +174,6 @@ def origin_from_args(args: argparse.Namespace) -> Any:
 
 
 def _cmd(args: argparse.Namespace) -> int:
-    from psrmap_interop.geotiff import pam_path
-
     origin = origin_from_args(args)
     fmt = format_of(args.out, args.format)
     if fmt == "mcap" and Path(args.out).exists():  # before any query
@@ -201,9 +196,8 @@ def _cmd(args: argparse.Namespace) -> int:
     return 0
 
 
-def _load(args: argparse.Namespace) -> Any:
-    from consumer_planner.errors import PlannerError
-    from psrmap_mapcore import MapFileError, read_npz
+def _load(args: argparse.Namespace) -> LayerGrid:
+    from consumer_planner.errors import PlannerError  # lazy: the planner package loads its numba kernels
 
     link = link_from_args(args, required=False)
     if (args.npz is None) == (not link.connect):
@@ -215,7 +209,10 @@ def _load(args: argparse.Namespace) -> Any:
             raise UsageError(str(exc)) from None
     if not args.map:
         raise UsageError("--connect needs --map ID")
-    from consumer_planner.client import ClientConfig, MapClient
+    from consumer_planner.client import (  # lazy: the planner package loads its numba kernels
+        ClientConfig,
+        MapClient,
+    )
 
     cfg = ClientConfig(connect=link.connect, zenoh_config=link.zenoh_config)
     try:

@@ -34,7 +34,7 @@ def plot_map(
     planned: Sequence[Sequence[float]] | None = None,
 ) -> Path:
     """Write a 2×3 panel PNG of the map's layers with `routes` (name → [[x, y], ...]) and `planned` drawn."""
-    import matplotlib
+    import matplotlib  # lazy: matplotlib only when a picture is drawn
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

@@ -11,6 +11,8 @@ import sys
 import time
 from typing import Any, TextIO
 
+from tqdm import tqdm
+
 __all__ = ["StatusLines", "is_terminal", "progress"]
 
 
@@ -73,7 +75,5 @@ def progress(
 ) -> Any:
     """A tqdm bar when stderr is a terminal, else `StatusLines` (on stdout, every `every_s` seconds)."""
     if is_terminal():
-        from tqdm import tqdm
-
         return tqdm(total=total, desc=desc, unit=unit, disable=disable, dynamic_ncols=True, initial=initial)
     return StatusLines(total, desc, unit, every_s=every_s, disable=disable, initial=initial)

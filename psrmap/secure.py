@@ -35,6 +35,9 @@ its own; an agent is revoked by removing its line from `credentials.txt` and res
 
 from __future__ import annotations
 
+import argparse
+import datetime
+import ipaddress
 import json
 import secrets
 from collections.abc import Sequence
@@ -42,7 +45,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from cryptography import x509
+from cryptography.hazmat.primitives import hashes, serialization
+from cryptography.hazmat.primitives.asymmetric import ec
+from cryptography.x509.oid import NameOID
+
 from protocol.keys import validate_id
+from psrmap.ros2 import ros_keys
+from psrmap_common.cli_parser import Subparsers
 from psrmap_common.errors import UsageError
 from psrmap_common.session import check_endpoint, endpoint_arg
 
@@ -155,8 +165,6 @@ def acl(
     Robot routers (`robots`: name -> the agents that connect to it) log in to this router as `<name>-router` and
     may do what their agents may, together: no more. On a robot router itself (`upstream`: the base router's
     Zenoh id), the link to the base may carry what its agents may send and receive, the other way round."""
-    from psrmap.ros2 import ros_keys
-
     base = f"psr/{map_id}"
     ros = ros_keys(ros_domain, ros_prefix)
     rules: list[dict[str, Any]] = []
@@ -263,14 +271,6 @@ def _agent_config(user: str, password: str, mode: str, endpoint: str) -> dict[st
 def _write_tls(folder: Path, names: Sequence[str], host: str, days: int) -> dict[str, tuple[Path, Path]]:
     """A CA, the router's server certificate and one client certificate per agent (PEM, owner-only keys);
     returns name -> (certificate, key) with "ca" -> (ca.pem, ca.key)."""
-    import datetime
-    import ipaddress
-
-    from cryptography import x509
-    from cryptography.hazmat.primitives import hashes, serialization
-    from cryptography.hazmat.primitives.asymmetric import ec
-    from cryptography.x509.oid import NameOID
-
     folder.mkdir(parents=True, exist_ok=True)
     now = datetime.datetime.now(datetime.UTC)
     life = (now - datetime.timedelta(minutes=5), now + datetime.timedelta(days=days))
@@ -463,7 +463,7 @@ def _robot(text: str) -> tuple[str, list[str]]:
     return name, _ids(agents) if agents else [name]
 
 
-def register(sub: Any) -> None:
+def register(sub: Subparsers) -> None:
     p = sub.add_parser("secure", help="credentials and access control for a mission's Zenoh network")
     s = p.add_subparsers(dest="secure_command", metavar="ACTION", required=True)
     i = s.add_parser(
@@ -503,7 +503,7 @@ def register(sub: Any) -> None:
     i.set_defaults(func=_cmd_init)
 
 
-def _cmd_init(args: Any) -> int:
+def _cmd_init(args: argparse.Namespace) -> int:
     try:
         lay = secure_init(
             args.dir,

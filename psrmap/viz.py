@@ -10,13 +10,14 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
 
 import rerun as rr
 import rerun.blueprint as rrb
 
+from psrmap.mission.config import MissionConfig
 from psrmap_common.recording import TIMELINE, legend_markdown, open_stream, scout_color
-from scout_agent.viz import SERIES
+from scout_agent.run import ScoutRunConfig, build_world
+from scout_agent.viz import SERIES, log_friction, log_terrain
 
 MAP_LAYERS = ("elevation", "slip", "cot", "giim", "giam", "contacts")
 PER_SCOUT_SERIES = ("joint_torque_nm",)  # 12 series per scout: one plot per scout, not one for all
@@ -82,12 +83,9 @@ def default_blueprint(
     )
 
 
-def log_mission_context(cfg: Any, path: Path, recording_id: str) -> None:
+def log_mission_context(cfg: MissionConfig, path: Path, recording_id: str) -> None:
     """Write `path`: the terrain as a mesh, the friction patches, the routes, the layers' legend and the
     default blueprint, all static (the scouts of a mission do not log the terrain again)."""
-    from scout_agent.run import ScoutRunConfig, build_world
-    from scout_agent.viz import log_friction, log_terrain
-
     rec = open_stream(str(path), explicit_id=recording_id)
     world = build_world(
         ScoutRunConfig(

@@ -12,11 +12,15 @@ from __future__ import annotations
 import argparse
 import difflib
 import math
+import sys
 from collections.abc import Sequence
-from typing import Any, NoReturn
+from typing import Any, NoReturn, TypeAlias
+
+from psrmap_common.errors import UsageError
 
 __all__ = [
     "Parser",
+    "Subparsers",
     "command_parser",
     "run_command",
     "usage_exit",
@@ -24,6 +28,10 @@ __all__ = [
     "positive_float",
     "positive_int",
 ]
+
+
+# what `add_subparsers` returns: each command module's `register(subparsers)` adds its parsers to it
+Subparsers: TypeAlias = "argparse._SubParsersAction[Parser]"
 
 
 class Parser(argparse.ArgumentParser):
@@ -77,10 +85,6 @@ def usage_exit(
 def run_command(parser: argparse.ArgumentParser, argv: Sequence[str] | None = None) -> int:
     """Parse `argv` and run the command's `func`: its exit code, or exit 2 with that command's usage for a
     `UsageError` (the component packages' own `python -m ...` entry points; `psrmap` adds its error table)."""
-    import sys
-
-    from psrmap_common.errors import UsageError
-
     args = parser.parse_args(argv)
     try:
         return int(args.func(args) or 0)

@@ -12,10 +12,11 @@ from __future__ import annotations
 import argparse
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
 
-from psrmap_common.errors import UsageError
-from psrmap_common.session import endpoint_arg, file_endpoints
+import zenoh
+
+from psrmap_common.errors import SessionError, UsageError
+from psrmap_common.session import endpoint_arg, file_endpoints, open_session, zenoh_config
 
 __all__ = [
     "CONNECT_HELP",
@@ -43,7 +44,7 @@ class Link:
     zenoh_config: str | None = None
 
 
-def add_link_arguments(parser: Any, listens: bool = False) -> None:
+def add_link_arguments(parser: argparse._ActionsContainer, listens: bool = False) -> None:
     """`--connect ENDPOINT` (repeatable) and `--zenoh-config FILE` on `parser` (a parser or an argument group);
     `listens`: also `--insecure`, for what listens on an endpoint (router, server)."""
     parser.add_argument(
@@ -78,12 +79,11 @@ def link_from_args(args: argparse.Namespace, required: bool = True) -> Link:
     return Link(connect, file)
 
 
-def open_link(link: Link, mode: str = "client", listen: Sequence[str] = (), insecure: bool = False) -> Any:
+def open_link(
+    link: Link, mode: str = "client", listen: Sequence[str] = (), insecure: bool = False
+) -> zenoh.Session:
     """A Zenoh session on `link` (`mode` unless its config file names one), or a `UsageError` naming what would
     have worked: an unreadable config, an open listen without credentials, nothing listening at the endpoints."""
-    from psrmap_common.errors import SessionError
-    from psrmap_common.session import open_session, zenoh_config
-
     try:
         conf = zenoh_config(
             link.connect, listen, None if link.zenoh_config else mode, link.zenoh_config, insecure

@@ -16,6 +16,7 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
+import msgpack
 import zenoh
 
 from protocol.codec import decode
@@ -179,8 +180,6 @@ def get_partition(
 ) -> Partition | None:
     """The map's partition as its servers publish it (`psr/<map>/partition`); None when none answered.
     Raises QueryError when servers disagree (a misconfigured deployment must not be guessed around)."""
-    import msgpack
-
     found: set[Partition] = set()
     for payload in get_replies(session, partition_key(map_id), timeout_s, fan_out=True, trusted=trusted).ok:
         try:

@@ -79,7 +79,7 @@ def open_stream(path: str | None, default_id: str | None = None, explicit_id: st
     """A Rerun stream (`rr.RecordingStream`) in recording `explicit_id`, else the mission's
     (`PSRMAP_RECORDING_ID`), else `default_id`; saved to `path` (if given) and streamed live to the viewer
     named by `PSRMAP_VIEWER_URL` (if set). rerun is imported here, only by processes that record."""
-    import rerun as rr
+    import rerun as rr  # lazy: Rerun only in processes that record
 
     rec = rr.RecordingStream(APP_ID, recording_id=explicit_id or recording_id(default_id))
     sinks: list = [rr.FileSink(path)] if path else []
@@ -118,7 +118,7 @@ def spawn_viewer() -> str:
             "rerun runs/<ts>/mission.rrd), or stream to a viewer elsewhere with --connect-viewer "
             "rerun+http://HOST:9876/proxy"
         )
-    import rerun as rr
+    import rerun as rr  # lazy: Rerun only in processes that record
 
     port = free_port()
     # rr.spawn needs an enabled recording to act on (without one it only warns); it waits for the viewer

@@ -12,6 +12,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+import zenoh
+
 from psrmap_common.errors import InsecureListen, SessionError
 
 __all__ = [
@@ -97,7 +99,6 @@ def file_endpoints(config_file: str | Path | None, kind: str = "connect") -> tup
     endpoint into every agent's file), () without a file; ValueError for an unreadable file."""
     if config_file is None:
         return ()
-    import zenoh
 
     try:
         eps = json.loads(zenoh.Config.from_file(str(config_file)).get_json(f"{kind}/endpoints") or "[]")
@@ -118,8 +119,6 @@ def zenoh_config(
 
     Raises `InsecureListen` when the result listens on a non-loopback endpoint with neither user/password
     authentication nor mutual TLS, unless `insecure`; ValueError for an unreadable file or unknown mode."""
-    import zenoh
-
     if mode is not None and mode not in MODES:
         raise ValueError(f"mode {mode!r}; modes: {', '.join(MODES)}")
     for e in (*connect, *listen):
@@ -152,7 +151,7 @@ def zenoh_config(
     return conf
 
 
-def _authenticated(conf) -> bool:  # type: ignore[no-untyped-def]
+def _authenticated(conf: zenoh.Config) -> bool:
     def get(key: str):  # type: ignore[no-untyped-def]
         try:
             return json.loads(conf.get_json(key))
@@ -164,21 +163,18 @@ def _authenticated(conf) -> bool:  # type: ignore[no-untyped-def]
     return bool(usr.get("dictionary_file") or usr.get("user")) or bool(tls.get("enable_mtls"))
 
 
-def open_session(conf: Any) -> Any:
+def open_session(conf: zenoh.Config) -> zenoh.Session:
     """`zenoh.open(conf)`, or a SessionError saying what went wrong: nothing listens at the endpoints, or a
     router answers there but refused the session (no credentials, or not ones it accepts)."""
-    import zenoh
-
     try:
         return zenoh.open(conf)
     except zenoh.ZError as exc:
         raise SessionError(f"cannot open a Zenoh session: {why_refused(conf)} ({exc})") from None
 
 
-def why_refused(conf: Any) -> str:
+def why_refused(conf: zenoh.Config) -> str:
     """Why a session with `conf` could not connect, told apart by a plain TCP connect to its endpoints:
     nothing listens there, or something does and turned the session away (Zenoh reports both alike)."""
-    import socket
 
     def get(key: str) -> Any:
         try:

@@ -14,10 +14,12 @@ from __future__ import annotations
 
 import json
 import logging
+import threading
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+
+import zenoh
 
 from protocol.keys import server_id_pattern
 
@@ -77,7 +79,9 @@ def load_trust(path: str | Path | None = None, zenoh_config: str | Path | None =
     )
 
 
-def trusted_ids(session: Any, map_id: str, trust: Trust, timeout_s: float = 2.0) -> frozenset[str] | None:
+def trusted_ids(
+    session: zenoh.Session, map_id: str, trust: Trust, timeout_s: float = 2.0
+) -> frozenset[str] | None:
     """The Zenoh ids to believe now (None: anyone): the explicit ones, and with `attested` the ids of the live
     `serverid` tokens of `map_id` (a liveliness query, answered by the router)."""
     if trust.open:
@@ -109,9 +113,7 @@ class TrustedIds:
             if ids.believe(zid, "a tile-change notice"): ...
     """
 
-    def __init__(self, session: Any, map_id: str, trust: Trust) -> None:
-        import threading
-
+    def __init__(self, session: zenoh.Session, map_id: str, trust: Trust) -> None:
         self.trust = trust
         self._live: set[str] = set()
         self._lock = threading.Lock()
@@ -125,9 +127,7 @@ class TrustedIds:
                 with self._lock:
                     self._live.add(zid)
 
-    def _on(self, sample: Any) -> None:
-        import zenoh
-
+    def _on(self, sample: zenoh.Sample) -> None:
         zid = str(sample.key_expr).rsplit("/", 1)[-1]
         with self._lock:
             if sample.kind == zenoh.SampleKind.PUT:

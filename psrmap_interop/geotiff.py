@@ -21,6 +21,7 @@ Georeferencing:
 from __future__ import annotations
 
 import math
+import xml.etree.ElementTree as ET
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -70,7 +71,7 @@ class MoonOrigin:
     def projected(self) -> tuple[float, float, float]:
         """(easting, northing) [m] of the origin in IAU_2015:30135 and the projection's scale there (projected
         metres per metre on the ground)."""
-        from rasterio.crs import CRS
+        from rasterio.crs import CRS  # lazy here and below: rasterio (GDAL) only when a CRS or file is made
         from rasterio.warp import transform
 
         src, dst = CRS.from_string(MOON_GEOGRAPHIC), CRS.from_string(MOON_SOUTH_POLAR)
@@ -158,8 +159,6 @@ def pam_path(path: str | Path) -> Path:
 def _write_pam_crs(path: Path, crs) -> None:
     """Put `crs` as WKT2 (with its authority ID) in the GDAL side-car of `path`, keeping whatever else GDAL
     wrote there."""
-    import xml.etree.ElementTree as ET
-
     side = pam_path(path)
     root = (
         ET.parse(side).getroot() if side.exists() else ET.Element("PAMDataset")

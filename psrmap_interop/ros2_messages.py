@@ -31,7 +31,11 @@ PATH = "nav_msgs/msg/Path"
 @functools.cache
 def typestore():  # -> rosbags Typestore
     """ROS 2 Jazzy's standard messages plus psrmap's shipped grid_map_msgs definitions."""
-    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+    from rosbags.typesys import (  # lazy: rosbags only for ROS messages
+        Stores,
+        get_types_from_msg,
+        get_typestore,
+    )
 
     store = get_typestore(Stores.ROS2_JAZZY)
     types = {}

@@ -39,7 +39,7 @@ class BagMessage:
 
 def rosbag_qos(q: Qos):  # -> rosbags.interfaces.Qos
     """psrmap's QoS as the profile rosbag2 records for the publisher (rmw's enum values are rosbags')."""
-    from rosbags.interfaces import Qos as BagQos
+    from rosbags.interfaces import Qos as BagQos  # lazy: rosbags only when a bag is written
     from rosbags.interfaces import QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
 
     inf = QosTime(*_INFINITE)
@@ -52,7 +52,7 @@ def rosbag_qos(q: Qos):  # -> rosbags.interfaces.Qos
 def _writer(path: Path):
     """rosbags' rosbag2 Writer whose MCAP channels also carry `topic_type_hash`, as rosbag2_storage_mcap writes
     them (rosbags' own MCAP storage writes only `offered_qos_profiles`)."""
-    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.rosbag2 import StoragePlugin, Writer  # lazy: rosbags only when a bag is written
     from rosbags.rosbag2.storage_mcap import Channel, McapWriter, write_channel, write_string
 
     class _McapStorage(McapWriter):

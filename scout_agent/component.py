@@ -13,7 +13,9 @@ from typing import Any
 
 from psrmap_common.defaults import DEFAULT_DELTA_HZ, DEFAULT_RES_M
 from psrmap_common.recording import ViewerUnavailable, use_viewer, viewer_url
+from psrmap_common.trust import load_trust
 from scout_agent.errors import ScoutConfigError
+from scout_agent.localization.shared_map import SharedMapSource
 from scout_agent.mapping import LinkConfig, open_mapping
 from scout_agent.run import ScoutRunConfig, build_world, run_scout
 
@@ -74,7 +76,7 @@ def run(config: ScoutConfig) -> ScoutSummary:
         raise ScoutConfigError(str(exc)) from None
     on_tick = logger = None
     if config.rrd or viewer_url():
-        from scout_agent import viz
+        from scout_agent import viz  # lazy: Rerun only when recording
 
         rec = viz.open_recording(config.rrd)
         if config.rrd_terrain:  # a mission logs the terrain once in its own recording
@@ -125,8 +127,6 @@ def _shared_map_source(cfg: ScoutRunConfig, config: ScoutConfig, mapping: Any, w
     mapper = mapping.mapper
     if cfg.localize != "on" or config.link is None or mapper is None or mapper.publisher is None:
         return None
-    from psrmap_common.trust import load_trust
-    from scout_agent.localization.shared_map import SharedMapSource
 
     pub = mapper.publisher
     xa, ya, xb, yb = world.terrain.extent

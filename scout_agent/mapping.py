@@ -27,6 +27,8 @@ from scout_agent.cells import CellAccumulator, LocalMap
 from scout_agent.errors import ScoutConfigError
 from scout_agent.estimators import EstimatorPipeline, PipelineConfig, TickEstimates, record
 from scout_agent.estimators.feet import PinocchioFeet
+from scout_agent.outbox import default_outbox_path
+from scout_agent.publisher import ScoutPublisher
 from scout_agent.signals import ProprioSample
 
 __all__ = [
@@ -277,8 +279,6 @@ def open_mapping(
             raise ScoutConfigError(
                 f"map {link.map_id!r} needs an endpoint of the map service's router, e.g. tcp/127.0.0.1:7447"
             )
-        from scout_agent.outbox import default_outbox_path
-        from scout_agent.publisher import ScoutPublisher
 
         outbox = (
             None if link.outbox == "none" else (link.outbox or default_outbox_path(link.map_id, scout_id))

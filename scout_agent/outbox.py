@@ -4,7 +4,9 @@ acknowledges it, so a scout killed with unacknowledged deltas (server down, link
 
 from __future__ import annotations
 
+import os
 import sqlite3
+import threading
 from pathlib import Path
 
 __all__ = ["SQLiteOutbox", "default_outbox_path"]
@@ -17,8 +19,6 @@ CREATE TABLE IF NOT EXISTS pending (epoch INTEGER, seq INTEGER, payload BLOB NOT
 
 def default_outbox_path(map_id: str, scout_id: str) -> Path:
     """`$XDG_STATE_HOME/psrmap/outbox-<map>-<scout>.db` (default `~/.local/state/...`)."""
-    import os
-
     base = Path(os.environ.get("XDG_STATE_HOME") or Path.home() / ".local" / "state")
     return base / "psrmap" / f"outbox-{map_id}-{scout_id}.db"
 
@@ -30,7 +30,6 @@ class SQLiteOutbox:
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        import threading
 
         self._lock = threading.Lock()
         self.db = sqlite3.connect(str(self.path), check_same_thread=False, isolation_level=None)

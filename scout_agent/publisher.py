@@ -82,8 +82,6 @@ class ScoutPublisher:
         what the outbox holds from an earlier run under its original epoch first; without it, an outbox that
         still holds deltas is refused (they would be silently abandoned). partition: the map's partition
         (None: ask the map's servers for it; no answer within `discover_timeout_s`: an unsharded map)."""
-        import zenoh
-
         if not connect:
             raise ScoutConfigError("no endpoint to connect to; give one like tcp/127.0.0.1:7447")
         if resume and outbox is None:

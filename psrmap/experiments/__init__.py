@@ -32,7 +32,7 @@ from typing import Any
 from psrmap.experiments import lunar, ramps, slopes, utility
 from psrmap.experiments.common import RunPool, write_json
 from psrmap.experiments.config import ExperimentConfig, ExperimentError, from_args
-from psrmap_common.cli_parser import positive_int
+from psrmap_common.cli_parser import Subparsers, positive_int
 from psrmap_common.errors import UsageError
 
 __all__ = ["EXPERIMENTS", "register", "run_experiment"]
@@ -98,7 +98,7 @@ def _add_common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--quiet", action="store_true", help="no progress bars")
 
 
-def register(subparsers: Any) -> argparse.ArgumentParser:
+def register(subparsers: Subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser(
         "experiment",
         help="reproduce the seed paper's experiments (and the map-utility one)",

@@ -6,16 +6,17 @@
 - `run.py`: `run_mission` — the router in-process, then server, scouts, planner; the run folder;
 - `recording.py`: the components' recordings merged into `mission.rrd`;
 - `report.py`: the summary as JSON and the printed report; `cli.py`: the command.
+
+`run_mission` and `scout_config` are imported from their modules (`psrmap.mission.run`, `.components`):
+they bring in every component, which `psrmap mission --help` does not need.
 """
 
 from __future__ import annotations
 
 from psrmap.mission.cli import register
-from psrmap.mission.components import scout_config
 from psrmap.mission.config import MissionConfig, MissionError, ScoutPlan, load_config, validate, with_scouts
 from psrmap.mission.recording import merge_recordings, rerun_exe
 from psrmap.mission.report import deltas_sent
-from psrmap.mission.run import run_mission
 
 __all__ = [
     "MissionConfig",
@@ -26,8 +27,6 @@ __all__ = [
     "merge_recordings",
     "register",
     "rerun_exe",
-    "run_mission",
-    "scout_config",
     "validate",
     "with_scouts",
 ]

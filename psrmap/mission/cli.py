@@ -10,15 +10,14 @@ from pathlib import Path
 from typing import Any
 
 from psrmap.mission.config import MissionError, load_config, validate, with_scouts
-from psrmap.mission.run import run_mission
-from psrmap_common.cli_parser import non_negative_int, positive_float
+from psrmap_common.cli_parser import Subparsers, non_negative_int, positive_float
 from psrmap_common.errors import UsageError
 from psrmap_common.recording import ViewerUnavailable, use_viewer
 
 __all__ = ["register"]
 
 
-def register(sub: Any) -> None:
+def register(sub: Subparsers) -> None:
     p = sub.add_parser(
         "mission",
         help="run a whole mission: router, map server, N scouts, a planner query (embedded defaults)",
@@ -107,6 +106,10 @@ def _cmd_mission(args: argparse.Namespace) -> int:
         raise UsageError(str(exc), usage=False) from None
     except (MissionError, ValueError) as exc:
         raise UsageError(str(exc)) from None
+    # deliberately here, not at the top: the mission imports the map server, the scout (MuJoCo, Pinocchio)
+    # and the planner, which `psrmap mission --help` and a usage error need not wait for
+    from psrmap.mission.run import run_mission
+
     # SIGTERM (a supervisor, `kill`) unwinds like Ctrl-C: run_mission's cleanup stops every component it started
     signal.signal(signal.SIGTERM, _interrupted)
     summary = run_mission(cfg, Path(args.run_dir) if args.run_dir else None, progress=not args.quiet)

@@ -12,15 +12,17 @@ from collections.abc import Callable
 
 import numpy as np
 
+from psrmap_common.jit import COMPILE_NOTICE, uncached
+from psrmap_common.pathsearch import kernels as plan_kernels
+from psrmap_common.pathsearch import plan_path
+from scout_agent.state_estimation import kernels as ekf_kernels
+from scout_agent.state_estimation.ekf import ErrorStateEKF
+
 __all__ = ["compile_ahead"]
 
 
 def compile_ahead(say: Callable[[str], None]) -> float:
     """Compile what is not cached yet (saying so first); returns the seconds it took (0.0 when cached)."""
-    from psrmap_common.jit import COMPILE_NOTICE, uncached
-    from psrmap_common.pathsearch import kernels as plan_kernels
-    from scout_agent.state_estimation import kernels as ekf_kernels
-
     todo = uncached(
         [
             getattr(m, n)
@@ -41,8 +43,6 @@ def compile_ahead(say: Callable[[str], None]) -> float:
 
 
 def _run_ekf() -> None:
-    from scout_agent.state_estimation.ekf import ErrorStateEKF
-
     ekf = ErrorStateEKF(np.eye(3), np.zeros(3), np.zeros(3), np.array([0.0, 0.0, -1.62]))
     ekf.propagate(np.zeros(3), np.array([0.0, 0.0, 1.62]), 0.002)
     z, H = ekf.velocity_rows_many(np.zeros((4, 3)))
@@ -50,8 +50,6 @@ def _run_ekf() -> None:
 
 
 def _run_search() -> None:
-    from psrmap_common.pathsearch import plan_path
-
     plan_path(np.ones((6, 6)), (0, 0), (5, 5), 0.4)  # Dial's buckets
     cost = np.ones((6, 6))
     cost[2, 1:] = 0.0  # zero-cost cells: the A* kernel

@@ -5,23 +5,25 @@ and route comparison run as planner components on the shared map.
 from __future__ import annotations
 
 import dataclasses
+from multiprocessing.context import SpawnContext
 from pathlib import Path
 from typing import Any, cast
 
+from consumer_planner.component import CompareConfig, MapSource, PlanConfig, compare, plan
+from consumer_planner.costs import CostConfig, parse_weights
 from psrmap.mission.config import MissionConfig, ScoutPlan
 from psrmap.mission.processes import spawn
+from scout_agent.component import ScoutConfig
+from scout_agent.mapping import LinkConfig
+from scout_agent.run import ScoutRunConfig
 
 __all__ = ["plan_and_compare", "scout_config"]
 
 
 def scout_config(
     cfg: MissionConfig, s: ScoutPlan, endpoint: str, run_dir: Path, zenoh_file: str | None
-) -> Any:
+) -> ScoutConfig:
     """The ScoutConfig of one of the mission's scouts."""
-    from scout_agent.component import ScoutConfig
-    from scout_agent.mapping import LinkConfig
-    from scout_agent.run import ScoutRunConfig
-
     lunar = cfg.scene == "lunar"
     run = ScoutRunConfig(
         scene=cfg.scene,
@@ -50,11 +52,15 @@ def scout_config(
 
 
 def plan_and_compare(
-    ctx: Any, cfg: MissionConfig, endpoint: str, run_dir: Path, env: dict[str, str], creds: str | None
-) -> tuple[Any, Any]:
-    from consumer_planner.component import CompareConfig, MapSource, PlanConfig, compare, plan
-    from consumer_planner.costs import CostConfig, parse_weights
-
+    ctx: SpawnContext,
+    cfg: MissionConfig,
+    endpoint: str,
+    run_dir: Path,
+    env: dict[str, str],
+    creds: str | None,
+) -> tuple[dict[str, Any], dict[str, Any]]:
+    """The plan and the route comparison, each a planner component in its own process: their JSON summaries
+    (or {"error": why})."""
     source = MapSource(map_id=cfg.map, connect=(endpoint,), zenoh_config=creds)
     cost = dataclasses.replace(CostConfig(), weights=parse_weights(",".join(f"{k}={v:g}" for k, v in cfg.weights.items())),
                                unknown=cast(Any, cfg.unknown))  # fmt: skip

@@ -15,6 +15,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
+from protocol.keys import validate_id
 from psrmap.errors import PsrmapError
 from psrmap_common.defaults import DEFAULT_DELTA_HZ, DEFAULT_MAP_ID, DEFAULT_RES_M, DEFAULT_SEED, DEFAULT_TILE
 
@@ -149,7 +150,7 @@ def field_scouts(field_m: float) -> tuple[ScoutPlan, ...]:
     diagonal south-west → north-east, scout2 the same diagonal the other way (from their meeting in the middle
     on, each walks where the other has just mapped), scout3 the `east` route (along the south, then north:
     it shares the corners' ground with both). Ends are the generator's flattened route ends."""
-    from scout_agent.sim.terrain import lunar_routes
+    from scout_agent.sim.terrain import lunar_routes  # lazy: the terrain generator loads SciPy
 
     r = lunar_routes(field_m)
     (ax, ay), (bx, by) = r["direct"][0], r["direct"][-1]
@@ -236,7 +237,7 @@ class _Table:
         return v
 
     def weights(self) -> dict[str, float]:
-        from consumer_planner.cost_config import TERMS
+        from consumer_planner.cost_config import TERMS  # lazy: the planner package loads its numba kernels
 
         v = self.table.get("weights", {})
         if not isinstance(v, dict):
@@ -344,8 +345,7 @@ def load_config(path: str | Path | None = None) -> MissionConfig:
 
 def validate(cfg: MissionConfig) -> None:
     """Raise `MissionError` naming the valid choices when the config cannot run."""
-    from consumer_planner.cost_config import TERMS
-    from protocol.keys import validate_id
+    from consumer_planner.cost_config import TERMS  # lazy: the planner package loads its numba kernels
 
     try:
         validate_id(cfg.map, "map")

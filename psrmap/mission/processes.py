@@ -5,16 +5,25 @@ file, and `Proc.result()` returns the typed summary it sent back through a pipe,
 
 from __future__ import annotations
 
+import logging
 import os
 import sys
+import traceback
+from collections.abc import Callable
 from dataclasses import dataclass
+from multiprocessing.connection import Connection
+from multiprocessing.context import SpawnContext, SpawnProcess
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 __all__ = ["Proc", "spawn"]
 
+C = TypeVar("C")  # a component's config
 
-def _run_component(target: Any, config: Any, conn: Any, log_path: str, env: dict[str, str]) -> None:
+
+def _run_component(
+    target: Callable[[C], object], config: C, conn: Connection, log_path: str, env: dict[str, str]
+) -> None:
     """Process target: `target(config)` with stdout/stderr sent to a log file (at the fd level); its typed
     result (or the error that stopped it) goes back through `conn`."""
     os.environ.update(env)
@@ -23,9 +32,6 @@ def _run_component(target: Any, config: Any, conn: Any, log_path: str, env: dict
     os.dup2(log, 2)
     sys.stdout = open(1, "w", buffering=1, closefd=False)  # noqa: SIM115
     sys.stderr = open(2, "w", buffering=1, closefd=False)  # noqa: SIM115
-    import logging
-    import traceback
-
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
     code = 0
     try:
@@ -45,9 +51,9 @@ def _run_component(target: Any, config: Any, conn: Any, log_path: str, env: dict
 @dataclass
 class Proc:
     name: str
-    proc: Any
+    proc: SpawnProcess
     log: Path
-    conn: Any  # the parent's end of the result pipe
+    conn: Connection  # the parent's end of the result pipe
 
     def result(self, timeout: float | None = None) -> tuple[str, Any]:
         """("ok", typed result) or ("error", why), once the component finished (or it died)."""
@@ -60,7 +66,9 @@ class Proc:
         return "error", f"exit code {self.proc.exitcode}; see {self.log}"
 
 
-def spawn(ctx: Any, name: str, target: Any, config: Any, run_dir: Path, env: dict[str, str]) -> Proc:
+def spawn(
+    ctx: SpawnContext, name: str, target: Callable[[C], object], config: C, run_dir: Path, env: dict[str, str]
+) -> Proc:
     """Start `target(config)` (a component's typed entry point) in a spawned process."""
     log = run_dir / "logs" / f"{name}.log"
     parent, child = ctx.Pipe(duplex=False)

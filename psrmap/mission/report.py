@@ -21,7 +21,7 @@ def config_json(cfg: MissionConfig) -> dict[str, Any]:
     return json.loads(json.dumps(dataclasses.asdict(cfg), default=json_default))
 
 
-def json_default(o: Any) -> Any:
+def json_default(o: object) -> object:
     if isinstance(o, Path):
         return str(o)
     if hasattr(o, "tolist"):
@@ -69,7 +69,7 @@ def print_report(summary: dict[str, Any]) -> None:
     comparison = summary.get("comparison") or {}
     if comparison.get("routes"):
         print()
-        from consumer_planner.table import route_table
+        from consumer_planner.table import route_table  # lazy: the planner package loads its numba kernels
 
         print(route_table(comparison["routes"]))
         print(

@@ -14,12 +14,18 @@ import multiprocessing as mp
 import sys
 import time
 import uuid
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import zenoh
 
+from consumer_planner.client import ClientConfig, query_region
+from consumer_planner.errors import PlannerError
+from map_server.component import run as run_server
+from map_server.service import ServerConfig
+from protocol.messages import Status
 from psrmap.agreement import cross_scout_rms, elevation_agreement, map_elevation_rmse
 from psrmap.errors import MissionRunError
 from psrmap.mission.compile import compile_ahead
@@ -28,24 +34,34 @@ from psrmap.mission.config import DRIFT_KEYS, MissionConfig, _credential_files, 
 from psrmap.mission.processes import Proc, spawn
 from psrmap.mission.recording import merge_recordings
 from psrmap.mission.report import config_json, deltas_sent, json_default, print_report
+from psrmap.plots import plot_map
 from psrmap.progress import progress as progress_bar
-from psrmap_common.session import free_endpoint
+from psrmap.secure import secure_init
+from psrmap_common.query import get_status, wait_for_server
+from psrmap_common.session import free_endpoint, zenoh_config
+from psrmap_common.trust import Trust, load_trust
+from scout_agent.component import run as run_scout_component
+from scout_agent.run import ScoutRunConfig, build_world
 
 __all__ = ["run_mission"]
 
 
-def _status(session: Any, map_id: str, timeout: float = 2.0, trust: Any = ()) -> Any | None:
-    from psrmap_common.query import get_status
-
+def _status(
+    session: zenoh.Session, map_id: str, timeout: float = 2.0, trust: Trust | Iterable[str] = ()
+) -> Status | None:
     return get_status(session, map_id, timeout, trust)
 
 
 def _wait_for_servers(
-    session: Any, map_id: str, procs: Sequence[Proc], deadline: float, shards: int = 1, trust: Any = ()
+    session: zenoh.Session,
+    map_id: str,
+    procs: Sequence[Proc],
+    deadline: float,
+    shards: int = 1,
+    trust: Trust | Iterable[str] = (),
 ) -> None:
     """Until every shard's server answers (psrmap_common.query.wait_for_server); MissionRunError if one died first or
     the deadline passed."""
-    from psrmap_common.query import wait_for_server
 
     def alive() -> None:
         for p in procs:
@@ -61,13 +77,6 @@ def _wait_for_servers(
 
 def run_mission(cfg: MissionConfig, run_dir: Path | None = None, progress: bool = True) -> dict[str, Any]:
     """Run the mission, return its summary (also written to `<run_dir>/summary.json`)."""
-    import zenoh
-
-    from map_server.component import run as run_server
-    from map_server.service import ServerConfig
-    from psrmap_common.session import zenoh_config
-    from scout_agent.component import run as run_scout_component
-
     validate(cfg)
     if run_dir is None:
         run_dir = Path(cfg.out) / time.strftime("%Y%m%d-%H%M%S")
@@ -96,15 +105,11 @@ def run_mission(cfg: MissionConfig, run_dir: Path | None = None, progress: bool 
         router_file = Path(cfg.zenoh_config)
         creds = {n: str(p) for n, p in _credential_files(cfg).items()}
     elif cfg.secure:
-        from psrmap.secure import secure_init
-
         lay = secure_init(
             run_dir / "secure", cfg.map, [s.id for s in cfg.scouts], ["planner"], server_names(cfg), endpoint
         )
         creds = {name: str(path) for name, path in lay.agents.items()}
         router_file = lay.router
-    from psrmap_common.trust import load_trust
-
     trust = load_trust(
         None, router_file
     )  # with credentials: believe only the attested servers (psrmap_common.trust)
@@ -222,8 +227,12 @@ def run_mission(cfg: MissionConfig, run_dir: Path | None = None, progress: bool 
 
 
 def _await_totals(
-    session: Any, cfg: MissionConfig, scouts: dict[str, Any], trust: Any = (), wait_s: float = 15.0
-) -> Any:
+    session: zenoh.Session,
+    cfg: MissionConfig,
+    scouts: dict[str, Any],
+    trust: Trust | Iterable[str] = (),
+    wait_s: float = 15.0,
+) -> Status | None:
     """The server's status once every scout's last delta is merged (scouts wait for acks before exiting)."""
     end = time.monotonic() + wait_s
     st = None
@@ -241,7 +250,7 @@ def _await_totals(
     return st
 
 
-def _status_json(st: Any) -> dict[str, Any]:
+def _status_json(st: Status | None) -> dict[str, Any]:
     return {"error": "no status reply"} if st is None else st.to_json()
 
 
@@ -250,12 +259,8 @@ ERROR_KEYS = ("sensors", "localization", "pos_error_max_m", "pos_error_final_m",
               "nees_pos_mean", "inside_3sigma_frac", "localization_stats")  # fmt: skip
 
 
-def _map_truth(session: Any, cfg: MissionConfig) -> tuple[float | None, int]:
+def _map_truth(session: zenoh.Session, cfg: MissionConfig) -> tuple[float | None, int]:
     """The shared map's elevation RMSE against the terrain's truth over the cells with data (lunar scene)."""
-    from consumer_planner.client import ClientConfig, query_region
-    from consumer_planner.errors import PlannerError
-    from scout_agent.run import ScoutRunConfig, build_world
-
     if cfg.scene != "lunar":
         return None, 0
     terrain = build_world(ScoutRunConfig(scene="lunar", seed=cfg.seed, field_m=cfg.field_m)).terrain
@@ -270,12 +275,8 @@ def _map_truth(session: Any, cfg: MissionConfig) -> tuple[float | None, int]:
     return map_elevation_rmse(grid, terrain)
 
 
-def _plot(session: Any, cfg: MissionConfig, run_dir: Path, summary: dict[str, Any]) -> str | None:
+def _plot(session: zenoh.Session, cfg: MissionConfig, run_dir: Path, summary: dict[str, Any]) -> str | None:
     """`map.png`: the shared map's layers with the scouts' routes and the planned path."""
-    from consumer_planner.client import ClientConfig, query_region
-    from consumer_planner.errors import PlannerError
-    from psrmap.plots import plot_map
-
     pts = np.array([p for s in cfg.scouts for p in s.route()] + [cfg.plan_from, cfg.plan_to], dtype=float)
     (xa, ya), (xb, yb) = pts.min(axis=0) - 2.0, pts.max(axis=0) + 2.0
     try:
@@ -293,7 +294,7 @@ def _log_context(cfg: MissionConfig, run_dir: Path, recording_id: str) -> None:
     """The terrain mesh, friction map and default blueprint, in the mission's own recording."""
     if not cfg.rrd:
         return
-    try:
+    try:  # Rerun is optional here: without it the mission writes no recordings of its own
         from psrmap.viz import log_mission_context
     except ImportError:
         return

@@ -143,7 +143,7 @@ def _compiled_path(
 def _skimage_path(
     cost: np.ndarray, start: tuple[int, int], goal: tuple[int, int], res: float
 ) -> GridPath | None:
-    from skimage.graph import MCP_Geometric
+    from skimage.graph import MCP_Geometric  # lazy: scikit-image only for this search
 
     grid = np.where(np.isfinite(cost), cost, -1.0)  # MCP: negative = impassable
     mcp = MCP_Geometric(grid, fully_connected=True)

@@ -13,7 +13,7 @@ import numpy as np
 import pinocchio as pin
 
 from scout_agent.robot import constants as C
-from scout_agent.robot.kinematics import leg_motion
+from scout_agent.robot.kinematics import LegKinematics, leg_motion
 
 __all__ = ["PinocchioFeet"]
 
@@ -28,8 +28,6 @@ class PinocchioFeet:
 
     def __init__(self, model: pin.Model | None = None) -> None:
         if model is None:
-            from scout_agent.robot.kinematics import LegKinematics
-
             model = LegKinematics().model
         self.model = model
         self.data = model.createData()

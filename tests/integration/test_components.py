@@ -75,7 +75,8 @@ def test_planner_components_on_a_saved_map_match_the_cli_json(tmp_path, capsys):
 
 def test_mission_builds_scout_configs_as_the_cli_does(tmp_path):
     from psrmap.cli import build_parser
-    from psrmap.mission import load_config, scout_config
+    from psrmap.mission import load_config
+    from psrmap.mission.components import scout_config
     from scout_agent.cli import scout_config as cli_scout_config
 
     cfg = load_config()

@@ -22,9 +22,9 @@ from psrmap.mission import (
     load_config,
     merge_recordings,
     rerun_exe,
-    run_mission,
     with_scouts,
 )
+from psrmap.mission.run import run_mission
 
 pytestmark = pytest.mark.slow
 
