@@ -13,7 +13,7 @@ import signal
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from types import FrameType
 
 from map_server.errors import MapServerConfigError, MapServerError
 from map_server.service import MapService, ServerConfig
@@ -41,7 +41,7 @@ def stop_on_signals() -> threading.Event:
     """An event set by SIGINT / SIGTERM (call from the main thread)."""
     stop = threading.Event()
 
-    def handler(signum: int, _frame: Any) -> None:
+    def handler(signum: int, _frame: FrameType | None) -> None:
         log.info("signal %d: shutting down", signum)
         stop.set()
 

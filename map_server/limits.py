@@ -12,11 +12,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import psutil
-
 from map_server.errors import MapServerConfigError
 from protocol.errors import DEFAULT_MAX_BYTES
-from protocol.layers import LAYERS
 
 
 @dataclass(frozen=True)
@@ -45,12 +42,16 @@ def default_tile_budget_mib(total_bytes: int | None = None) -> float:
     """The hot-tile budget a server takes when none is given: 1/16 of the machine's physical memory, within
     [64, 256] MiB (256 MiB ≈ 290 tiles of 64×64 cells, all layers: far more than the scouts' working set)."""
     if total_bytes is None:
+        import psutil  # lazy: --help stays light (tests/test_cli.py)
+
         total_bytes = int(psutil.virtual_memory().total)
     return float(min(TILE_BUDGET_MIB_MAX, max(TILE_BUDGET_MIB_MIN, total_bytes / 16 / 2**20)))
 
 
 def tile_bytes(tile: int) -> int:
     """Memory of one tile of `tile`×`tile` cells holding every layer (8-byte stats + an occupancy byte)."""
+    from protocol.layers import LAYERS  # lazy: --help stays light (tests/test_cli.py)
+
     return tile * tile * (8 * sum(len(layer.stats) for layer in LAYERS.values()) + 1)
 
 

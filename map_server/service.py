@@ -22,7 +22,7 @@ import zenoh
 
 from map_server.errors import MapServerConfigError
 from map_server.limits import Limits, default_tile_budget_mib, tile_bytes
-from map_server.merge import Merger
+from map_server.merge import IngestResult, Merger
 from map_server.paging import TilePager
 from map_server.removal import RemovalError, hold_lock
 from map_server.store import MapStore
@@ -156,7 +156,9 @@ class ServerConfig:
         return self.shard if self.shards > 1 else None
 
 
-def _drain(sub: Any, batch: list[Any], most: int) -> None:
+def _drain(
+    sub: zenoh.Subscriber[zenoh.handlers.Handler[zenoh.Sample]], batch: list[zenoh.Sample], most: int
+) -> None:
     """Append what is already queued on `sub` to `batch`, up to `most` in all (never blocks)."""
     while len(batch) < most:
         nxt = sub.try_recv()
@@ -416,7 +418,7 @@ class MapService:
             self.failed.set()
             return False
 
-    def _commit_until_durable(self, res: Any, first_error: Exception) -> None:
+    def _commit_until_durable(self, res: IngestResult, first_error: Exception) -> None:
         """The store refused a commit (disk full, I/O error): keep the batch (merged in memory, not acked),
         report the original error in `status`, retry with backoff until the store takes it, then go on."""
         assert self.store is not None
@@ -529,7 +531,7 @@ class MapService:
         if who != "server":
             self.alive[who] = sample.kind == zenoh.SampleKind.PUT
 
-    def _admit(self, query: Any) -> None:
+    def _admit(self, query: zenoh.Query) -> None:
         """Zenoh's query callback: queue the query for the query worker, or answer `busy` when
         max_queries_in_flight are already queued or being answered (never blocks)."""
         if self._query_slots.acquire(blocking=False):
@@ -562,7 +564,7 @@ class MapService:
                 spent = time.monotonic() - t0
                 self._stopping.wait(min(0.1, spent * (1.0 / self.config.query_share - 1.0)))
 
-    def _answer(self, query: Any) -> None:
+    def _answer(self, query: zenoh.Query) -> None:
         with query:
             try:
                 key = str(query.key_expr)

@@ -24,25 +24,15 @@ import argparse
 import json
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
-from protocol.keys import id_arg
-from psrmap.mission.config import load_config
-from psrmap.ros2 import box_arg
 from psrmap_common.cli_parser import Subparsers
 from psrmap_common.errors import UsageError
-from psrmap_common.link import add_link_arguments, link_from_args
-from psrmap_interop.geotiff import MoonOrigin, pam_path, write_geotiff
-from psrmap_interop.ros2_messages import (
-    GRID_MAP,
-    OCCUPANCY_GRID,
-    PATH,
-    grid_map_msg,
-    occupancy_grid_msg,
-    path_msg,
-)
-from psrmap_interop.rosbag import BagMessage, write_mcap_bag
-from psrmap_mapcore import LayerGrid, MapCoreError, MapFileError, read_npz, write_npz
+from psrmap_common.link import link_from_args
+
+if TYPE_CHECKING:
+    from psrmap_interop.geotiff import MoonOrigin  # lazy: `psrmap query --help` imports this module
+    from psrmap_mapcore import LayerGrid  # lazy: `psrmap query --help` imports this module
 
 __all__ = ["FORMATS", "export_geotiff", "export_mcap", "format_of", "register", "write_export"]
 
@@ -70,7 +60,10 @@ def write_export(
     if fmt not in FORMATS:
         raise UsageError(f"--format {fmt!r}; formats: {', '.join(FORMATS)}")
     if fmt == "npz":
+        from psrmap_mapcore import write_npz  # lazy: `psrmap query --help` imports this module
+
         return write_npz(out, grid)
+    from psrmap_mapcore import MapCoreError  # lazy: `psrmap query --help` imports this module
 
     try:
         for name in grid.layers:
@@ -86,6 +79,8 @@ def write_export(
 
 def export_geotiff(grid: LayerGrid, out: str | Path, origin: MoonOrigin | None = None) -> Path:
     """`grid` -> GeoTIFF at `out`."""
+    from psrmap_interop.geotiff import write_geotiff  # lazy: `psrmap query --help` imports this module
+
     xa, ya, _, _ = grid.bounds_m()
     names = [n for n in grid.layers if n != "cost"]
     return write_geotiff(out, {n: grid.value(n) for n in names}, {n: grid.count(n) for n in names}, grid.res, xa, ya,
@@ -93,10 +88,22 @@ def export_geotiff(grid: LayerGrid, out: str | Path, origin: MoonOrigin | None =
 
 
 def export_mcap(
-    grid: Any, out: str | Path, run_summary: dict | None = None, stamp_ns: int | None = None
+    grid: LayerGrid, out: str | Path, run_summary: dict | None = None, stamp_ns: int | None = None
 ) -> Path:
     """`grid` (and a mission's summary: scouts' estimated paths, the plan) -> rosbag2/MCAP folder `out`."""
-    from consumer_planner.costs import build_costs  # lazy: the planner package loads its numba kernels
+    from consumer_planner.costs import build_costs  # lazy: `psrmap query --help` imports this module
+    from psrmap_interop.ros2_messages import (
+        GRID_MAP,
+        OCCUPANCY_GRID,
+        PATH,
+        grid_map_msg,
+        occupancy_grid_msg,
+        path_msg,
+    )
+    from psrmap_interop.rosbag import (  # lazy: `psrmap query --help` imports this module
+        BagMessage,
+        write_mcap_bag,
+    )
 
     t0 = time.time_ns() if stamp_ns is None else stamp_ns
     xa, ya, _, _ = grid.bounds_m()
@@ -122,6 +129,10 @@ def export_mcap(
 
 
 def register(sub: Subparsers) -> None:
+    from protocol.keys import id_arg  # lazy: `psrmap query --help` imports this module
+    from psrmap.ros2 import box_arg  # lazy: `psrmap query --help` imports this module
+    from psrmap_common.link import add_link_arguments  # lazy: `psrmap query --help` imports this module
+
     p = sub.add_parser("export", help="write a map region as GeoTIFF (GIS) or rosbag2/MCAP (ROS tools)",
                        description=__doc__.split("\n\n")[0])  # fmt: skip
     add_out_arguments(p)
@@ -162,10 +173,14 @@ def add_out_arguments(p: argparse.ArgumentParser, required: bool = True) -> None
 
 def origin_from_args(args: argparse.Namespace) -> MoonOrigin | None:
     """The `--origin` (or `--config`'s [mission] origin) as an interop MoonOrigin, None without one."""
+    from psrmap_interop.geotiff import MoonOrigin  # lazy: `psrmap query --help` imports this module
+
     try:
         if args.origin:
             return MoonOrigin.parse(args.origin)
         if getattr(args, "config", None):
+            from psrmap.mission.config import load_config  # lazy: `psrmap query --help` imports this module
+
             o = load_config(args.config).origin
             return MoonOrigin(*o) if o else None
     except ValueError as exc:  # a bad --origin; MissionError (a ValueError): a bad --config
@@ -174,6 +189,8 @@ def origin_from_args(args: argparse.Namespace) -> MoonOrigin | None:
 
 
 def _cmd(args: argparse.Namespace) -> int:
+    from psrmap_interop.geotiff import pam_path  # lazy: `psrmap query --help` imports this module
+
     origin = origin_from_args(args)
     fmt = format_of(args.out, args.format)
     if fmt == "mcap" and Path(args.out).exists():  # before any query
@@ -197,7 +214,8 @@ def _cmd(args: argparse.Namespace) -> int:
 
 
 def _load(args: argparse.Namespace) -> LayerGrid:
-    from consumer_planner.errors import PlannerError  # lazy: the planner package loads its numba kernels
+    from consumer_planner.errors import PlannerError  # lazy: `psrmap query --help` imports this module
+    from psrmap_mapcore import MapFileError, read_npz  # lazy: `psrmap query --help` imports this module
 
     link = link_from_args(args, required=False)
     if (args.npz is None) == (not link.connect):
@@ -209,7 +227,7 @@ def _load(args: argparse.Namespace) -> LayerGrid:
             raise UsageError(str(exc)) from None
     if not args.map:
         raise UsageError("--connect needs --map ID")
-    from consumer_planner.client import (  # lazy: the planner package loads its numba kernels
+    from consumer_planner.client import (  # lazy: `psrmap query --help` imports this module
         ClientConfig,
         MapClient,
     )

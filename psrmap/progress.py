@@ -9,11 +9,23 @@ from __future__ import annotations
 
 import sys
 import time
-from typing import Any, TextIO
+from typing import Protocol, TextIO
 
 from tqdm import tqdm
 
-__all__ = ["StatusLines", "is_terminal", "progress"]
+__all__ = ["ProgressBar", "StatusLines", "is_terminal", "progress"]
+
+
+class ProgressBar(Protocol):
+    """What `progress` returns (a tqdm bar or `StatusLines`), as the callers use it."""
+
+    n: float
+    total: float
+
+    def set_postfix(self, **kv: object) -> None: ...
+    def update(self, k: float = 1) -> None: ...
+    def refresh(self) -> None: ...
+    def close(self) -> None: ...
 
 
 def is_terminal(stream: TextIO | None = None) -> bool:
@@ -40,11 +52,11 @@ class StatusLines:
         self.total, self.desc, self.unit, self.every_s, self.disable = total, desc, unit, every_s, disable
         self.n = initial
         self.stream = stream if stream is not None else sys.stdout
-        self._postfix: dict[str, Any] = {}
+        self._postfix: dict[str, object] = {}
         self._t0 = self._last = time.monotonic()
         self._closed = False
 
-    def set_postfix(self, **kv: Any) -> None:
+    def set_postfix(self, **kv: object) -> None:
         self._postfix = kv
 
     def update(self, k: float = 1) -> None:
@@ -72,7 +84,7 @@ class StatusLines:
 
 def progress(
     total: float, desc: str, unit: str, disable: bool = False, every_s: float = 10.0, initial: float = 0
-) -> Any:
+) -> ProgressBar:
     """A tqdm bar when stderr is a terminal, else `StatusLines` (on stdout, every `every_s` seconds)."""
     if is_terminal():
         return tqdm(total=total, desc=desc, unit=unit, disable=disable, dynamic_ncols=True, initial=initial)

@@ -10,11 +10,12 @@ import re
 import socket
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
-
-import zenoh
+from typing import TYPE_CHECKING, Any
 
 from psrmap_common.errors import InsecureListen, SessionError
+
+if TYPE_CHECKING:
+    import zenoh
 
 __all__ = [
     "MODES",
@@ -99,6 +100,7 @@ def file_endpoints(config_file: str | Path | None, kind: str = "connect") -> tup
     endpoint into every agent's file), () without a file; ValueError for an unreadable file."""
     if config_file is None:
         return ()
+    import zenoh  # lazy: --help stays light (tests/test_cli.py)
 
     try:
         eps = json.loads(zenoh.Config.from_file(str(config_file)).get_json(f"{kind}/endpoints") or "[]")
@@ -119,6 +121,8 @@ def zenoh_config(
 
     Raises `InsecureListen` when the result listens on a non-loopback endpoint with neither user/password
     authentication nor mutual TLS, unless `insecure`; ValueError for an unreadable file or unknown mode."""
+    import zenoh  # lazy: --help stays light (tests/test_cli.py)
+
     if mode is not None and mode not in MODES:
         raise ValueError(f"mode {mode!r}; modes: {', '.join(MODES)}")
     for e in (*connect, *listen):
@@ -166,6 +170,8 @@ def _authenticated(conf: zenoh.Config) -> bool:
 def open_session(conf: zenoh.Config) -> zenoh.Session:
     """`zenoh.open(conf)`, or a SessionError saying what went wrong: nothing listens at the endpoints, or a
     router answers there but refused the session (no credentials, or not ones it accepts)."""
+    import zenoh  # lazy: --help stays light (tests/test_cli.py)
+
     try:
         return zenoh.open(conf)
     except zenoh.ZError as exc:
@@ -175,6 +181,7 @@ def open_session(conf: zenoh.Config) -> zenoh.Session:
 def why_refused(conf: zenoh.Config) -> str:
     """Why a session with `conf` could not connect, told apart by a plain TCP connect to its endpoints:
     nothing listens there, or something does and turned the session away (Zenoh reports both alike)."""
+    import socket
 
     def get(key: str) -> Any:
         try:

@@ -14,10 +14,11 @@ from typing import Any
 from psrmap_common.defaults import DEFAULT_DELTA_HZ, DEFAULT_RES_M
 from psrmap_common.recording import ViewerUnavailable, use_viewer, viewer_url
 from psrmap_common.trust import load_trust
+from scout_agent.control.reflex import Felt
 from scout_agent.errors import ScoutConfigError
 from scout_agent.localization.shared_map import SharedMapSource
-from scout_agent.mapping import LinkConfig, open_mapping
-from scout_agent.run import ScoutRunConfig, build_world, run_scout
+from scout_agent.mapping import LinkConfig, MappingSession, open_mapping
+from scout_agent.run import ScoutRunConfig, World, build_world, run_scout
 
 __all__ = ["LinkConfig", "ScoutConfig", "ScoutSummary", "run"]
 
@@ -90,7 +91,7 @@ def run(config: ScoutConfig) -> ScoutSummary:
                           on_estimates) as mapping:  # fmt: skip
             hazard_sinks = [mapping.on_hazard] + ([logger.log_hazard] if logger is not None else [])
 
-            def on_hazard(felt: Any) -> None:
+            def on_hazard(felt: Felt) -> None:
                 for sink in hazard_sinks:
                     sink(felt)
 
@@ -122,7 +123,9 @@ def run(config: ScoutConfig) -> ScoutSummary:
     )
 
 
-def _shared_map_source(cfg: ScoutRunConfig, config: ScoutConfig, mapping: Any, world: Any) -> Any:
+def _shared_map_source(
+    cfg: ScoutRunConfig, config: ScoutConfig, mapping: MappingSession, world: World
+) -> SharedMapSource | None:
     """The shared map the scout publishes to, followed for localization (`--localize on` and a link)."""
     mapper = mapping.mapper
     if cfg.localize != "on" or config.link is None or mapper is None or mapper.publisher is None:

@@ -24,6 +24,7 @@ from psrmap_common.defaults import DEFAULT_DELTA_HZ, DEFAULT_RES_M
 from psrmap_common.errors import UsageError
 from psrmap_common.link import add_link_arguments, link_from_args
 from scout_agent.cells import CellAccumulator, LocalMap
+from scout_agent.control.reflex import Felt
 from scout_agent.errors import ScoutConfigError
 from scout_agent.estimators import EstimatorPipeline, PipelineConfig, TickEstimates, record
 from scout_agent.estimators.feet import PinocchioFeet
@@ -220,7 +221,7 @@ class MappingSession:
             self.on_estimates(est)
         return est
 
-    def on_hazard(self, felt: Any) -> None:
+    def on_hazard(self, felt: Felt) -> None:
         """A hazard the pilot's reflex felt (`control.reflex.Felt`): into the map's `hazard` layer."""
         if self.mapper is not None:
             self.mapper.record_hazard(felt.x, felt.y, felt.reasons)

@@ -27,6 +27,7 @@ import platform
 import sys
 import time
 from pathlib import Path
+from types import ModuleType
 from typing import Any
 
 from psrmap.experiments import lunar, ramps, slopes, utility
@@ -124,7 +125,7 @@ def register(subparsers: Subparsers) -> argparse.ArgumentParser:
     return p
 
 
-def _resolved(args: argparse.Namespace, mod: Any) -> ExperimentConfig:
+def _resolved(args: argparse.Namespace, mod: ModuleType) -> ExperimentConfig:
     return from_args(args, tuple(_seeds(mod.DEFAULT_SEEDS)), mod.DEFAULT_RUNS)
 
 

@@ -23,13 +23,17 @@ import time
 from collections.abc import Iterable, Sequence
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from protocol.layers import LAYERS, cell_center, layer_value
 from psrmap.progress import progress
 from scout_agent.cells import CellAccumulator, LocalMap
+
+if TYPE_CHECKING:  # types only: the simulator and evaluator load inside the worker that walks
+    from scout_agent.evaluate import Evaluator
+    from scout_agent.sim.terrain import Terrain
 
 __all__ = [
     "EXTRA_RES",
@@ -121,27 +125,28 @@ def _run_config(spec: RunSpec):
     )
 
 
-def recording_accumulator(res: float):
-    class RecordingAccumulator(CellAccumulator):
-        """The mapper's accumulator, also keeping every row it was given (to re-bin at other cell sizes)."""
+class RecordingAccumulator(CellAccumulator):
+    """The mapper's accumulator, also keeping every row it was given (to re-bin at other cell sizes)."""
 
-        def __init__(self, res: float) -> None:
-            super().__init__(res)
-            self.log: dict[str, list[tuple[float, ...]]] = {}
-            self.footholds: list[tuple[float, float, float]] = []
+    def __init__(self, res: float) -> None:
+        super().__init__(res)
+        self.log: dict[str, list[tuple[float, ...]]] = {}
+        self.footholds: list[tuple[float, float, float]] = []
 
-        def append(self, layer: str, row: tuple[float, ...]) -> None:
-            super().append(layer, row)
-            self.log.setdefault(layer, []).append(row)
+    def append(self, layer: str, row: tuple[float, ...]) -> None:
+        super().append(layer, row)
+        self.log.setdefault(layer, []).append(row)
 
-        def add_elevation(self, x: float, y: float, z: float) -> None:
-            super().add_elevation(x, y, z)
-            self.footholds.append((x, y, z))
+    def add_elevation(self, x: float, y: float, z: float) -> None:
+        super().add_elevation(x, y, z)
+        self.footholds.append((x, y, z))
 
+
+def recording_accumulator(res: float) -> RecordingAccumulator:
     return RecordingAccumulator(res)
 
 
-def rebin(acc: Any, res: float):
+def rebin(acc: RecordingAccumulator, res: float) -> LocalMap:
     """A `LocalMap` at cell size `res` [m] from everything a `RecordingAccumulator` was given."""
     fresh = CellAccumulator(res)
     for layer, rows in acc.log.items():
@@ -156,7 +161,7 @@ def rebin(acc: Any, res: float):
     return local
 
 
-def elevation_errors(local: Any, terrain: Any, segments: dict | None = None) -> dict[str, Any]:
+def elevation_errors(local: LocalMap, terrain: Terrain, segments: dict | None = None) -> dict[str, Any]:
     """RMSE [m] of the elevation layer against the exact terrain at cell centres, three ways from the same
     cell statistics: the mean alone (the paper's estimate, eq. 14), the map's value (`layer_value`: the
     protocol's plane fit where footholds spread ≥ 2 cm along both axes, else the mean) and the scout's
@@ -195,7 +200,7 @@ def elevation_errors(local: Any, terrain: Any, segments: dict | None = None) -> 
     return out
 
 
-def _slip_counts(ev: Any) -> dict[str, dict[str, int]]:
+def _slip_counts(ev: Evaluator) -> dict[str, dict[str, int]]:
     from scout_agent.evaluate import GT_SLIP_M
 
     truth = {k for k, v in ev.stances.items() if v[3] > GT_SLIP_M}
@@ -207,7 +212,7 @@ def _slip_counts(ev: Any) -> dict[str, dict[str, int]]:
     return out
 
 
-def _slip_points(ev: Any) -> dict[str, np.ndarray]:
+def _slip_points(ev: Evaluator) -> dict[str, np.ndarray]:
     """Touchdown (x, y) of ground-truth slips and of honest detections (for maps and profiles)."""
     from scout_agent.evaluate import GT_SLIP_M
 
@@ -216,7 +221,7 @@ def _slip_points(ev: Any) -> dict[str, np.ndarray]:
     return {"truth": np.array(gt, float).reshape(-1, 2), "detected": np.array(det, float).reshape(-1, 2)}
 
 
-def _paper_cells(ev: Any) -> dict[str, dict[str, np.ndarray]]:
+def _paper_cells(ev: Evaluator) -> dict[str, dict[str, np.ndarray]]:
     out = {}
     for key in ("giim", "giam"):
         sums = ev.paper_means[key].sums

@@ -24,6 +24,7 @@ from psrmap.experiments.common import MAP_RES, RunPool, RunSpec, estimation_summ
 from psrmap.experiments.config import ExperimentConfig
 from psrmap.experiments.maps import merged_grid, merged_local_map
 from psrmap_common.cli_parser import positive_float
+from psrmap_mapcore import LayerGrid
 
 __all__ = [
     "PAPER_TABLE",
@@ -140,7 +141,7 @@ def trajectory_row(runs: list[dict]) -> dict[str, Any]:
     }
 
 
-def compare_on_merged(grid: Any, routes: dict[str, Any]) -> dict[str, Any]:
+def compare_on_merged(grid: LayerGrid, routes: dict[str, Any]) -> dict[str, Any]:
     """The planner's breakdown of each named route on the merged map: default cost config but the raw
     slip layer (`slip_spread_m=0`), so the expected slips count what the map holds on the route's cells
     (the planner's spread would charge every cell within 0.8 m of a slip cell its rate)."""

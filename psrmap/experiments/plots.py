@@ -3,18 +3,25 @@ returns its path."""
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+from matplotlib.axes import Axes  # noqa: E402
 from matplotlib.colors import LightSource  # noqa: E402
+from matplotlib.figure import Figure  # noqa: E402
 from matplotlib.patches import Rectangle  # noqa: E402
 
 from psrmap.experiments.maps import dense  # noqa: E402
+
+if TYPE_CHECKING:
+    from scout_agent.cells import LocalMap
+    from scout_agent.sim.terrain import Terrain
 
 __all__ = ["lunar_maps", "ramp_elevation_rmse", "ramp_profile", "slopes", "utility_bars", "utility_map"]
 
@@ -32,7 +39,7 @@ CONDITION_STYLE = {
 }
 
 
-def _save(fig: Any, path: Path) -> Path:
+def _save(fig: Figure, path: Path) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=DPI, bbox_inches="tight")
@@ -40,7 +47,7 @@ def _save(fig: Any, path: Path) -> Path:
     return path
 
 
-def _nan(a: Any) -> np.ndarray:
+def _nan(a: Iterable[float | None]) -> np.ndarray:
     return np.array([np.nan if v is None else v for v in a], float)
 
 
@@ -170,7 +177,7 @@ def slopes(path: Path, pts: list[dict], fits: dict[str, Any], metrics: tuple[str
 # ------------------------------------------------------------------------------------------ lunar
 
 
-def _hillshade(ax: Any, terrain: Any) -> None:
+def _hillshade(ax: Axes, terrain: Terrain) -> None:
     ls = LightSource(azdeg=315, altdeg=45)
     xa, ya, xb, yb = terrain.extent
     ax.imshow(
@@ -182,13 +189,15 @@ def _hillshade(ax: Any, terrain: Any) -> None:
     )
 
 
-def _patches(ax: Any, patches: list) -> None:
+def _patches(ax: Axes, patches: list) -> None:
     for x0, y0, x1, y1, mu in patches:
         ax.add_patch(Rectangle((x0, y0), x1 - x0, y1 - y0, fill=False, ec="magenta", lw=1.0, ls="--"))
         ax.text(x0, y1 + 0.1, f"μ{mu:.2f}", color="magenta", fontsize=6)
 
 
-def lunar_maps(out_dir: Path, seed: int, terrain: Any, runs: dict[str, dict], merged: Any) -> list[Path]:
+def lunar_maps(
+    out_dir: Path, seed: int, terrain: Terrain, runs: dict[str, dict], merged: LocalMap
+) -> list[Path]:
     """Per layer one PNG: the map of each trajectory (its own scout) and the merged map, over the terrain."""
     paths = []
     routes: list[str] = [r for r in ("direct", "west", "east") if r in runs]
@@ -261,8 +270,8 @@ def lunar_maps(out_dir: Path, seed: int, terrain: Any, runs: dict[str, dict], me
 def utility_map(
     path: Path,
     seed: int,
-    terrain: Any,
-    scouts_local: Any,
+    terrain: Terrain,
+    scouts_local: LocalMap,
     scout_runs: list[dict],
     planned: list,
     straight: list,

@@ -13,11 +13,12 @@ import numpy as np
 
 from psrmap.experiments.common import MAP_RES, fmean
 from psrmap.experiments.maps import dense, merged_local_map
+from scout_agent.cells import LocalMap
 
 __all__ = ["agreement", "beat", "pool_rows", "predicted", "predicted_vs_felt", "summary"]
 
 
-def agreement(scout_local: Any, run: dict, cells_xy: np.ndarray) -> dict[str, Any]:
+def agreement(scout_local: LocalMap, run: dict, cells_xy: np.ndarray) -> dict[str, Any]:
     """Per-cell agreement, along a route's cells, of the scouts' map and the fresh robot's own map."""
     own = merged_local_map([run])
     out: dict[str, Any] = {}
