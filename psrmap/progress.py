@@ -11,8 +11,6 @@ import sys
 import time
 from typing import Protocol, TextIO
 
-from tqdm import tqdm
-
 __all__ = ["ProgressBar", "StatusLines", "is_terminal", "progress"]
 
 
@@ -87,5 +85,7 @@ def progress(
 ) -> ProgressBar:
     """A tqdm bar when stderr is a terminal, else `StatusLines` (on stdout, every `every_s` seconds)."""
     if is_terminal():
+        from tqdm import tqdm  # lazy: only a terminal shows a tqdm bar
+
         return tqdm(total=total, desc=desc, unit=unit, disable=disable, dynamic_ncols=True, initial=initial)
     return StatusLines(total, desc, unit, every_s=every_s, disable=disable, initial=initial)

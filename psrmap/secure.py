@@ -45,11 +45,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from cryptography import x509
-from cryptography.hazmat.primitives import hashes, serialization
-from cryptography.hazmat.primitives.asymmetric import ec
-from cryptography.x509.oid import NameOID
-
 from protocol.keys import validate_id
 from psrmap.ros2 import ros_keys
 from psrmap_common.cli_parser import Subparsers
@@ -271,6 +266,12 @@ def _agent_config(user: str, password: str, mode: str, endpoint: str) -> dict[st
 def _write_tls(folder: Path, names: Sequence[str], host: str, days: int) -> dict[str, tuple[Path, Path]]:
     """A CA, the router's server certificate and one client certificate per agent (PEM, owner-only keys);
     returns name -> (certificate, key) with "ca" -> (ca.pem, ca.key)."""
+    # lazy: cryptography (~40 ms) only for --tls; `psrmap secure --help` and plain init never load it
+    from cryptography import x509
+    from cryptography.hazmat.primitives import hashes, serialization
+    from cryptography.hazmat.primitives.asymmetric import ec
+    from cryptography.x509.oid import NameOID
+
     folder.mkdir(parents=True, exist_ok=True)
     now = datetime.datetime.now(datetime.UTC)
     life = (now - datetime.timedelta(minutes=5), now + datetime.timedelta(days=days))
