@@ -192,6 +192,13 @@ def add_scout_arguments(p: argparse.ArgumentParser) -> None:
         help="match the scout's footholds against the orbital DEM (lunar: --dem, or the scene's simulated "
         "orbiter DEM) and the shared map it publishes to, and correct its pose (default on)",
     )
+    p.add_argument(
+        "--standstill",
+        choices=("on", "off"),
+        default="off",
+        help="on: stand still at power-on (20 s) and pause whenever the gyro bias's heading budget is spent, "
+        "fusing zero-rate updates while standing; the time it costs is reported (default off: walk at once)",
+    )
     p.add_argument("--scout-id", default="scout1", type=id_arg("scout"), help="scout id ([A-Za-z0-9_-]+)")
 
 
@@ -276,6 +283,7 @@ def config_from_args(args: argparse.Namespace) -> ScoutRunConfig:
         dem=_dem(args),
         hazard_control=not args.no_hazard_control,
         localize=args.localize,
+        standstills=args.standstill == "on",
     )
     try:
         build_world(cfg)

@@ -386,6 +386,8 @@ def evaluate_run(cfg: ScoutRunConfig, res: float = DEFAULT_RES_M, progress: bool
         "fall_xy": summary["fall_xy"],
         "reached_goal": summary["reached_goal"],
         "hazard_stops": summary["hazard_stops"],
+        "standstills": summary["standstills"],
+        "zaru": summary["zaru"],
         "detour_m": summary["detour_m"],
         "gave_up": summary["gave_up"],
         "friction_estimate": summary["friction_estimate"],

@@ -49,6 +49,7 @@ from scout_agent.sim.terrain import (
 )
 from scout_agent.state_estimation.consistency import ConsistencyTracker
 from scout_agent.state_estimation.launch import HeightDatum
+from scout_agent.state_estimation.standstill import StandstillPlanner
 
 SCENES = ("ramps", "lunar")
 OnTick = Callable[[ProprioSample, GroundTruth, SimulatedScout], object]  # may return the tick's TickEstimates
@@ -84,6 +85,9 @@ class ScoutRunConfig:
     localize: str = "on"  # one of LOCALIZE_MODES: match footholds against the DEM / shared map
     localizer: LocalizerConfig = field(default_factory=LocalizerConfig)
     orbital_dem: OrbitalDemConfig = field(default_factory=OrbitalDemConfig)  # procedural scenes' DEM
+    standstills: bool = False  # stand at power-on and pause when the gyro bias's heading budget is spent
+    # (state_estimation/standstill.py; settings: sim.estimator.standstill; `--standstill on`). Off by default
+    # for now: the short runs of the tests and experiments (6–30 s) would spend their time standing
 
 
 @dataclass(frozen=True)
@@ -217,7 +221,19 @@ def run_scout(
         adaptive=pc.adaptive and on,
         reflex=pc.reflex and on,
     )
-    pilot = Pilot(world.waypoints, robot.controller, world.terrain.extent, pilot_cfg)
+    # standstills (state_estimation/standstill.py): stand at power-on, pause when the gyro bias's heading
+    # budget is spent; only a robot on its own estimate has a use for them
+    planner = None
+    est_cfg = robot.estimator.config.standstill
+    if cfg.standstills and scout.config.state_source == "estimate" and est_cfg.enabled:
+        planner = StandstillPlanner(robot.estimator, est_cfg)
+    pilot = Pilot(
+        world.waypoints,
+        robot.controller,
+        world.terrain.extent,
+        pilot_cfg,
+        hold=planner.hold if planner is not None else None,
+    )
     localizer = None
     if cfg.localize == "on" and scout.config.state_source == "estimate":
         if dem is not None or map_source is not None:
@@ -300,6 +316,10 @@ def run_scout(
         "fall_xy": list(scout.hardware.fall_xy) if scout.hardware.fall_xy else None,
         "reached_goal": bool(pilot.reached),
         **pilot.summary(),
+        "standstills": planner.summary() if planner is not None else None,
+        "zaru": {"updates": robot.estimator.zaru_updates, "refused": robot.estimator.zaru_refused}
+        if scout.config.state_source == "estimate"
+        else None,
         "final_xy": [float(pos[0]), float(pos[1])],
         "distance_m": round(distance, 3),
         "mean_speed_mps": round(distance / walked, 4) if walked > 0 else 0.0,

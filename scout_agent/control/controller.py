@@ -396,10 +396,34 @@ class TrotController:
         # the config's); 0 keeps the trunk level, so on a slope its CoM stands over the middle of its feet
         self._initialized = False
         self.t0 = 0.0
+        # stand still on four feet: the gait's clock stops at the next instant all four feet are down
+        # (the estimator's standstill updates, state_estimation/standstill.py)
+        self.hold = False
+        self._frozen_at: float | None = None  # the gait time it stopped at [s]
+        self._stand_feet: np.ndarray | None = None  # (4, 2) centred feet, base frame, when it froze [m]
 
     def set_command(self, forward_speed: float, yaw_rate: float) -> None:
         self.v_cmd = forward_speed
         self.yaw_rate_cmd = yaw_rate
+
+    def _stand_refs(self, s: RobotState) -> None:
+        """Standing: damp the position but chase no estimate (a pose fix on frozen feet toppled it), and hold
+        the heading against the planted feet, not the estimate: with a wrong gyro bias the estimated heading
+        drifts, and holding it twisted the trunk on its legs at the bias error."""
+        self._ref[0], self._ref[1] = s.pos[0], s.pos[1]
+        f = K.fk(s.q)[:, :2]
+        f = f - f.mean(axis=0)
+        if self._stand_feet is None:
+            self._stand_feet = f
+        f0 = self._stand_feet
+        # the feet turned by θ in the base frame (2-D Kabsch, closed form): the trunk turned by −θ over them
+        theta = np.arctan2(float(np.sum(f0[:, 0] * f[:, 1] - f0[:, 1] * f[:, 0])), float(np.sum(f0 * f)))
+        self._ref[2] = np.arctan2(s.R[1, 0], s.R[0, 0]) + theta
+
+    @property
+    def standing(self) -> bool:
+        """The gait is frozen with every foot down (`hold` reached)."""
+        return self._frozen_at is not None
 
     def set_friction(self, mu_feet: np.ndarray | None) -> None:
         """Each foot's friction coefficient the stance QP's cone uses from now on (None: the constant)."""
@@ -435,7 +459,16 @@ class TrotController:
             self.reset(s)
         g = self.gait.config
         phase, sched, sw = np.empty(4), np.empty(4, bool), np.empty(4)
+        if not self.hold:
+            self._frozen_at = None
+        elif self._frozen_at is not None:
+            self.t0 = s.t - self._frozen_at
         schedule(s.t - self.t0, g.freq_hz, g.duty, self.gait.offsets, phase, sched, sw)
+        if self.hold and self._frozen_at is None and sched.all() and s.contact.all():
+            self._frozen_at = s.t - self.t0
+            self._stand_feet = None
+        if self._frozen_at is not None:
+            self._stand_refs(s)
         J, feet_w, pv = self._J, self._feet_w, self._plane_v
         self._limits[0] = self.config.height + self.height_offset
         self._limits[2] = self.config.terrain_tilt if self.terrain_tilt is None else self.terrain_tilt

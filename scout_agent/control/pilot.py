@@ -9,6 +9,8 @@ Modes:
 
 - `walk`: follow the route (`follower.PathFollower`); the friction estimate (`friction_estimate`) feeds the
   stance QP's cone and the adaptive gait (`adaptation`) scales the speed and lowers the trunk.
+- a standstill, asked for by `hold` (the state estimator's planner): stand on four feet, gait frozen, until it
+  says walk on (the gyro's zero-rate updates, `state_estimation/standstill.py`).
 - `stop` (`stop_s`): the reflex (`reflex.Senses`) fired — stand still, report the hazard.
 - `back`: walk backwards along its own estimated trail to the last place it held: the trail point from
   `held_before_s` before the first slip of the episode (or before the trigger) that also lies `clear_m`
@@ -84,8 +86,10 @@ class Pilot:
         bounds: tuple[float, float, float, float],
         config: PilotConfig = PilotConfig(),
         known: Callable[[], LayerGrid | None] | None = None,
+        hold: Callable[[float], bool] | None = None,
     ) -> None:
         self.config = config
+        self.hold = hold  # the state estimator's standstill planner: stand still now (time [s])
         self.controller = controller
         self.bounds = bounds
         self.known = known
@@ -118,6 +122,12 @@ class Pilot:
     # ------------------------------------------------------------------ command
     def command(self, s: RobotState, dt: float) -> tuple[float, float]:
         yaw = float(np.arctan2(s.R[1, 0], s.R[0, 0]))
+        stand = self.mode == "walk" and self.hold is not None and not self.reached and self.hold(s.t)
+        self.controller.hold = (
+            stand  # on four feet, gait frozen: a standstill (state_estimation/standstill.py)
+        )
+        if stand:
+            return 0.0, 0.0
         if self.mode == "walk":
             v, w = self.follower.command(s.pos[:2], yaw, s.vel[:2], dt)
             self.reached = self.follower.reached

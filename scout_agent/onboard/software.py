@@ -106,7 +106,9 @@ class OnboardSoftware:
             )
             base = BaseState(exact.pos.copy(), exact.quat.copy(), exact.vel.copy(), exact.omega.copy())
         else:
-            est = self.estimator.update(self.t, tick, self.control_dt, self._mid_stance(out))
+            est = self.estimator.update(
+                self.t, tick, self.control_dt, self._mid_stance(out), standing=self.controller.standing
+            )
             self.state = RobotState(self.t, est.pos, est.R, est.vel, est.omega, tick.q, tick.dq, tick.contact)
             base = BaseState(est.pos, est.quat, est.vel, est.omega)
         return ProprioSample(

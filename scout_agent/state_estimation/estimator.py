@@ -66,11 +66,13 @@ from scout_agent.estimators.elevation import terrain_normal
 from scout_agent.estimators.feet import PinocchioFeet
 from scout_agent.onboard.drivers import SensorTick
 from scout_agent.robot import constants as C
+from scout_agent.robot.vectors import skew
 
 from . import kernels
 from .ekf import ErrorStateEKF, NoiseConfig
 from .launch import LaunchPose
 from .leg_odometry import odometry_rows
+from .standstill import StandstillConfig, ZeroRateWindow
 
 _EZ = np.array([0.0, 0.0, 1.0])
 _ALL4 = np.ones(4, bool)
@@ -93,8 +95,11 @@ class EstimatorConfig:
     gyro_tempco_std: float = float(np.radians(0.015))  # [rad/s/K]
     acc_tempco_std: float = 0.2e-3 * 9.80665  # [m/s²/K]
     gyro_scale_std: float = 0.014  # heading error per radian turned: scale ⊕ cross-axis (1 % each)
+    turn_lowpass_s: float = 1.0  # the turned angle counts the yaw rate low-passed over this (1.4 Hz gait) [s]
+    gyro_g_sens_std: float = float(np.radians(0.1) / 9.80665)  # BMI088 0.1 °/s/g per element [rad/s per m/s²]
     odometry_scale_std: float = 0.01  # leg odometry's along-track error per metre walked (1–2 % class)
     slip_pos_std_m: float = 0.005  # horizontal position σ added per foot update the gate rejected [m]
+    standstill: StandstillConfig = field(default_factory=StandstillConfig)  # standstill.py
 
 
 class StateEstimate(NamedTuple):
@@ -214,8 +219,19 @@ class StateEstimator:
         self._held_s = 0.0  # time propagated on lost packets since the last fresh reading [s]
         self._temp0 = math.nan  # IMU temperature at the first reading (the power-on calibration's) [°C]
         self._dtemp_prev = 0.0
+        self._gyro_temp0 = math.nan  # IMU temperature at the last ZARU (the gyro bias's reference) [°C]
+        self._gyro_dtemp_prev = 0.0
+        self._u_zaru: np.ndarray | None = None  # gravity in the base frame at the last ZARU [m/s²]
+        self._du2_prev = 0.0
+        self._stand_since: float | None = None  # standing on four settled feet since [s]
+        self._zaru: ZeroRateWindow | None = None  # the standstill's open window (standstill.py)
+        self.zaru_updates = 0  # zero-rate updates fused
+        self.zaru_refused = 0  # windows refused (feet moved against each other, or the χ² gate)
+        self.standstill_s = 0.0  # time stood with standstill updates [s]
+        self.bias_heading_rad = 0.0  # ∫σ_bz dt since the last ZARU: heading σ the gyro bias may have added
         self.walked_m = 0.0  # horizontal distance by the estimate [m]
         self.turned_rad = 0.0  # heading turned by the estimate [rad]
+        self._wz_lp = 0.0  # low-passed yaw rate [rad/s]
         self._contact_since = np.full(4, np.inf)
         self._settled = np.zeros(4, bool)
         self._use = np.zeros(4, bool)
@@ -239,16 +255,29 @@ class StateEstimator:
         """Process noise the 15-state model has no state for (module docstring, "Consistency")."""
         c, P = self.config, self.ekf.P
         temp = tick.imu_temp_c
-        if temp == temp:  # bias change with temperature: TCO² × d(ΔT²)
+        if temp == temp:  # bias change with temperature: TCO² × d(ΔT²), ΔT since the bias was last measured
             if self._temp0 != self._temp0:
-                self._temp0 = temp
-            dtemp = temp - self._temp0
+                self._temp0 = self._gyro_temp0 = temp
+            dtemp = temp - self._temp0  # accelerometer: since power-on (no standstill separates its bias)
             d2 = abs(dtemp * dtemp - self._dtemp_prev * self._dtemp_prev)
             self._dtemp_prev = dtemp
-            if d2:
-                for i in range(3):
-                    P[9 + i, 9 + i] += c.gyro_tempco_std**2 * d2
-                    P[12 + i, 12 + i] += c.acc_tempco_std**2 * d2
+            dtemp_g = temp - self._gyro_temp0  # gyro: since the last zero-rate update
+            d2g = abs(dtemp_g * dtemp_g - self._gyro_dtemp_prev * self._gyro_dtemp_prev)
+            self._gyro_dtemp_prev = dtemp_g
+            for i in range(3):
+                P[9 + i, 9 + i] += c.gyro_tempco_std**2 * d2g
+                P[12 + i, 12 + i] += c.acc_tempco_std**2 * d2
+        # g-sensitivity: the gyro's offset moves with the specific force's direction in the IMU (tilt on a
+        # slope); since the last zero-rate update the bias variance grows by gs² × d|Δu|², u = Rᵀ(−g)
+        u = self.ekf.R.T @ -self.ekf.g
+        if self._u_zaru is None:
+            self._u_zaru = u
+        du2 = float(np.sum((u - self._u_zaru) ** 2))
+        q = c.gyro_g_sens_std**2 * abs(du2 - self._du2_prev)
+        self._du2_prev = du2
+        for i in range(3):
+            P[9 + i, 9 + i] += q
+        self.bias_heading_rad += math.sqrt(P[11, 11]) * dt
         vx, vy, _ = self.ekf.v.tolist()
         speed = math.hypot(vx, vy)
         if speed > 1e-3:  # along-track odometry scale: σ = k·distance (d σ² = 2 k² d·|v| dt)
@@ -259,8 +288,13 @@ class StateEstimator:
             P[6, 7] += q * ux * uy
             P[7, 6] += q * ux * uy
             self.walked_m += speed * dt
-        wz = abs(float(tick.imu_gyro[2]) - float(self.ekf.bg[2]))
-        P[2, 2] += 2.0 * c.gyro_scale_std**2 * self.turned_rad * wz * dt  # heading from scale/cross-axis
+        # heading from scale/cross-axis: k × the angle turned, from the yaw rate low-passed over `turn_lowpass_s`
+        # (the trot's zero-mean yaw wobble turns the robot nowhere; counting |ω| made the heading σ grow 2° a
+        # minute on a straight walk)
+        a = min(dt / c.turn_lowpass_s, 1.0)
+        self._wz_lp += a * (float(tick.imu_gyro[2] - self.ekf.bg[2]) - self._wz_lp)
+        wz = abs(self._wz_lp)
+        P[2, 2] += 2.0 * c.gyro_scale_std**2 * self.turned_rad * wz * dt
         self.turned_rad += wz * dt
         if n_rejected:  # the gate refused a foot: the others may be sliding too, undetected
             P[6, 6] += n_rejected * c.slip_pos_std_m**2
@@ -275,15 +309,24 @@ class StateEstimator:
         return StateEstimate(self.t, e.p.copy(), e.R.copy(), matrix_to_quat(e.R), e.v.copy(), omega)
 
     def update(
-        self, t: float, tick: SensorTick, dt: float, mid_stance: np.ndarray | None = None
+        self,
+        t: float,
+        tick: SensorTick,
+        dt: float,
+        mid_stance: np.ndarray | None = None,
+        standing: bool = False,
     ) -> StateEstimate:
         """One tick. `mid_stance` (4,) bool, optional: the gait schedule puts the leg in the middle of its stance
-        (the robot's own controller knows its schedule); odometry then uses only those feet."""
+        (the robot's own controller knows its schedule); odometry then uses only those feet. `standing`: the
+        controller holds the robot still on four feet (its gait frozen); with every foot settled the tick
+        brings the standstill's updates (standstill.py)."""
         c, e = self.config, self.ekf
         self.t = t
         if not tick.fresh:  # a lost packet: hold the last reading, no measurement
             e.propagate(tick.imu_gyro, self._specific_force(tick, dt), dt)
             self._held_s += dt
+            if self._zaru is not None:
+                self._zaru.add(tick.imu_gyro, dt)
             self._inflate(tick, dt, 0)
             self.estimate = self._estimate(tick.imu_gyro - e.bg)
             return self.estimate
@@ -291,20 +334,25 @@ class StateEstimator:
             dt = min(max(tick.stamp_s - self._stamp_prev - self._held_s, 0.2 * dt), 3.0 * dt)
             self._stamp_prev = tick.stamp_s
         self._held_s = 0.0
-        e.propagate(tick.imu_gyro, self._specific_force(tick, dt), dt)
+        f_base = self._specific_force(tick, dt)
+        e.propagate(tick.imu_gyro, f_base, dt)
         contact = tick.contact
         settled, use = self._settled, self._use
+        # the controller froze its gait with every foot down (a contact flag may still flicker on a lightly
+        # loaded foot; the zero-rate window checks that the feet kept their places): every settled foot
+        # planted, each one's odometry is a zero-velocity update
+        stand = standing and c.standstill.enabled
         n_contact, n_settled, n_use = _settled_feet(
             contact,
             self._contact_since,
             t,
             c.stance_settle_s,
-            _ALL4 if mid_stance is None else mid_stance,
+            _ALL4 if mid_stance is None or stand else mid_stance,
             settled,
             use,
         )
         any_contact = n_contact > 0
-        if any_contact:
+        if any_contact or stand:
             fb, fv = self.feet.feet_base_and_vel(tick.q, tick.dq)
         if n_use:
             feet = (fb, fv, self.feet.foot_omega)
@@ -323,8 +371,58 @@ class StateEstimator:
             var = c.anchor_std_m**2 + self.launch.sigma_z_m**2  # the datum's own σ (launch.py)
             e.update(np.array([z_meas - e.p[2]]), e.position_z_rows(), np.array([var]))
             self.anchored = True
+        self._standstill(t, stand, tick, f_base, fb if any_contact or stand else None, dt)
         if any_contact and _update_footholds(contact, self._was_contact, fb, e.R, e.p, self._footholds):
             self._normal_w = terrain_normal(self._footholds)  # a new foothold: refit the ground plane
         self._was_contact = contact
         self.estimate = self._estimate(tick.imu_gyro - e.bg)
         return self.estimate
+
+    def _standstill(
+        self, t: float, stand: bool, tick: SensorTick, f_base: np.ndarray, fb: np.ndarray | None, dt: float
+    ) -> None:
+        """Gravity and zero-rate updates while the robot stands on four settled feet (standstill.py)."""
+        if not stand or fb is None:
+            self._stand_since = None
+            self._zaru = None
+            return
+        ss, e = self.config.standstill, self.ekf
+        if self._stand_since is None:
+            self._stand_since = t
+        if t - self._stand_since < ss.settle_s:
+            return
+        self.standstill_s += dt
+        if ss.level_std_mps2 > 0:  # gravity: f = Rᵀ(−g) + ba; H_θ = [Rᵀ(−g)]×, H_ba = I
+            u = e.R.T @ -e.g
+            H = np.zeros((3, 15))
+            H[:, 0:3] = skew(u)
+            H[:, 12:15] = np.eye(3)
+            e.update(f_base - (u + e.ba), H, np.full(3, ss.level_std_mps2**2), gate_chi2=ss.gate_chi2)
+        if self._zaru is None:
+            self._zaru = ZeroRateWindow(t, fb)
+            return
+        self._zaru.add(tick.imu_gyro, dt)
+        if self._zaru.span_s < ss.window_s - 1e-9:
+            return
+        win, span = self._zaru, self._zaru.span_s
+        z = win.close(fb, ss.feet_rms_max_m, ss.turn_max_rad)
+        self._zaru = ZeroRateWindow(t, fb)
+        if z is None:
+            self.zaru_refused += 1
+            return
+        H = np.zeros((3, 15))
+        H[:, 9:12] = np.eye(3)
+        keep = e.update(
+            z - e.bg, H, np.full(3, ss.zaru_var(span, win.turned_rad))
+        )  # no χ² gate: a bias larger than believed
+        if not keep[0]:  # (the feet check above refuses a slip; a gate would lock a big bias out)
+            self.zaru_refused += 1
+            return
+        self.zaru_updates += 1
+        self.bias_heading_rad = 0.0
+        temp = tick.imu_temp_c
+        if temp == temp:  # the bias's temperature drift restarts from here
+            self._gyro_temp0 = temp
+            self._gyro_dtemp_prev = 0.0
+        self._u_zaru = e.R.T @ -e.g  # and its g-sensitivity from this attitude
+        self._du2_prev = 0.0

@@ -1,0 +1,187 @@
+"""Standstills: what a legged robot learns about its gyro while it stands on four feet, and when to stand.
+
+A gyro's zero-rate offset drifts with the board's temperature (BMI088: 0.015 °/s/K, sensors/imu.py), and
+nothing a walking robot feels separates that bias about the vertical from a turn: heading drifts by the bias's
+integral. Standing still, the bias is what the gyro reads. Three measurements while the robot stands on four
+settled feet (`StateEstimator.update(..., standing=True)`, the controller's gait frozen with every foot down):
+
+- **zero angular rate (ZARU)**, 3 axes, once per `window_s`: the gyro's mean over the window less the trunk's
+  rotation over it from the leg kinematics (the four feet's positions in the base frame at the window's two
+  ends, aligned by `scipy.spatial.transform.Rotation.align_vectors`, Kabsch: feet that stay put turn in the
+  base frame exactly as the trunk turns over them). The kinematic term matters: the balance controller holds
+  the *estimated* heading, so with a wrong bias the trunk really turns on its planted legs at the bias error and
+  the gyro alone would confirm the wrong bias. The Moon's rotation, 2.66e-6 rad/s (sidereal month 27.32 d), is
+  2 % of the 1.1e-4 rad/s the 5 s power-on calibration leaves and below what a window resolves: neglected.
+  Noise per window: the gyro's white noise over the window (datasheet density × `gyro_density_margin`) and
+  the kinematic rotation's (`kin_std_rad` at each end, encoder quantisation through a 0.4 m stance);
+  refused when the feet moved against each other (`feet_rms_max_m`: a foot slipped) or the trunk rocked
+  (`turn_max_rad`), its kinematic term weighted by how far the trunk turned (legs' compliance, feet creeping
+  in MuJoCo's soft contacts: `kin_turn_frac`, `creep_std_rad_s`), never by a χ² gate
+  (a unit whose bias is larger than the filter believes would be locked out for good);
+- **zero velocity**: the leg odometry of all four feet (not only mid-stance ones);
+- **gravity** (roll and pitch): the accelerometer reads −g in the base frame plus its bias.
+
+After a ZARU the bias's temperature term restarts from the temperature it was measured at (estimator.py).
+
+`StandstillConfig` also sets when the robot stands: `start_s` at power-on before it walks, and a pause of
+`pause_s` whenever the heading σ the gyro-bias uncertainty has added since the last standstill,
+∫σ_bz dt (a fully correlated bias error: the bound), passes `heading_budget_deg`. Both cost mission time;
+`psrmap evaluate` reports it.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+__all__ = ["StandstillConfig", "StandstillPlanner", "ZeroRateWindow", "start_standstill_s"]
+
+MOON_ROTATION_RAD_S = 2.0 * math.pi / (27.321661 * 86400.0)  # sidereal: 2.66e-6 rad/s (neglected, above)
+
+
+def start_standstill_s(
+    gyro_density: float = math.radians(0.014),
+    gyro_tempco: float = math.radians(0.015),
+    warmup_k: float = 8.0,
+    warmup_tau_s: float = 600.0,
+) -> float:
+    """How long to stand at power-on [s]: averaging the gyro for T leaves a bias error density/√T while the
+    warm-up moves the bias by tempco·(warmup_k/τ)·T; past the T where the two are equal, standing longer
+    buys nothing until the board has warmed (several τ: tens of minutes). T = (density·τ/(tempco·warmup_k))^(2/3):
+    17 s for the BMI088 (0.014 °/s/√Hz, 0.015 °/s/K) on a board warming 8 K with τ 10 min (sensors/imu.py's
+    assumed profile; a robot's maker measures its own board's)."""
+    return float((gyro_density * warmup_tau_s / (gyro_tempco * warmup_k)) ** (2.0 / 3.0))
+
+
+@dataclass(frozen=True)
+class StandstillConfig:
+    enabled: bool = True  # False: never stand on purpose, no standstill updates (the build before)
+    start_s: float = 20.0  # stand at power-on: this much of fused windows [s] (start_standstill_s() = 17 s)
+    pause_s: float = 6.0  # each pause: this much of fused zero-rate windows [s]
+    heading_budget_deg: float = 0.5  # pause when ∫σ_bz dt since the last standstill passes this [deg]
+    settle_s: float = 1.0  # after the gait froze, before the first window (the trunk still rocks) [s]
+    window_s: float = 3.0  # one ZARU per window [s] (longer windows: less of the kinematic error per second)
+    gyro_density_margin: float = 1.0  # × the datasheet's white-noise density
+    gyro_density: float = math.radians(0.014)  # BMI088 [rad/s/√Hz]
+    kin_std_rad: float = 3e-4  # σ of the kinematic rotation at each window end, per axis [rad] (the feet's
+    # fit residual after a walk is ≈ 0.4 mm over a 0.4 m stance: encoders, compliance, the ball feet rolling)
+    feet_rms_max_m: float = 0.003  # the feet moved against each other more than this: a slip, refuse [m]
+    creep_std_rad_s: float = 1.5e-4  # the stance turning as a whole, feet creeping (MuJoCo's soft contacts:
+    # 1–8e-4 rad/s measured in a pause after a walk; the kinematics cannot see it) [rad/s]
+    turn_max_rad: float = 1e-2  # the trunk turned more than this over a window: not still, refuse [rad]
+    kin_turn_frac: float = 0.15  # the kinematic turn's error as a share of the turn (measured 0.1–0.15 of
+    # 6–9e-3 rad twists: leg compliance, feet rolling and creeping)
+    gate_chi2: float = 16.3  # the gravity update's χ²(3) gate at p = 0.001 (the trunk accelerating)
+    level_std_mps2: float = 0.05  # gravity update's σ per axis: tick noise 0.017 m/s² + the trunk's sway
+    min_walk_s: float = 10.0  # at least this long between two pauses [s]
+    timeout_s: float = 10.0  # give a pause up this long past its length (windows refused: rocking, slips) [s]
+
+    def zaru_var(self, window_s: float, turned_rad: float = 0.0) -> float:
+        """Variance of one window's bias measurement, per axis [(rad/s)²], the trunk having turned by
+        `turned_rad` over it."""
+        g = self.gyro_density * self.gyro_density_margin
+        kin = 2.0 * self.kin_std_rad**2 + (self.kin_turn_frac * turned_rad) ** 2
+        return g * g / window_s + kin / window_s**2 + self.creep_std_rad_s**2
+
+
+class ZeroRateWindow:
+    """One window of a standstill: the gyro's integral and the feet at its start; `close` gives the bias
+    measurement (3,) [rad/s], or None when the feet moved against each other."""
+
+    def __init__(self, t: float, feet_b: np.ndarray) -> None:
+        self.t0 = t
+        self.feet0 = np.array(feet_b, dtype=float)
+        self.gyro_int = np.zeros(3)  # ∫ω_m dt [rad]
+        self.span_s = 0.0
+        self.turned_rad = 0.0  # how far the trunk turned over its feet in the window (set by `close`) [rad]
+
+    def add(self, gyro: np.ndarray, dt: float) -> None:
+        self.gyro_int += gyro * dt
+        self.span_s += dt
+
+    def close(self, feet_b: np.ndarray, feet_rms_max_m: float, turn_max_rad: float) -> np.ndarray | None:
+        a = np.asarray(feet_b, dtype=float)
+        a = a - a.mean(axis=0)
+        b = self.feet0 - self.feet0.mean(axis=0)
+        rot, rssd = Rotation.align_vectors(a, b)  # feet now = Q · feet then (base frame)
+        if rssd / 2.0 > feet_rms_max_m:  # rssd = √Σ|·|², four feet: rms = rssd / 2
+            return None
+        # the trunk turned by Qᵀ over the window (in its frame at the window's start)
+        turned = rot.inv().as_rotvec()
+        self.turned_rad = float(np.linalg.norm(turned))
+        if self.turned_rad > turn_max_rad:  # rocking: the gyro's 1 % scale and cross-axis
+            return None  # errors and the legs' compliance then exceed the bias (0.5° twists, 4e-4 rad/s off)
+        return (self.gyro_int - turned) / self.span_s
+
+
+class StandstillState(Protocol):
+    """What the planner reads of the state estimator (estimator.StateEstimator)."""
+
+    standstill_s: float
+    bias_heading_rad: float
+    zaru_updates: int
+
+
+class StandstillPlanner:
+    """When the robot stands: `hold(t)` True while the pilot should keep it standing (the start-up standstill,
+    then a pause whenever the bias's heading budget is spent); `summary()` their count and time cost."""
+
+    def __init__(self, estimator: StandstillState, config: StandstillConfig) -> None:
+        self.est = estimator
+        self.config = config
+        self.stands: list[dict] = []
+        self._open: tuple[str, float, float, int, float] | None = None  # reason, t0, stood0, zaru0, need
+        self._started = False
+        self._t_end = -math.inf
+
+    def hold(self, t: float) -> bool:
+        c, e = self.config, self.est
+        if not c.enabled:
+            return False
+        if self._open is None:
+            if not self._started:
+                self._started = True
+                if c.start_s <= 0:
+                    return False
+                self._open = ("start", t, e.standstill_s, e.zaru_updates, c.start_s)
+            elif (
+                c.pause_s > 0
+                and t - self._t_end >= c.min_walk_s
+                and math.degrees(e.bias_heading_rad) > c.heading_budget_deg
+            ):
+                self._open = ("heading", t, e.standstill_s, e.zaru_updates, c.pause_s)
+            else:
+                return False
+        reason, t0, stood0, zaru0, need = self._open
+        stood = e.standstill_s - stood0
+        fused_s = (e.zaru_updates - zaru0) * c.window_s  # windows the estimator fused
+        if fused_s < need - 1e-9 and t - t0 < need + c.timeout_s:
+            return True
+        self.stands.append(
+            {
+                "t": round(t0, 2),
+                "s": round(t - t0, 2),
+                "stood_s": round(stood, 2),
+                "zaru": e.zaru_updates - zaru0,
+                "reason": reason,
+            }
+        )
+        self._open = None
+        self._t_end = t
+        return False
+
+    def summary(self) -> dict:
+        """The standstills' count and mission time cost [s] (from the stop command to walking on)."""
+        start = [s["s"] for s in self.stands if s["reason"] == "start"]
+        pauses = [s["s"] for s in self.stands if s["reason"] != "start"]
+        return {
+            "start_s": round(sum(start), 2),
+            "pauses": len(pauses),
+            "pause_s": round(sum(pauses), 2),
+            "total_s": round(sum(start) + sum(pauses), 2),
+            "zaru_updates": int(sum(s["zaru"] for s in self.stands)),
+        }
