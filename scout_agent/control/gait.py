@@ -50,6 +50,11 @@ class TrotGait:
         """(4,) progress through stance in [0, 1] (1 for swing legs)."""
         return _unit_clip(np.asarray(phase, dtype=float), 0.0, self.config.duty)
 
+    def mid_stance(self, phase: np.ndarray, stance: np.ndarray, lo: float, hi: float) -> np.ndarray:
+        """(4,) legs in `stance` whose `stance_progress` lies in [lo, hi] (compiled: the estimator asks every
+        tick which legs' odometry to use)."""
+        return _mid_stance(np.asarray(phase, dtype=float), stance, self.config.duty, lo, hi)
+
 
 @njit(cache=True, nogil=True)
 def _unit_clip(phase: np.ndarray, start: float, length: float) -> np.ndarray:
@@ -78,3 +83,13 @@ def schedule(
         phase[i] = (tf + offsets[i]) % 1.0
         stance[i] = phase[i] < duty
         swing[i] = min(max((phase[i] - duty) / (1.0 - duty), 0.0), 1.0)
+
+
+@njit(cache=True, nogil=True)
+def _mid_stance(phase: np.ndarray, stance: np.ndarray, duty: float, lo: float, hi: float) -> np.ndarray:
+    """`stance & (lo <= stance_progress(phase) <= hi)`, each leg."""
+    out = np.empty(phase.shape[0], np.bool_)
+    for i in range(phase.shape[0]):
+        p = min(max(phase[i] / duty, 0.0), 1.0)
+        out[i] = stance[i] and p >= lo and p <= hi
+    return out

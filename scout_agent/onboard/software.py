@@ -136,8 +136,7 @@ class OnboardSoftware:
     def _mid_stance(self, out: ControlOutput) -> np.ndarray:
         """Legs the gait schedule has in the middle of their stance (`estimator.odometry_stance`)."""
         lo, hi = self.config.estimator.odometry_stance
-        prog = self.controller.gait.stance_progress(out.phase)
-        return out.stance_planned & (prog >= lo) & (prog <= hi)
+        return self.controller.gait.mid_stance(out.phase, out.stance_planned, lo, hi)
 
     def position_sigma_m(self) -> float | None:
         """The horizontal position σ [m] the estimator gives itself (the larger axis of its x, y covariance);

@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 
 import mujoco
 import numpy as np
+from numba import njit
 
 from scout_agent.lowlevel import LowCmd, LowState
 from scout_agent.robot import constants as C
@@ -149,12 +150,11 @@ class SimulatedAliengo:
         self._tt: TickTruth | None = None
         self._cp0 = np.full((4, 3), np.nan)
         self._swung = np.ones(4, bool)
+        self._mu_feet = np.empty(4)  # friction under each foot, this tick (truth)
         self._apply_friction()
 
     def _apply_friction(self) -> None:
-        d = self.data
-        feet = d.xpos[self._foot_bodies]
-        self._mu_feet = self.friction.at_points(feet[:, 0], feet[:, 1])
+        self.friction.under_bodies(self.data.xpos, self._foot_bodies, self._mu_feet)
         self.model.geom_friction[self._foot_geoms, 0] = self._mu_feet
 
     # ------------------------------------------------------------------------------ the robot's interface
@@ -179,10 +179,7 @@ class SimulatedAliengo:
             q[k] = v_q
             tau[k] = v_tau
             dq[k] = v_dq
-        energy = 0.0
-        for e in np.abs(tau * dq).sum(axis=1).tolist():  # step by step, as the drivers integrate it
-            energy += e
-        self._energy_tick_j = energy * self.dt
+        self._energy_tick_j = _joint_work(tau, dq) * self.dt  # step by step, as the drivers integrate it
         self.energy_true_j += self._energy_tick_j
         self.t += self.control_dt
         self._apply_friction()
@@ -245,6 +242,22 @@ class SimulatedAliengo:
         if not self.fell and (tilt > cfg.fall_tilt_deg or clearance < cfg.fall_min_height_m or trunk_touch):
             self.fell = True
             self.fall_xy = (float(pos[0]), float(pos[1]))
+
+
+@njit(cache=True, nogil=True)
+def _joint_work(tau: np.ndarray, dq: np.ndarray) -> float:
+    """Σ over the (k, 12) steps of Σ_j |τ_j·q̇_j|, each step's 12 terms summed in numpy's pairwise order (8
+    partial sums, then the rest: `np.abs(tau * dq).sum(axis=1)`, which this replaced, bit for bit)."""
+    total = 0.0
+    a = np.empty(12)
+    for s in range(tau.shape[0]):
+        for j in range(12):
+            a[j] = abs(tau[s, j] * dq[s, j])
+        step = ((a[0] + a[1]) + (a[2] + a[3])) + ((a[4] + a[5]) + (a[6] + a[7]))
+        for j in range(8, 12):
+            step += a[j]
+        total += step
+    return total
 
 
 __all__ = ["HardwareConfig", "SimulatedAliengo"]

@@ -95,6 +95,12 @@ class FrictionMap:
         _friction_at(self.default, self._table, x, y, mu)  # type: ignore[attr-defined]
         return mu
 
+    def under_bodies(self, xpos: np.ndarray, bodies: np.ndarray, out: np.ndarray) -> np.ndarray:
+        """Friction under bodies: at the (x, y) of rows `bodies` of `xpos` (MuJoCo's body positions, (nbody,
+        3)), into `out` (the simulator's per-tick lookup under the feet, without the copies)."""
+        _friction_under(self.default, self._table, xpos, bodies, out)  # type: ignore[attr-defined]
+        return out
+
     def grid(self, terrain: Terrain, res: float = 0.1) -> tuple[np.ndarray, tuple[float, float, float]]:
         """(ny, nx) friction raster over the terrain and its (x0, y0, res) for export/logging."""
         xa, ya, xb, yb = terrain.extent
@@ -201,3 +207,17 @@ def unholdable(mu, slope_deg) -> np.ndarray:
     """Ground truth: True where a robot cannot stand still, μ < tan(slope) (ground inclined by α holds a
     static load only while its friction coefficient exceeds tan α)."""
     return np.asarray(mu, float) < np.tan(np.radians(np.asarray(slope_deg, float)))
+
+
+@njit(cache=True, nogil=True)
+def _friction_under(
+    default: float, table: np.ndarray, xpos: np.ndarray, bodies: np.ndarray, out: np.ndarray
+) -> None:
+    """`_friction_at` at the (x, y) of rows `bodies` of `xpos` (n, 3)."""
+    for i in range(bodies.shape[0]):
+        x, y = xpos[bodies[i], 0], xpos[bodies[i], 1]
+        mu = default
+        for k in range(table.shape[0]):
+            if table[k, 0] <= x <= table[k, 2] and table[k, 1] <= y <= table[k, 3]:
+                mu = table[k, 4]
+        out[i] = mu
