@@ -28,7 +28,7 @@ from psrmap_mapcore import TiledMap, read_npz
 
 ROOT = Path(__file__).resolve().parents[2]
 MAP = "netmap"
-N_DELTAS = 100  # at 5 Hz: a 20 s walk
+N_DELTAS = 80  # at 5 Hz: a 16 s walk, the link cut from its 5th to its 15th second
 CUT_AT, CUT_S = 25, 10.0  # cut the scout host's link after this many deltas, for this long
 
 SCOUT = """
@@ -128,20 +128,24 @@ def test_scout_host_link_cut_for_10s_loses_and_doubles_nothing(hosts, procs, tmp
                    *cred["router"])  # fmt: skip
     procs.append(router)
     wait_line(router, "router")
-    for i in range(2):
-        p = in_ns(ns["base"], "-m", "psrmap", "server", "--map", MAP, "--res", str(RES), "--tile", str(TILE),
-                  "--db", str(tmp_path / f"s{i}.db"), "--connect", base_scout,
-                  "--shards", "2", "--shard", str(i), *cred.get(f"m{i}", []))  # fmt: skip
-        procs.append(p)
-        wait_line(p, "server")
+    # the two shards and the scout host's router start side by side (each waits only for the base router)
+    servers = [
+        in_ns(ns["base"], "-m", "psrmap", "server", "--map", MAP, "--res", str(RES), "--tile", str(TILE),
+              "--db", str(tmp_path / f"s{i}.db"), "--connect", base_scout,
+              "--shards", "2", "--shard", str(i), *cred.get(f"m{i}", []))
+        for i in range(2)
+    ]  # fmt: skip
     scout_router = in_ns(ns["scout"], "-m", "psrmap", "router", "--listen", robot_ep, "--connect", base_scout,
                          *cred["s1-router"])  # fmt: skip
-    procs.append(scout_router)
+    procs.extend([*servers, scout_router])
+    for p in servers:
+        wait_line(p, "server")
     wait_line(scout_router, "router")
     if secured:  # an anonymous client on the scout host's router, and one on the base, are refused
-        for ep, host in ((robot_ep, "scout"), (base_rover, "rover")):
-            anon = in_ns(ns[host], "-m", "psrmap", "status", "--map", MAP, "--connect", ep)
-            procs.append(anon)
+        anons = [in_ns(ns[host], "-m", "psrmap", "status", "--map", MAP, "--connect", ep)
+                 for ep, host in ((robot_ep, "scout"), (base_rover, "rover"))]  # fmt: skip
+        procs.extend(anons)
+        for anon in anons:
             assert anon.wait(60) != 0
     script = tmp_path / "scout.py"
     script.write_text(SCOUT.format(tests=str(ROOT / "tests"), map=MAP, res=RES, tile=TILE))

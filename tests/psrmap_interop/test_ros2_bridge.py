@@ -293,6 +293,13 @@ def _merged(client: zenoh.Session, map_id: str, n: int) -> None:
     raise AssertionError(f"{n} deltas were not merged")
 
 
+def _grid_maps_seen(client: zenoh.Session) -> list[int]:
+    """A list that grows by one with every GridMap the bridge publishes (any domain; ROS 2 key layout)."""
+    seen: list[int] = []
+    client.declare_subscriber("*/psrmap/grid_map/**", lambda s: seen.append(len(seen)))
+    return seen
+
+
 def _start_bridge(cfg: BridgeConfig, stop: threading.Event) -> tuple[threading.Thread, list[dict]]:
     """The bridge in a thread; its summary lands in the returned list when `stop` is set."""
     done: list[dict] = []
@@ -309,9 +316,10 @@ def test_the_bridge_requeries_only_when_a_tile_in_its_box_changed(router, served
         _fill(client, map_id)  # cells 2..8 x -1..4: tile (0, 0) and (0, -1)
         stop = threading.Event()
         cfg = BridgeConfig(map_id, (0.0, -1.0, 4.0, 2.4), (router,), rate_hz=10.0, resync_s=60.0)
+        maps = _grid_maps_seen(client)
         t, done = _start_bridge(cfg, stop)
         try:
-            time.sleep(2.0)  # first map published
+            assert wait_until(lambda: len(maps) >= 1), "the bridge published no first map"
             far = np.arange(250, 260)  # 100 m east: tile (3, 0), outside the box
             for seq in range(1, 6):
                 _put_cells(client, map_id, seq, far, np.zeros(10, int))
@@ -322,7 +330,7 @@ def test_the_bridge_requeries_only_when_a_tile_in_its_box_changed(router, served
             outside = done[0]
             stop.clear()
             t, done = _start_bridge(cfg, stop)
-            time.sleep(2.0)
+            assert wait_until(lambda: len(maps) >= 2), "the second bridge published no first map"
             _put_cells(client, map_id, 6, np.array([3, 4]), np.array([1, 1]))  # inside the box
             _merged(client, map_id, 7)
             time.sleep(1.5)
@@ -354,12 +362,13 @@ def test_a_lost_notice_is_caught_by_the_resync(router, tmp_path) -> None:
         _fill(client, map_id)
         stop = threading.Event()
         cfg = BridgeConfig(map_id, (0.0, -1.0, 4.0, 2.4), (router,), rate_hz=10.0, resync_s=0.5)
+        maps = _grid_maps_seen(client)
         t, done = _start_bridge(cfg, stop)
         try:
-            time.sleep(2.0)
+            assert wait_until(lambda: len(maps) >= 1), "the bridge published no first map"
             _put_cells(client, map_id, 1, np.array([3]), np.array([1]))
             _merged(client, map_id, 2)
-            time.sleep(2.0)
+            assert wait_until(lambda: len(maps) >= 2), "the resync did not republish the changed map"
         finally:
             stop.set()
             t.join(timeout=20)
