@@ -47,6 +47,7 @@ from scout_agent.sim.terrain import (
     make_ramps,
     route_slope_stats,
 )
+from scout_agent.state_estimation import StateEstimator
 from scout_agent.state_estimation.consistency import ConsistencyTracker
 from scout_agent.state_estimation.launch import HeightDatum
 from scout_agent.state_estimation.standstill import StandstillPlanner
@@ -187,6 +188,50 @@ def dem_reference(cfg: ScoutRunConfig, world: World) -> DemReference | None:
         return DemReference(read_dem_grid(DemWindow(str(path), xa, ya, size_m=xb - xa)))
 
 
+class RunTally:
+    """What the run's summary measures, tick by tick, beside the robot (evaluation only: it reads the truth):
+    the true horizontal distance walked after the settle, the true path's ∫‖v_xy‖dt, ticks with a non-foot
+    contact, the estimate against the truth (`ConsistencyTracker`), and the robot's own path every
+    `PATH_EVERY_S`."""
+
+    def __init__(self, start_xy: Sequence[float], settle_s: float, control_dt: float) -> None:
+        self.prev_x, self.prev_y = start_xy[0], start_xy[1]
+        self.settle_s = settle_s
+        self.control_dt = control_dt
+        self.distance = 0.0  # true horizontal distance walked since the settle [m]
+        self.speed_path = 0.0  # ∫‖v_xy‖dt of the true base, whole run (the CoT distance's ground truth) [m]
+        self.walk_t0: float | None = None
+        self.nonfoot_ticks = 0
+        self.path_estimate: list[list[float]] = []  # [t, x, y, z] of the robot's own estimate
+        self.next_path_t = 0.0
+        self.errors = ConsistencyTracker()  # the estimate against the truth, every tick
+
+    def add(
+        self, t: float, sample: ProprioSample, truth: GroundTruth, estimator: StateEstimator | None
+    ) -> None:
+        """One tick; `estimator` (None on the exact state) gives the covariance the error is judged by."""
+        x, y, _ = truth.base.pos.tolist()
+        if self.walk_t0 is None and t >= self.settle_s:
+            self.walk_t0 = t
+            self.prev_x, self.prev_y = x, y
+        if self.walk_t0 is not None:
+            self.distance += math.hypot(x - self.prev_x, y - self.prev_y)
+            self.prev_x, self.prev_y = x, y
+        if t >= self.next_path_t:
+            self.next_path_t += PATH_EVERY_S
+            self.path_estimate.append([round(t, 3), *(round(float(c), 3) for c in sample.base.pos)])
+        self.nonfoot_ticks += truth.nonfoot_contacts > 0
+        self.errors.add(
+            truth.base.pos,
+            truth.base.quat,
+            sample.base.pos,
+            sample.base.quat,
+            estimator.position_covariance()[:2, :2] if estimator is not None else None,
+        )
+        vx, vy, _ = truth.base.vel.tolist()
+        self.speed_path += math.hypot(vx, vy) * self.control_dt
+
+
 def run_scout(
     cfg: ScoutRunConfig,
     on_tick: OnTick | None = None,
@@ -247,42 +292,18 @@ def run_scout(
         bar = tqdm(total=n_ticks, unit="tick", desc=f"{cfg.scout_id} {world.terrain.name}", leave=False)
     next_line = 30.0 if progress and bar is None else math.inf  # not a terminal: a status line every 30 s
     wall0 = time.perf_counter()
-    prev_x, prev_y = world.start[:2]
-    distance = 0.0
-    speed_path = 0.0  # ∫‖v_xy‖dt of the true base, whole run (the CoT distance's ground truth) [m]
-    walk_t0 = None
-    nonfoot_ticks = 0
+    tally = RunTally(world.start[:2], scout.config.settle_s, scout.control_dt)
+    tally_estimator = robot.estimator if scout.config.state_source == "estimate" else None
     sample = truth = None
-    path_estimate: list[list[float]] = []  # [t, x, y, z] of the robot's own estimate, every PATH_EVERY_S
-    next_path_t = 0.0
-    errors = ConsistencyTracker()  # the estimate against the truth, every tick (evaluation only)
-    on_estimate = scout.config.state_source == "estimate"
     for k in range(n_ticks):
-        st = robot.state  # the robot's own estimate (exact only with state_source "exact")
-        v, w = pilot.command(st, scout.control_dt)
+        # the robot's path follower: speed and turn rate from the robot's own estimate
+        v, w = pilot.command(robot.state, scout.control_dt)
         if scout.t < scout.config.settle_s:
             pilot.follower.integral = 0.0
+        # one control tick: command -> simulated Aliengo -> readings -> estimate (loop.py); truth beside it
         sample, truth = scout.step(v, w)
-        x, y, _ = truth.base.pos.tolist()
-        if walk_t0 is None and scout.t >= scout.config.settle_s:
-            walk_t0 = scout.t
-            prev_x, prev_y = x, y
-        if walk_t0 is not None:
-            distance += math.hypot(x - prev_x, y - prev_y)
-            prev_x, prev_y = x, y
-        if scout.t >= next_path_t:
-            next_path_t += PATH_EVERY_S
-            path_estimate.append([round(scout.t, 3), *(round(float(v), 3) for v in sample.base.pos)])
-        nonfoot_ticks += truth.nonfoot_contacts > 0
-        errors.add(
-            truth.base.pos,
-            truth.base.quat,
-            sample.base.pos,
-            sample.base.quat,
-            robot.estimator.position_covariance()[:2, :2] if on_estimate else None,
-        )
-        vx, vy, _ = truth.base.vel.tolist()
-        speed_path += math.hypot(vx, vy) * scout.control_dt
+        tally.add(scout.t, sample, truth, tally_estimator)  # evaluation only
+        # the robot's software reads its own record: pose fixes, then the map estimates, then the hazards felt
         if localizer is not None:  # before the mapper: what it publishes next is placed corrected
             localizer.on_tick(sample)
         est = on_tick(sample, truth, scout) if on_tick is not None else None
@@ -294,7 +315,7 @@ def run_scout(
         elif time.perf_counter() - wall0 >= next_line:
             next_line += 30.0
             print(
-                f"[{cfg.scout_id}] {scout.t:.0f}/{limit:.0f} s simulated, {distance:.1f} m walked",
+                f"[{cfg.scout_id}] {scout.t:.0f}/{limit:.0f} s simulated, {tally.distance:.1f} m walked",
                 file=sys.stderr,
                 flush=True,
             )
@@ -303,14 +324,14 @@ def run_scout(
     if bar is not None:
         bar.close()
     wall = time.perf_counter() - wall0
-    walked = scout.t - (walk_t0 or scout.t)
+    walked = scout.t - (tally.walk_t0 or scout.t)
     pos = scout.hardware.data.qpos[0:3]
     return {
         "scene": cfg.scene,
         "terrain": world.terrain.name,
         "scout": cfg.scout_id,
         "waypoints": world.waypoints.round(3).tolist(),
-        "path_estimate": path_estimate,  # [t s, x, y, z m]: where the scout believes it walked
+        "path_estimate": tally.path_estimate,  # [t s, x, y, z m]: where the scout believes it walked
         "speed_cmd_mps": cfg.speed,
         "fell": bool(scout.fell),
         "fall_xy": list(scout.hardware.fall_xy) if scout.hardware.fall_xy else None,
@@ -321,12 +342,12 @@ def run_scout(
         if scout.config.state_source == "estimate"
         else None,
         "final_xy": [float(pos[0]), float(pos[1])],
-        "distance_m": round(distance, 3),
-        "mean_speed_mps": round(distance / walked, 4) if walked > 0 else 0.0,
+        "distance_m": round(tally.distance, 3),
+        "mean_speed_mps": round(tally.distance / walked, 4) if walked > 0 else 0.0,
         "sim_seconds": round(scout.t, 3),
         "wall_seconds": round(wall, 2),
         "real_time_factor": round(scout.t / wall, 2) if wall > 0 else None,
-        "nonfoot_contact_ticks": int(nonfoot_ticks),
+        "nonfoot_contact_ticks": int(tally.nonfoot_ticks),
         "friction": world.friction.to_dict(),
         "state_source": scout.config.state_source,
         "sensors": scout.config.sensors.profile,
@@ -341,11 +362,13 @@ def run_scout(
             "error_xy_m": _r4(math.hypot(scout.launch.x - world.start[0], scout.launch.y - world.start[1])),
             "error_yaw_deg": _r4(math.degrees(scout.launch.yaw - world.start[2])),
         },
-        **drift(sample, truth, distance),
-        **errors.summary(),
+        **drift(sample, truth, tally.distance),
+        **tally.errors.summary(),
         "energy_truth_j": round(scout.hardware.energy_true_j, 3),
-        "cot_whole_run_truth": _r4(scout.hardware.energy_true_j / (C.TOTAL_MASS * C.LUNAR_G * speed_path))
-        if speed_path > 0.05
+        "cot_whole_run_truth": _r4(
+            scout.hardware.energy_true_j / (C.TOTAL_MASS * C.LUNAR_G * tally.speed_path)
+        )
+        if tally.speed_path > 0.05
         else None,
     }
 
@@ -383,4 +406,4 @@ def terrain_stats(world: World) -> dict:
     return world.terrain.slope_stats()
 
 
-__all__ = ["SCENES", "drift", "ScoutRunConfig", "World", "build_world", "run_scout", "terrain_stats"]
+__all__ = ["SCENES", "drift", "ScoutRunConfig", "RunTally", "World", "build_world", "run_scout", "terrain_stats"]
