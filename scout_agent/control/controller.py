@@ -28,6 +28,9 @@ from scout_agent.robot.kinematics import leg_ik, leg_kinematics
 _NOMINAL_FEET = K.fk(C.HOME_Q)  # (4, 3) base frame
 _NOMINAL_FEET[:, 2] = 0.0
 _EPS = 1e-6  # added to the Jacobian's diagonal before solving with it
+# a state estimate's correction (a filter update that moves the position by more than its velocity explains,
+# a localization fix) larger than this in one tick moves the world-frame points the controller keeps [m]
+CORRECTION_FOLLOW_M = 0.002
 
 
 @dataclass(frozen=True)
@@ -401,6 +404,7 @@ class TrotController:
         self.hold = False
         self._frozen_at: float | None = None  # the gait time it stopped at [s]
         self._stand_feet: np.ndarray | None = None  # (4, 2) centred feet, base frame, when it froze [m]
+        self.corrections_followed = 0  # ticks whose estimate correction moved the kept points
 
     def set_command(self, forward_speed: float, yaw_rate: float) -> None:
         self.v_cmd = forward_speed
@@ -448,7 +452,27 @@ class TrotController:
         self.sched_td_t = np.zeros(4)
         self.targets = feet_w.copy()  # (4, 3) current swing targets, world
         self.t0 = state.t
+        self._last_pos = np.array(state.pos, dtype=float)
+        self._last_vel = np.array(state.vel, dtype=float)
         self._initialized = True
+
+    def _follow_correction(self, s: RobotState, dt: float) -> None:
+        """Move the world-frame points this controller keeps (footholds, lift-off points, swing targets, the
+        trunk's position reference) with a correction of the state estimate: they were placed with the estimate
+        before it. Else the correction itself drives the trunk: a filter update that moves the estimated height
+        by −0.09 m raises the foothold plane's target height by as much, and at lunar g that thrust lifts the
+        feet off a crater wall (the 100 m walks' falls, docs/results.md issue 23). The correction is the part
+        of the position change its velocity does not explain; below `CORRECTION_FOLLOW_M` it is left alone
+        (ordinary walking)."""
+        jump = np.asarray(s.pos, dtype=float) - self._last_pos - 0.5 * (s.vel + self._last_vel) * dt
+        self._last_pos = np.array(s.pos, dtype=float)
+        self._last_vel = np.array(s.vel, dtype=float)
+        if float(jump @ jump) > CORRECTION_FOLLOW_M**2:
+            self.footholds += jump
+            self.liftoff += jump
+            self.targets += jump
+            self._ref[:2] += jump[:2]
+            self.corrections_followed += 1
 
     def plane(self) -> tuple[np.ndarray, float]:
         """Foothold plane z = g·(x, y) + c through the last footholds (foot-sphere centres)."""
@@ -457,6 +481,8 @@ class TrotController:
     def step(self, s: RobotState, dt: float) -> ControlOutput:
         if not self._initialized:
             self.reset(s)
+        else:
+            self._follow_correction(s, dt)
         g = self.gait.config
         phase, sched, sw = np.empty(4), np.empty(4, bool), np.empty(4)
         if not self.hold:

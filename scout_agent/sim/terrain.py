@@ -251,8 +251,20 @@ class LunarConfig:
         (0.15, 0.4, 0.15),
     )
     crossable_depth_ratio: tuple[float, float] = (0.08, 0.15)  # depth/diameter near routes (walls ≤ 25°)
-    hazard_depth_ratio: tuple[float, float] = (0.25, 0.4)  # depth/diameter of large craters off routes
+    # depth/diameter of large craters off routes: fresh simple craters, d/D ≈ 0.2 (Pike 1977: 0.196); no lunar
+    # crater is deeper (the cosine bowl's steepest wall is π·d/D: 0.21 → 33°, the regolith's angle of repose)
+    hazard_depth_ratio: tuple[float, float] = (0.17, 0.21)
     fresh_depth_ratio: tuple[float, float] = (0.12, 0.2)  # smaller craters off routes (fresh: ≈ 0.2)
+    # craters larger than the paper's classes, drawn where the field holds them (radius ≤ `large_max_field_frac`
+    # of its side: none on the 20 m field, up to 10 m radius on 100 m, 20 m on 200 m): the lunar equilibrium
+    # population, cumulative N(≥D) = `equilibrium_k` · D⁻² per m² (D in m; Trask 1966, Gault 1970; Minton et al.
+    # 2019: ∝ r⁻²), in octaves of radius from `large_min_radius_m`. At these sizes that population is
+    # degraded by diffusion (Minton et al. 2019), d/D `degraded_depth_ratio` (Ivanov 2018's small craters' aging
+    # review: d/D falls from ≈ 0.2 towards 0.05), walls ≤ 18°; they superpose, the smaller craters lie on them.
+    equilibrium_k: float = 10**-1.1
+    large_min_radius_m: float = 2.5
+    large_max_field_frac: float = 0.1
+    degraded_depth_ratio: tuple[float, float] = (0.04, 0.1)
     rim_ratio: float = 0.15  # rim height / depth
     rock_clusters_per_m2: float = 0.03
     rocks_per_cluster: float = 6.0
@@ -343,6 +355,8 @@ def make_lunar(cfg: LunarConfig = LunarConfig()) -> Terrain:
             rim = cfg.rim_ratio * depth * np.exp(-(((rho - 1.0) / 0.35) ** 2))
             z[i0:i1, j0:j1] += bowl + rim
 
+    craters.extend(_large_craters(cfg, z, X, Y, routes_arr))
+
     # rocks: Thomas cluster process of smooth bumps (σ ≥ 1.6·height keeps shoulders ≤ ~21°)
     rocks = []
     for _ in range(rng.poisson(cfg.rock_clusters_per_m2 * area)):
@@ -398,6 +412,50 @@ def make_lunar(cfg: LunarConfig = LunarConfig()) -> Terrain:
         },
     )
     return terrain
+
+
+def large_crater_classes(cfg: LunarConfig) -> list[tuple[float, float, float]]:
+    """(min radius, max radius, density per m²) of the degraded craters larger than the paper's classes that
+    a `cfg.size_m` field holds: octaves of radius from `large_min_radius_m` up to `large_max_field_frac` of the
+    side, each with the equilibrium density N(≥2 r_min) − N(≥2 r_max)."""
+    out = []
+    top = cfg.large_max_field_frac * cfg.size_m
+    r = cfg.large_min_radius_m
+    while r < top:
+        r1 = min(2.0 * r, top)
+        out.append((r, r1, cfg.equilibrium_k * ((2.0 * r) ** -2 - (2.0 * r1) ** -2)))
+        r = r1
+    return out
+
+
+def _large_craters(cfg: LunarConfig, z: np.ndarray, X: np.ndarray, Y: np.ndarray, routes_arr) -> list[dict]:
+    """Carve `large_crater_classes` into z (in place), with their own random stream (the paper's classes and
+    rocks draw the same numbers at every field size); they keep clear of the route ends' flat patches."""
+    rng = np.random.default_rng([cfg.seed, 1])
+    n = z.shape[0]
+    out = []
+    for rmin, rmax, density in large_crater_classes(cfg):
+        for _ in range(rng.poisson(density * cfg.size_m**2)):
+            # sizes within the class follow the same r⁻² law (inverse-CDF of the cumulative r⁻²)
+            u = rng.uniform()
+            r = 1.0 / np.sqrt(rmin**-2 - u * (rmin**-2 - rmax**-2))
+            cx, cy = rng.uniform(0, cfg.size_m, 2)
+            ratio = rng.uniform(*cfg.degraded_depth_ratio)
+            ends = min(np.hypot(cx - e[0], cy - e[1]) for rt in routes_arr for e in (rt[0], rt[-1]))
+            if ends < r * 1.3 + cfg.spawn_radius_m + 0.5:
+                continue
+            depth = ratio * 2 * r
+            out.append(
+                {"x": float(cx), "y": float(cy), "r": float(r), "depth": float(depth), "hazard": False}
+            )
+            win = r * 2.0
+            i0, i1 = int(max(0, (cy - win) / cfg.res)), int(min(n, (cy + win) / cfg.res + 2))
+            j0, j1 = int(max(0, (cx - win) / cfg.res)), int(min(n, (cx + win) / cfg.res + 2))
+            rho = np.hypot(X[i0:i1, j0:j1] - cx, Y[i0:i1, j0:j1] - cy) / r
+            bowl = np.where(rho < 1.0, -depth * 0.5 * (1.0 + np.cos(np.pi * np.minimum(rho, 1.0))), 0.0)
+            rim = cfg.rim_ratio * depth * np.exp(-(((rho - 1.0) / 0.35) ** 2))
+            z[i0:i1, j0:j1] += bowl + rim
+    return out
 
 
 class _Buckets:

@@ -88,3 +88,38 @@ def test_short_ramp_up_platform_down():
 def test_short_lunar_leg():
     s = run_scout(ScoutRunConfig(scene="lunar", seed=1, start=(1.5, 1.5), goal=(4.5, 4.5)), progress=False)
     assert s["reached_goal"] and not s["fell"]
+
+
+def test_controller_moves_its_world_points_with_a_state_estimate_correction():
+    """A filter update or a localization fix moves the estimate by more than its velocity explains; the
+    controller's footholds, lift-off points and trunk reference move with it, so the trunk is driven the same
+    as without the jump (before: a −0.09 m height correction became an upward thrust that lifted the feet off
+    a crater wall at lunar g)."""
+    from scout_agent.control.controller import RobotState, TrotController
+    from scout_agent.robot import constants as C
+
+    q = np.array(C.HOME_Q, dtype=float)
+    R = np.eye(3)
+
+    def state(t: float, pos) -> RobotState:
+        return RobotState(t, np.asarray(pos, float), R, np.array([0.1, 0.0, 0.0]), np.zeros(3), q,
+                          np.zeros(12), np.ones(4, bool))  # fmt: skip
+
+    dt = 0.01
+    plain, jumped = TrotController(), TrotController()
+    jump = np.array([0.15, -0.1, -0.09])
+    outs = {}
+    for name, ctl in (("plain", plain), ("jumped", jumped)):
+        ctl.set_command(0.1, 0.0)
+        ctl.step(state(0.0, (0.0, 0.0, 0.33)), dt)
+        shift = jump if name == "jumped" else np.zeros(3)
+        outs[name] = ctl.step(state(dt, np.array((0.001, 0.0, 0.33)) + shift), dt)
+    np.testing.assert_allclose(jumped.footholds - plain.footholds, np.tile(jump, (4, 1)), atol=1e-12)
+    np.testing.assert_allclose(outs["jumped"].stance_forces, outs["plain"].stance_forces, atol=1e-6)
+    assert jumped.corrections_followed == 1 and plain.corrections_followed == 0
+    # ordinary walking (the position follows the velocity) moves nothing
+    again = TrotController()
+    again.set_command(0.1, 0.0)
+    for k in range(5):
+        again.step(state(k * dt, (0.1 * k * dt, 0.0, 0.33)), dt)
+    assert again.corrections_followed == 0

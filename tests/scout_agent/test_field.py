@@ -74,3 +74,30 @@ def test_orbital_dem_is_coarse_noisy_biased_and_reads_back(big, tmp_path) -> Non
 def test_bad_orbital_dem_config_is_refused() -> None:
     with pytest.raises(ValueError, match="pixel_m > 0"):
         OrbitalDemConfig(pixel_m=0.0)
+
+
+def test_crater_statistics_stay_lunar_at_any_size(big) -> None:
+    """Against the figures the generator states (`LunarConfig`): no crater deeper than a fresh one (d/D ≤ 0.21,
+    Pike 1977), so no crater wall steeper than π·0.21 ≈ 33°; the craters larger than the paper's classes follow
+    the lunar equilibrium N(≥D) = K·D⁻² and are degraded; no size class holds more than the equilibrium."""
+    cfg = LunarConfig(seed=21, size_m=100.0)
+    craters = big.info["craters"]
+    r = np.array([c["r"] for c in craters])
+    dd = np.array([c["depth"] / (2 * c["r"]) for c in craters])
+    hazard = np.array([c["hazard"] for c in craters])
+    assert cfg.hazard_depth_ratio[1] <= 0.21 and dd.max() <= 0.21 + 1e-9
+    assert np.all((dd[hazard] >= 0.17) & (dd[hazard] <= 0.21))
+    # the steepest wall of the steepest bowl (cosine profile: slope π·d/D) is the regolith's angle of repose
+    assert np.degrees(np.arctan(np.pi * dd.max())) < 34.0
+    large = r >= cfg.large_min_radius_m
+    assert np.all((dd[large] >= 0.04) & (dd[large] <= 0.1))
+    assert r.max() <= 0.1 * cfg.size_m
+    # the large classes' count is the equilibrium's over the field (Poisson, a few fall on the route ends)
+    expected = cfg.equilibrium_k * ((2 * 2.5) ** -2 - (2 * 10.0) ** -2) * cfg.size_m**2
+    assert expected - 4 * np.sqrt(expected) <= large.sum() <= expected + 4 * np.sqrt(expected)
+    # cumulative density at or below the equilibrium at every diameter (a surface holds no more)
+    for d_m in (0.3, 0.8, 1.5, 5.0, 10.0):
+        lam = cfg.equilibrium_k * d_m**-2 * cfg.size_m**2
+        assert (2 * r >= d_m).sum() <= lam + 4 * np.sqrt(lam), d_m
+    # the paper's 20 m field holds none of the large classes (its relief stands for them)
+    assert max(c["r"] for c in make_lunar(LunarConfig(seed=21)).info["craters"]) <= 1.25
