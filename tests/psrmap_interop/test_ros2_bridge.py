@@ -308,6 +308,19 @@ def _start_bridge(cfg: BridgeConfig, stop: threading.Event) -> tuple[threading.T
     return t, done
 
 
+def _bridge_publishing(
+    cfg: BridgeConfig, stop: threading.Event, maps: list[int]
+) -> tuple[threading.Thread, list[dict]]:
+    """`_start_bridge`, returning once the bridge's first GridMap is on the wire (`maps` counts them)."""
+    seen = len(maps)
+    t, done = _start_bridge(cfg, stop)
+    if not wait_until(lambda: len(maps) > seen):
+        stop.set()
+        t.join(timeout=20)
+        raise AssertionError("the bridge published no first map")
+    return t, done
+
+
 def test_the_bridge_requeries_only_when_a_tile_in_its_box_changed(router, served_map) -> None:
     """Issue 16: the bridge follows the servers' tile-change notices. A change 100 m away (another tile)
     costs no query and publishes nothing; a change inside the box is published within a tick."""
@@ -317,9 +330,8 @@ def test_the_bridge_requeries_only_when_a_tile_in_its_box_changed(router, served
         stop = threading.Event()
         cfg = BridgeConfig(map_id, (0.0, -1.0, 4.0, 2.4), (router,), rate_hz=10.0, resync_s=60.0)
         maps = _grid_maps_seen(client)
-        t, done = _start_bridge(cfg, stop)
+        t, done = _bridge_publishing(cfg, stop, maps)
         try:
-            assert wait_until(lambda: len(maps) >= 1), "the bridge published no first map"
             far = np.arange(250, 260)  # 100 m east: tile (3, 0), outside the box
             for seq in range(1, 6):
                 _put_cells(client, map_id, seq, far, np.zeros(10, int))
@@ -329,8 +341,7 @@ def test_the_bridge_requeries_only_when_a_tile_in_its_box_changed(router, served
             t.join(timeout=20)
             outside = done[0]
             stop.clear()
-            t, done = _start_bridge(cfg, stop)
-            assert wait_until(lambda: len(maps) >= 2), "the second bridge published no first map"
+            t, done = _bridge_publishing(cfg, stop, maps)
             _put_cells(client, map_id, 6, np.array([3, 4]), np.array([1, 1]))  # inside the box
             _merged(client, map_id, 7)
             time.sleep(1.5)
@@ -363,9 +374,8 @@ def test_a_lost_notice_is_caught_by_the_resync(router, tmp_path) -> None:
         stop = threading.Event()
         cfg = BridgeConfig(map_id, (0.0, -1.0, 4.0, 2.4), (router,), rate_hz=10.0, resync_s=0.5)
         maps = _grid_maps_seen(client)
-        t, done = _start_bridge(cfg, stop)
+        t, done = _bridge_publishing(cfg, stop, maps)
         try:
-            assert wait_until(lambda: len(maps) >= 1), "the bridge published no first map"
             _put_cells(client, map_id, 1, np.array([3]), np.array([1]))
             _merged(client, map_id, 2)
             assert wait_until(lambda: len(maps) >= 2), "the resync did not republish the changed map"
