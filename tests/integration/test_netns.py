@@ -1,14 +1,15 @@
 """Across hosts: a base host (router + two map shards), a scout host (its own router meshed to the base, a
 scout publishing deltas) and a rover host (`psrmap query`), each a Linux network namespace joined to the base
 by a veth link. The scout host's link is cut for 10 s mid-walk and restored: the scout keeps measuring,
-buffers, resends; the map the rover reads holds every delta exactly once. Run twice: on a lab network
-(`--insecure`), and secured as the README's sharded section is (`psrmap secure init --robot-router s1`: every
+buffers, resends; the map the rover reads holds every delta exactly once. Run twice, side by side: on a lab
+network (`--insecure`), and secured as the README's sharded section is (`psrmap secure init --robot-router s1`: every
 agent logs in, the scout host's router logs in to the base as `s1-router`, the ACL at each router).
 
 Needs root and `ip netns` (CI and the development machine run as root); skips with the reason otherwise."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shutil
@@ -16,6 +17,8 @@ import subprocess
 import sys
 import time
 import uuid
+from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -56,9 +59,10 @@ def sh(*cmd: str) -> None:
     subprocess.run(cmd, check=True, capture_output=True)
 
 
-@pytest.fixture
-def hosts():
-    """Namespaces base, scout, rover; veth base<->scout (10.77.1.0/24) and base<->rover (10.77.2.0/24)."""
+@contextlib.contextmanager
+def network_hosts() -> Iterator[tuple[dict[str, str], dict[str, tuple[str, str, str]]]]:
+    """Namespaces base, scout, rover; veth base<->scout (10.77.1.0/24) and base<->rover (10.77.2.0/24).
+    Each call makes its own namespaces: two sets use the same addresses without meeting."""
     if os.geteuid() != 0 or shutil.which("ip") is None:
         pytest.skip("needs root and iproute2 (`ip netns`) to build test hosts as network namespaces")
     tag = uuid.uuid4().hex[:6]
@@ -94,9 +98,11 @@ def hosts():
         for name in made:
             subprocess.run(["ip", "netns", "del", name], check=False, capture_output=True)
         pytest.skip(f"cannot build network namespaces here: {exc.stderr.decode().strip()}")
-    yield ns, links
-    for name in made:  # deleting a namespace removes its veth ends (and their peers)
-        subprocess.run(["ip", "netns", "del", name], check=False, capture_output=True)
+    try:
+        yield ns, links
+    finally:
+        for name in made:  # deleting a namespace removes its veth ends (and their peers)
+            subprocess.run(["ip", "netns", "del", name], check=False, capture_output=True)
 
 
 def in_ns(ns: str, *args: str) -> subprocess.Popen:
@@ -110,9 +116,23 @@ def in_ns(ns: str, *args: str) -> subprocess.Popen:
     )
 
 
-@pytest.mark.parametrize("secured", [False, True], ids=["insecure", "secured"])
-def test_scout_host_link_cut_for_10s_loses_and_doubles_nothing(hosts, procs, tmp_path, secured):
+def test_scout_host_link_cut_for_10s_loses_and_doubles_nothing(procs, tmp_path):
+    """The lab network (`--insecure`) and the secured deployment side by side, each on hosts of its own: most
+    of a run is the scout's walk and the cut, waiting, so the two overlap."""
+    with network_hosts() as lab, network_hosts() as sec, ThreadPoolExecutor(2) as pool:
+        runs = {
+            name: pool.submit(_link_cut, hosts, procs, tmp_path / name, secured)
+            for name, hosts, secured in (("insecure", lab, False), ("secured", sec, True))
+        }
+        failures = {name: run.exception() for name, run in runs.items()}
+    for name, exc in failures.items():
+        if exc is not None:
+            raise AssertionError(f"{name} deployment: {exc}") from exc
+
+
+def _link_cut(hosts, procs: list[subprocess.Popen], tmp_path: Path, secured: bool) -> None:
     ns, links = hosts
+    tmp_path.mkdir()
     base_scout, base_rover = "tcp/10.77.1.1:7447", "tcp/10.77.2.1:7447"
     robot_ep = "tcp/10.77.1.2:7447"
     if secured:  # the README's secured deployment: credentials for every agent and the scout host's router
