@@ -35,7 +35,7 @@ from scout_agent.control.controller import ControllerConfig, RobotState
 from scout_agent.errors import ScoutConfigError
 from scout_agent.onboard.drivers import ContactDetection
 from scout_agent.onboard.software import ExactBase, OnboardConfig, OnboardSoftware
-from scout_agent.signals import GroundTruth, ProprioSample
+from scout_agent.signals import BaseState, GroundTruth, ProprioSample
 from scout_agent.sim.aliengo import HardwareConfig, SimulatedAliengo
 from scout_agent.sim.friction import FrictionMap
 from scout_agent.sim.scene import PhysicsConfig
@@ -144,29 +144,26 @@ class SimulatedScout:
         )
         truth = hardware.truth(stance_planned)
         if self.exact:  # evaluation only: the robot runs on the simulator's state
-            sample = robot.sense(readings, self._exact_base())
+            sample = robot.sense(readings, _exact_base(truth.base))
         else:
             sample = robot.sense(readings)
         return sample, truth
 
     # --------------------------------------------------------- state_source "exact": evaluation only
-    def _exact_base(self) -> ExactBase:
-        d = self.hardware.data
-        return ExactBase(
-            d.qpos[0:3].copy(),
-            d.qpos[3:7].copy(),
-            _rotation(d.qpos[3:7]),
-            d.qvel[0:3].copy(),
-            d.qvel[3:6].copy(),
-        )
-
     def _exact_state(self) -> RobotState:
-        """The simulator's exact state at power-on (joints too: there is no reading yet)."""
+        """The simulator's exact state at power-on, before the first tick's truth (joints too: no reading yet)."""
         d = self.hardware.data
-        b = self._exact_base()
+        b = _exact_base(
+            BaseState(d.qpos[0:3].copy(), d.qpos[3:7].copy(), d.qvel[0:3].copy(), d.qvel[3:6].copy())
+        )
         return RobotState(
             self.t, b.pos, b.R, b.vel, b.omega, d.qpos[7:].copy(), d.qvel[6:].copy(), np.zeros(4, bool)
         )
+
+
+def _exact_base(base: BaseState) -> ExactBase:
+    """The truth channel's base state as the robot takes it for `state_source="exact"` (evaluation only)."""
+    return ExactBase(base.pos, base.quat, _rotation(base.quat), base.vel, base.omega)
 
 
 def _rotation(quat: np.ndarray) -> np.ndarray:

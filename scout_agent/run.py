@@ -406,4 +406,13 @@ def terrain_stats(world: World) -> dict:
     return world.terrain.slope_stats()
 
 
-__all__ = ["SCENES", "drift", "ScoutRunConfig", "RunTally", "World", "build_world", "run_scout", "terrain_stats"]
+__all__ = [
+    "SCENES",
+    "drift",
+    "ScoutRunConfig",
+    "RunTally",
+    "World",
+    "build_world",
+    "run_scout",
+    "terrain_stats",
+]
