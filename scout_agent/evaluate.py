@@ -143,7 +143,7 @@ class Evaluator:
     def on_hazard(self, felt: Any) -> None:
         self.mapper.record_hazard(felt.x, felt.y, felt.reasons)
 
-    def on_tick(self, sample: ProprioSample, truth: GroundTruth, sim: Any = None) -> TickEstimates:
+    def on_tick(self, sample: ProprioSample, truth: GroundTruth, robot: object = None) -> TickEstimates:
         self.ticks += 1
         planned = sample.stance_planned
         contact = sample.contact

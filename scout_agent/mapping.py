@@ -28,6 +28,7 @@ from scout_agent.control.reflex import Felt
 from scout_agent.errors import ScoutConfigError
 from scout_agent.estimators import EstimatorPipeline, PipelineConfig, TickEstimates, record
 from scout_agent.estimators.feet import PinocchioFeet
+from scout_agent.onboard.software import OnboardSoftware
 from scout_agent.outbox import default_outbox_path
 from scout_agent.publisher import ScoutPublisher
 from scout_agent.signals import ProprioSample
@@ -155,13 +156,6 @@ class Mapper:
         return out
 
 
-def _placement_sigma(scout: Any) -> float | None:
-    """The horizontal position σ [m] the scout's own estimator gives itself
-    (`onboard.OnboardSoftware.position_sigma_m`; None on the exact state, or without the robot's software)."""
-    robot = getattr(scout, "robot", None)
-    return None if robot is None else robot.position_sigma_m()
-
-
 def add_mapping_arguments(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("mapping")
     g.add_argument("--map", metavar="ID", type=id_arg("map"), help="map id to publish to (with --connect)")
@@ -209,14 +203,16 @@ class MappingSession:
         self.summary: dict | None = None
 
     def on_tick(
-        self, sample: ProprioSample, truth: object = None, sim: object = None
+        self, sample: ProprioSample, truth: object = None, robot: OnboardSoftware | None = None
     ) -> TickEstimates | None:
-        """Feed one tick; returns its estimates (the pilot feels them), None without a map."""
+        """Feed one tick; returns its estimates (the pilot feels them), None without a map. `robot`: the
+        software that made the sample; its estimator's position σ places the tick's cells (none without it,
+        or on the exact state)."""
         if self.chained is not None:
-            self.chained(sample, truth, sim)
+            self.chained(sample, truth, robot)
         if self.mapper is None:
             return None
-        est = self.mapper.update(sample, _placement_sigma(sim))
+        est = self.mapper.update(sample, robot.position_sigma_m() if robot is not None else None)
         if self.on_estimates is not None:
             self.on_estimates(est)
         return est

@@ -3,7 +3,7 @@
 `run_scout` steps a `loop.SimulatedScout` (the simulated Aliengo and the robot's software joined tick by tick)
 and drives it with the robot's pilot (`control.pilot`) and localizer (`localization`), which read only the
 robot's own records (`ProprioSample`, the estimate). `run_scout(config, on_tick=callback)` calls
-`callback(sample, truth, scout)` every control tick, so the map estimators and the map publisher plug into the
+`callback(sample, truth, robot)` every control tick, so the map estimators and the map publisher plug into the
 same loop the `scout` command uses; `truth` and the summary's ground-truth figures are evaluation only.
 """
 
@@ -28,6 +28,7 @@ from scout_agent.estimators import TickEstimates
 from scout_agent.localization import LOCALIZE_MODES, DemReference, Localizer, LocalizerConfig, height_datum
 from scout_agent.localization.localizer import MapSource
 from scout_agent.loop import SimConfig, SimulatedScout
+from scout_agent.onboard.software import OnboardSoftware
 from scout_agent.robot import constants as C
 from scout_agent.signals import GroundTruth, ProprioSample
 from scout_agent.sim.dem import OrbitalDemConfig, write_orbital_dem
@@ -53,7 +54,9 @@ from scout_agent.state_estimation.launch import HeightDatum
 from scout_agent.state_estimation.standstill import StandstillPlanner
 
 SCENES = ("ramps", "lunar")
-OnTick = Callable[[ProprioSample, GroundTruth, SimulatedScout], object]  # may return the tick's TickEstimates
+OnTick = Callable[
+    [ProprioSample, GroundTruth, OnboardSoftware], object
+]  # may return the tick's TickEstimates
 OnHazard = Callable[[Felt], object]
 
 
@@ -306,7 +309,7 @@ def run_scout(
         # the robot's software reads its own record: pose fixes, then the map estimates, then the hazards felt
         if localizer is not None:  # before the mapper: what it publishes next is placed corrected
             localizer.on_tick(sample)
-        est = on_tick(sample, truth, scout) if on_tick is not None else None
+        est = on_tick(sample, truth, robot) if on_tick is not None else None
         felt = pilot.feel(sample, est if isinstance(est, TickEstimates) else None)
         if felt is not None and on_hazard is not None:
             on_hazard(felt)
