@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -205,6 +205,9 @@ class Pilot:
         return any(math.hypot(x - hx, y - hy) < near for hx, hy in self.hazards)
 
     def _stop(self, felt: Felt, x: float, y: float) -> None:
+        if not (math.isfinite(felt.x) and math.isfinite(felt.y)):
+            # felt with no estimates to place it (attitude alone, no slip or margin this tick): where the base is
+            felt = replace(felt, x=x, y=y)
         self.stops.append(
             {
                 "x": round(felt.x, 3),

@@ -106,6 +106,8 @@ def test_walking_into_a_hazard_crater_is_a_reported_fall():
         progress=False,
     )
     assert s["fell"] and not s["reached_goal"]
+    for stop in s["hazard_stops"]:  # every stop is placed (map frame, estimated), attitude alone included
+        assert np.hypot(stop["x"] - x, stop["y"] - y) < crater["r"] + 1.0, stop
     assert np.hypot(s["fall_xy"][0] - x, s["fall_xy"][1] - y) < crater["r"] + 0.5
 
 
