@@ -6,21 +6,26 @@ import argparse
 import dataclasses
 import json
 import logging
+import math
 import sys
 from collections.abc import Sequence
 from dataclasses import replace
 from typing import TYPE_CHECKING
 
+from map_server.errors import MapServerConfigError
 from map_server.limits import Limits
 from protocol.keys import id_arg
 from psrmap_common.cli_parser import Parser, Subparsers, non_negative_int, positive_int, run_command
 from psrmap_common.defaults import DEFAULT_RES_M
 from psrmap_common.errors import UsageError
 from psrmap_common.link import Link, add_link_arguments, link_from_args, open_link, split_endpoints
-from psrmap_common.session import endpoint_arg
+from psrmap_common.session import endpoint_arg, file_endpoints
 
 if TYPE_CHECKING:
     from map_server.service import MapService, ServerConfig
+
+# Imports inside functions here are deliberate: `psrmap router --help` loads no Zenoh or numpy
+# (tests/test_cli.py).
 
 __all__ = ["main", "register"]
 
@@ -29,8 +34,6 @@ log = logging.getLogger("map_server")
 
 def _file_endpoints(args: argparse.Namespace, kind: str) -> tuple[str, ...]:
     """The endpoints of kind `connect`/`listen` named in `--zenoh-config`, or a usage error if unreadable."""
-    from psrmap_common.session import file_endpoints
-
     try:
         return file_endpoints(getattr(args, "zenoh_config", None), kind)
     except ValueError as exc:
@@ -48,7 +51,7 @@ def _logging(args: argparse.Namespace) -> None:
 def cmd_router(args: argparse.Namespace) -> int:
     _logging(args)
     listen = split_endpoints(args.listen)
-    from map_server.component import stop_on_signals  # lazy: --help stays light (tests/test_cli.py)
+    from map_server.component import stop_on_signals
 
     stop = stop_on_signals()
     link = Link(split_endpoints(args.connect), args.zenoh_config)
@@ -60,8 +63,6 @@ def cmd_router(args: argparse.Namespace) -> int:
 
 
 def _bbox(text: str) -> tuple[float, float, float, float]:
-    import math
-
     try:
         x0, y0, x1, y1 = (float(v) for v in text.split(","))
     except ValueError:
@@ -73,7 +74,7 @@ def _bbox(text: str) -> tuple[float, float, float, float]:
 
 def server_config(args: argparse.Namespace) -> ServerConfig:
     """The parsed `psrmap server` options as a ServerConfig."""
-    from map_server.service import ServerConfig  # lazy: --help stays light (tests/test_cli.py)
+    from map_server.service import ServerConfig
 
     return replace(
         ServerConfig(),
@@ -99,9 +100,6 @@ def server_config(args: argparse.Namespace) -> ServerConfig:
 
 
 def cmd_server(args: argparse.Namespace) -> int:
-    from map_server import component  # lazy: --help stays light (tests/test_cli.py)
-    from map_server.errors import MapServerConfigError
-
     _logging(args)
     if not link_from_args(args, required=False).connect and not args.listen:
         raise UsageError(
@@ -128,8 +126,10 @@ def cmd_server(args: argparse.Namespace) -> int:
         print(json.dumps({"server": "up", "map": cfg.map_id, "cells": service.cells,
                           "replayed": service.replayed}), flush=True)  # fmt: skip
 
+    from map_server.component import run as run_server
+
     try:
-        summary = component.run(cfg, on_up=up)
+        summary = run_server(cfg, on_up=up)
     except MapServerConfigError as exc:
         raise UsageError(str(exc)) from None
     return summary.exit_code
@@ -137,10 +137,7 @@ def cmd_server(args: argparse.Namespace) -> int:
 
 def cmd_remove(args: argparse.Namespace) -> int:
     """Remove one scout's (or epoch's) contributions from a stopped server's database, exactly."""
-    from map_server.removal import (  # lazy: --help stays light (tests/test_cli.py)
-        RemovalError,
-        remove_contributions,
-    )
+    from map_server.removal import RemovalError, remove_contributions
 
     if args.scout is None and args.epoch is None:
         raise UsageError("give --scout ID and/or --epoch E: whose contributions to remove")

@@ -15,6 +15,8 @@ from dataclasses import dataclass
 from map_server.errors import MapServerConfigError
 from protocol.errors import DEFAULT_MAX_BYTES
 
+# Imports inside functions here are deliberate: `psrmap router --help` loads no numpy (tests/test_cli.py).
+
 
 @dataclass(frozen=True)
 class Limits:
@@ -42,7 +44,7 @@ def default_tile_budget_mib(total_bytes: int | None = None) -> float:
     """The hot-tile budget a server takes when none is given: 1/16 of the machine's physical memory, within
     [64, 256] MiB (256 MiB ≈ 290 tiles of 64×64 cells, all layers: far more than the scouts' working set)."""
     if total_bytes is None:
-        import psutil  # lazy: --help stays light (tests/test_cli.py)
+        import psutil
 
         total_bytes = int(psutil.virtual_memory().total)
     return float(min(TILE_BUDGET_MIB_MAX, max(TILE_BUDGET_MIB_MIN, total_bytes / 16 / 2**20)))
@@ -50,7 +52,7 @@ def default_tile_budget_mib(total_bytes: int | None = None) -> float:
 
 def tile_bytes(tile: int) -> int:
     """Memory of one tile of `tile`×`tile` cells holding every layer (8-byte stats + an occupancy byte)."""
-    from protocol.layers import LAYERS  # lazy: --help stays light (tests/test_cli.py)
+    from protocol.layers import LAYERS
 
     return tile * tile * (8 * sum(len(layer.stats) for layer in LAYERS.values()) + 1)
 

@@ -17,19 +17,22 @@ from protocol.errors import MAX_CLIENT_CELLS
 from protocol.keys import id_arg
 from psrmap.export import add_out_arguments, format_of, origin_from_args, write_export
 from psrmap_common.cli_parser import Subparsers, positive_float, positive_int
-from psrmap_common.errors import UsageError
+from psrmap_common.errors import QueryError, UsageError
 from psrmap_common.link import Link, add_link_arguments, link_from_args, open_link
 
 if TYPE_CHECKING:
     from psrmap_common.trust import Trust
     from psrmap_mapcore import LayerGrid
 
+# Imports inside functions here are deliberate: `psrmap status/query --help` load no Zenoh or numpy
+# (tests/test_cli.py).
+
 __all__ = ["cmd_query", "cmd_status", "register"]
 
 
 def _trust(link: Link) -> Trust:
     """Whose replies to believe (psrmap_common.trust): the servers.json beside --zenoh-config, if there is one."""
-    from psrmap_common.trust import load_trust  # lazy: --help stays light (tests/test_cli.py)
+    from psrmap_common.trust import load_trust
 
     try:
         return load_trust(None, link.zenoh_config)
@@ -39,10 +42,7 @@ def _trust(link: Link) -> Trust:
 
 def cmd_status(args: argparse.Namespace) -> int:
     """The map's status; for a sharded map the aggregate over its shards, each shard's own under `shards`."""
-    from psrmap_common.query import (  # lazy: --help stays light (tests/test_cli.py)
-        aggregate_status,
-        get_statuses,
-    )
+    from psrmap_common.query import aggregate_status, get_statuses
 
     link = link_from_args(args)
     trust = _trust(link)
@@ -66,8 +66,7 @@ def _box(args: argparse.Namespace, link: Link, trust: Trust) -> tuple[float, flo
         except ValueError:
             raise UsageError(f"--box {args.box!r}: give x0,y0,x1,y1 in map-frame metres") from None
         return x0, y0, x1, y1
-    from psrmap_common.errors import QueryError
-    from psrmap_common.query import get_statuses, map_extent  # lazy: --help stays light (tests/test_cli.py)
+    from psrmap_common.query import get_statuses, map_extent
 
     with open_link(link) as s:
         try:
@@ -83,8 +82,7 @@ def _region(
     """The box from every server (shard) that answers, stitched (`psrmap_common.region.fetch_region`, as the planner
     and the bridge fetch it: each reply's size and box checked before anything is allocated); None (said why)
     when there is none or a reply is bad."""
-    from psrmap_common.errors import QueryError
-    from psrmap_common.region import NoAnswer, fetch_region  # lazy: --help stays light (tests/test_cli.py)
+    from psrmap_common.region import NoAnswer, fetch_region
 
     layers = tuple(args.layers.split(",")) if args.layers else None
     with open_link(link) as s:
@@ -101,7 +99,7 @@ def _region(
 
 
 def _layer_summary(stats: dict[str, Any]) -> dict[str, Any]:
-    import numpy as np  # lazy: --help stays light (tests/test_cli.py)
+    import numpy as np
 
     n = stats.get("n")
     entry: dict[str, Any] = {"cells_with_data": int(np.count_nonzero(n > 0)) if n is not None else None}

@@ -26,13 +26,18 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from protocol.keys import id_arg
+from psrmap.ros2 import box_arg
 from psrmap_common.cli_parser import Subparsers
 from psrmap_common.errors import UsageError
-from psrmap_common.link import link_from_args
+from psrmap_common.link import add_link_arguments, link_from_args
 
 if TYPE_CHECKING:
-    from psrmap_interop.geotiff import MoonOrigin  # lazy: `psrmap query --help` imports this module
-    from psrmap_mapcore import LayerGrid  # lazy: `psrmap query --help` imports this module
+    from psrmap_interop.geotiff import MoonOrigin
+    from psrmap_mapcore import LayerGrid
+
+# Imports inside functions here are deliberate: `psrmap query --help` imports this module and loads no
+# Zenoh, numpy or planner (tests/test_cli.py).
 
 __all__ = ["FORMATS", "export_geotiff", "export_mcap", "format_of", "register", "write_export"]
 
@@ -60,10 +65,10 @@ def write_export(
     if fmt not in FORMATS:
         raise UsageError(f"--format {fmt!r}; formats: {', '.join(FORMATS)}")
     if fmt == "npz":
-        from psrmap_mapcore import write_npz  # lazy: `psrmap query --help` imports this module
+        from psrmap_mapcore import write_npz
 
         return write_npz(out, grid)
-    from psrmap_mapcore import MapCoreError  # lazy: `psrmap query --help` imports this module
+    from psrmap_mapcore import MapCoreError
 
     try:
         for name in grid.layers:
@@ -79,7 +84,7 @@ def write_export(
 
 def export_geotiff(grid: LayerGrid, out: str | Path, origin: MoonOrigin | None = None) -> Path:
     """`grid` -> GeoTIFF at `out`."""
-    from psrmap_interop.geotiff import write_geotiff  # lazy: `psrmap query --help` imports this module
+    from psrmap_interop.geotiff import write_geotiff
 
     xa, ya, _, _ = grid.bounds_m()
     names = [n for n in grid.layers if n != "cost"]
@@ -91,7 +96,7 @@ def export_mcap(
     grid: LayerGrid, out: str | Path, run_summary: dict | None = None, stamp_ns: int | None = None
 ) -> Path:
     """`grid` (and a mission's summary: scouts' estimated paths, the plan) -> rosbag2/MCAP folder `out`."""
-    from consumer_planner.costs import build_costs  # lazy: `psrmap query --help` imports this module
+    from consumer_planner.costs import build_costs
     from psrmap_interop.ros2_messages import (
         GRID_MAP,
         OCCUPANCY_GRID,
@@ -100,10 +105,7 @@ def export_mcap(
         occupancy_grid_msg,
         path_msg,
     )
-    from psrmap_interop.rosbag import (  # lazy: `psrmap query --help` imports this module
-        BagMessage,
-        write_mcap_bag,
-    )
+    from psrmap_interop.rosbag import BagMessage, write_mcap_bag
 
     t0 = time.time_ns() if stamp_ns is None else stamp_ns
     xa, ya, _, _ = grid.bounds_m()
@@ -129,10 +131,6 @@ def export_mcap(
 
 
 def register(sub: Subparsers) -> None:
-    from protocol.keys import id_arg  # lazy: `psrmap query --help` imports this module
-    from psrmap.ros2 import box_arg  # lazy: `psrmap query --help` imports this module
-    from psrmap_common.link import add_link_arguments  # lazy: `psrmap query --help` imports this module
-
     p = sub.add_parser("export", help="write a map region as GeoTIFF (GIS) or rosbag2/MCAP (ROS tools)",
                        description=__doc__.split("\n\n")[0])  # fmt: skip
     add_out_arguments(p)
@@ -173,13 +171,13 @@ def add_out_arguments(p: argparse.ArgumentParser, required: bool = True) -> None
 
 def origin_from_args(args: argparse.Namespace) -> MoonOrigin | None:
     """The `--origin` (or `--config`'s [mission] origin) as an interop MoonOrigin, None without one."""
-    from psrmap_interop.geotiff import MoonOrigin  # lazy: `psrmap query --help` imports this module
+    from psrmap_interop.geotiff import MoonOrigin
 
     try:
         if args.origin:
             return MoonOrigin.parse(args.origin)
         if getattr(args, "config", None):
-            from psrmap.mission.config import load_config  # lazy: `psrmap query --help` imports this module
+            from psrmap.mission.config import load_config
 
             o = load_config(args.config).origin
             return MoonOrigin(*o) if o else None
@@ -189,7 +187,7 @@ def origin_from_args(args: argparse.Namespace) -> MoonOrigin | None:
 
 
 def _cmd(args: argparse.Namespace) -> int:
-    from psrmap_interop.geotiff import pam_path  # lazy: `psrmap query --help` imports this module
+    from psrmap_interop.geotiff import pam_path
 
     origin = origin_from_args(args)
     fmt = format_of(args.out, args.format)
@@ -214,8 +212,8 @@ def _cmd(args: argparse.Namespace) -> int:
 
 
 def _load(args: argparse.Namespace) -> LayerGrid:
-    from consumer_planner.errors import PlannerError  # lazy: `psrmap query --help` imports this module
-    from psrmap_mapcore import MapFileError, read_npz  # lazy: `psrmap query --help` imports this module
+    from consumer_planner.errors import PlannerError
+    from psrmap_mapcore import MapFileError, read_npz
 
     link = link_from_args(args, required=False)
     if (args.npz is None) == (not link.connect):
@@ -227,10 +225,7 @@ def _load(args: argparse.Namespace) -> LayerGrid:
             raise UsageError(str(exc)) from None
     if not args.map:
         raise UsageError("--connect needs --map ID")
-    from consumer_planner.client import (  # lazy: `psrmap query --help` imports this module
-        ClientConfig,
-        MapClient,
-    )
+    from consumer_planner.client import ClientConfig, MapClient
 
     cfg = ClientConfig(connect=link.connect, zenoh_config=link.zenoh_config)
     try:

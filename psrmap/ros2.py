@@ -22,9 +22,14 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
+from protocol.keys import id_arg
 from psrmap_common.cli_parser import Subparsers
-from psrmap_common.errors import UsageError
-from psrmap_common.link import link_from_args
+from psrmap_common.errors import QueryError, UsageError
+from psrmap_common.link import add_link_arguments, link_from_args
+from psrmap_common.session import zenoh_config
+
+# Imports inside functions here are deliberate: `psrmap export` and `psrmap query --help` import this module
+# and load no Zenoh, numpy or planner (tests/test_cli.py).
 
 __all__ = ["TOPICS", "BridgeConfig", "box_arg", "register", "ros_keys", "run_bridge"]
 
@@ -57,20 +62,14 @@ class BridgeConfig:
 
 def run_bridge(cfg: BridgeConfig, stop: threading.Event | None = None, log=print) -> dict[str, Any]:
     """Run until `stop` (or SIGTERM/SIGINT via the CLI), `once`, or `max_seconds`; returns what was published."""
-    import zenoh  # lazy: `psrmap export/query --help` import this module
+    import zenoh
 
-    from consumer_planner.client import (  # lazy: `psrmap export/query --help` import this module
-        ClientConfig,
-        RegionFollower,
-        query_region,
-    )
-    from consumer_planner.compare import plan_route  # lazy: `psrmap export/query --help` import this module
-    from consumer_planner.costs import build_costs  # lazy: `psrmap export/query --help` import this module
-    from consumer_planner.errors import PlannerError  # lazy: `psrmap export/query --help` import this module
-    from psrmap_common.errors import QueryError  # lazy: `psrmap export/query --help` import this module
-    from psrmap_common.query import map_extent  # lazy: `psrmap export/query --help` import this module
-    from psrmap_common.session import zenoh_config  # lazy: `psrmap export/query --help` import this module
-    from psrmap_interop.rmw_zenoh import RosNode  # lazy: `psrmap export/query --help` import this module
+    from consumer_planner.client import ClientConfig, RegionFollower, query_region
+    from consumer_planner.compare import plan_route
+    from consumer_planner.costs import build_costs
+    from consumer_planner.errors import PlannerError
+    from psrmap_common.query import map_extent
+    from psrmap_interop.rmw_zenoh import RosNode
     from psrmap_interop.ros2_messages import (
         GRID_MAP,
         OCCUPANCY_GRID,
@@ -159,17 +158,8 @@ def ros_keys(domain: int = 0, prefix: str = "/psrmap", node: str = NODE) -> dict
     """The keys a bridge on `domain` under `prefix` puts and declares (for the router's ACL, `psrmap.secure`):
     `<topic>` each topic's sample key, `<topic_token>` / `<node_token>` its publishers' and node's graph
     tokens (any session id), `<ros_graph>` the domain's whole graph."""
-    from psrmap_interop.rmw_zenoh import (  # lazy: `psrmap export/query --help` import this module
-        Qos,
-        node_token,
-        publisher_token,
-        topic_key,
-    )
-    from psrmap_interop.ros2_messages import (  # lazy: `psrmap export/query --help` import this module
-        GRID_MAP,
-        OCCUPANCY_GRID,
-        PATH,
-    )
+    from psrmap_interop.rmw_zenoh import Qos, node_token, publisher_token, topic_key
+    from psrmap_interop.ros2_messages import GRID_MAP, OCCUPANCY_GRID, PATH
 
     topics = [
         (f"{prefix.rstrip('/')}/{t}", ty)
@@ -206,9 +196,6 @@ def box_arg(text: str) -> tuple[float, float, float, float]:
 
 
 def register(sub: Subparsers) -> None:
-    from protocol.keys import id_arg  # lazy: `psrmap export/query --help` import this module
-    from psrmap_common.link import add_link_arguments  # lazy: `psrmap export/query --help` import this module
-
     p = sub.add_parser("ros2", help="publish the shared map, cost grid and plan to ROS 2 (rmw_zenoh)",
                        description=__doc__.split("\n\n")[0])  # fmt: skip
     p.add_argument("--map", required=True, type=id_arg("map"), help="map id")

@@ -14,8 +14,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-from psrmap_common.errors import UsageError
-from psrmap_common.session import endpoint_arg, file_endpoints
+from psrmap_common.errors import SessionError, UsageError
+from psrmap_common.session import endpoint_arg, file_endpoints, open_session, zenoh_config
 
 if TYPE_CHECKING:
     import zenoh
@@ -86,14 +86,6 @@ def open_link(
 ) -> zenoh.Session:
     """A Zenoh session on `link` (`mode` unless its config file names one), or a `UsageError` naming what would
     have worked: an unreadable config, an open listen without credentials, nothing listening at the endpoints."""
-    from psrmap_common.errors import (
-        SessionError,  # lazy: opens Zenoh; the flags' module stays light for --help
-    )
-    from psrmap_common.session import (  # lazy: opens Zenoh; the flags' module stays light for --help
-        open_session,
-        zenoh_config,
-    )
-
     try:
         conf = zenoh_config(
             link.connect, listen, None if link.zenoh_config else mode, link.zenoh_config, insecure

@@ -17,6 +17,9 @@ from psrmap_common.errors import InsecureListen, SessionError
 if TYPE_CHECKING:
     import zenoh
 
+# Imports inside functions here are deliberate: the light commands' --help load no Zenoh
+# (tests/test_cli.py).
+
 __all__ = [
     "MODES",
     "InsecureListen",
@@ -100,7 +103,7 @@ def file_endpoints(config_file: str | Path | None, kind: str = "connect") -> tup
     endpoint into every agent's file), () without a file; ValueError for an unreadable file."""
     if config_file is None:
         return ()
-    import zenoh  # lazy: --help stays light (tests/test_cli.py)
+    import zenoh
 
     try:
         eps = json.loads(zenoh.Config.from_file(str(config_file)).get_json(f"{kind}/endpoints") or "[]")
@@ -121,7 +124,7 @@ def zenoh_config(
 
     Raises `InsecureListen` when the result listens on a non-loopback endpoint with neither user/password
     authentication nor mutual TLS, unless `insecure`; ValueError for an unreadable file or unknown mode."""
-    import zenoh  # lazy: --help stays light (tests/test_cli.py)
+    import zenoh
 
     if mode is not None and mode not in MODES:
         raise ValueError(f"mode {mode!r}; modes: {', '.join(MODES)}")
@@ -170,7 +173,7 @@ def _authenticated(conf: zenoh.Config) -> bool:
 def open_session(conf: zenoh.Config) -> zenoh.Session:
     """`zenoh.open(conf)`, or a SessionError saying what went wrong: nothing listens at the endpoints, or a
     router answers there but refused the session (no credentials, or not ones it accepts)."""
-    import zenoh  # lazy: --help stays light (tests/test_cli.py)
+    import zenoh
 
     try:
         return zenoh.open(conf)
