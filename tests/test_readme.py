@@ -175,9 +175,9 @@ class Readme:
         elif sub == "router":  # a router on another host, meshed to the base
             self.net.local = free_port()
         args = [self.net.sub(a) for a in args]
-        if "runs/<ts>" in args:
-            assert self.mission.running() or self.mission.done(), f"`{cmd.text}`: no mission ran before it"
-            args = [str(self.mission.result()) if a == "runs/<ts>" else a for a in args]
+        if "runs/<ts>" in args:  # the mission's group sets it, or says why it never ran (_run_group)
+            run_dir = self.mission.result(timeout=900)
+            args = [str(run_dir) if a == "runs/<ts>" else a for a in args]
         if "--viewer" in args or "--connect-viewer" in args:
             return self._viewer(cmd, args)
         if sub in ("scout", "evaluate") and "--sim-seconds" not in args:
@@ -345,12 +345,21 @@ def _exports(cmds: list[Command]) -> dict[str, str]:
     return dict(c.argv[1].split("=", 1) for c in cmds if c.argv[0] == "export" and "=" in c.argv[1])
 
 
+def _runs_the_mission(cmd: Command) -> bool:
+    a = cmd.argv[cmd.argv.index("psrmap") + 1 :] if "psrmap" in cmd.argv else ()
+    return a[:1] == ("mission",) and "--viewer" not in a and "--connect-viewer" not in a
+
+
 def _run_group(r: Readme, cmds: list[Command]) -> Readme:
     try:
         for cmd in cmds:
             r.run(cmd)
     finally:
         r.stop()
+        started = r.mission.running() or r.mission.done()
+        if any(_runs_the_mission(c) for c in cmds) and not started:  # it stopped before its mission started
+            r.mission.set_running_or_notify_cancel()
+            r.mission.set_exception(RuntimeError("the README's mission never ran (its section failed first)"))
     return r
 
 
