@@ -269,10 +269,9 @@ class StateEstimator:
                 P[12 + i, 12 + i] += c.acc_tempco_std**2 * d2
         # g-sensitivity: the gyro's offset moves with the specific force's direction in the IMU (tilt on a
         # slope); since the last zero-rate update the bias variance grows by gs² × d|Δu|², u = Rᵀ(−g)
-        u = self.ekf.R.T @ -self.ekf.g
         if self._u_zaru is None:
-            self._u_zaru = u
-        du2 = float(np.sum((u - self._u_zaru) ** 2))
+            self._u_zaru = self.ekf.R.T @ -self.ekf.g
+        du2 = kernels.gravity_shift2(self.ekf.R, self.ekf.g, self._u_zaru)
         q = c.gyro_g_sens_std**2 * abs(du2 - self._du2_prev)
         self._du2_prev = du2
         for i in range(3):

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["imu_to_base", "propagate", "so3_exp", "update", "velocity_rows_many"]
+__all__ = ["gravity_shift2", "imu_to_base", "propagate", "so3_exp", "update", "velocity_rows_many"]
 
 
 @njit(cache=True, nogil=True)
@@ -182,3 +182,12 @@ def imu_to_base(
     out[1] = acc[1] - (wdot[2] * r[0] - wdot[0] * r[2]) - (w[2] * wr[0] - w[0] * wr[2])
     out[2] = acc[2] - (wdot[0] * r[1] - wdot[1] * r[0]) - (w[0] * wr[1] - w[1] * wr[0])
     return out
+
+
+@njit(cache=True, nogil=True)
+def gravity_shift2(R: np.ndarray, g: np.ndarray, u0: np.ndarray) -> float:
+    """|Rᵀ(−g) − u0|²: how far the specific force of standing still has turned in the base frame since it was
+    `u0` (the gyro's g-sensitivity term); numpy's `R.T @ -g` (the same BLAS product) and sum of squares."""
+    u = np.dot(np.ascontiguousarray(R.T), -g)
+    d0, d1, d2 = u[0] - u0[0], u[1] - u0[1], u[2] - u0[2]
+    return (d0 * d0 + d1 * d1) + d2 * d2
