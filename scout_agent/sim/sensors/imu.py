@@ -214,8 +214,8 @@ class ImuModel:
             dtemp = e.temperature.delta_k_steps(self.t, dt, k)
             if self._f_cal is None:
                 self._f_cal = np.array(acc_true[0], dtype=float)
+            # (a tick with every sample lost keeps its last one, p ≈ 3e-14: `_imu_block`)
             kept = self.rng.random(k) >= e.sample_drop if e.sample_drop > 0 else np.ones(k, bool)
-            kept[-1] |= not kept.any()  # a tick with every sample lost keeps its last one (p ≈ 3e-14)
         self.t += k * dt
         return _imu_block(
             np.asarray(acc_true, dtype=float),
@@ -282,13 +282,17 @@ def _imu_block(
     kept: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray]:
     """`ImuModel.sample`'s arithmetic, compiled (the scout calls it every control tick): `n` (4, k, 3) the
-    standard normal draws (bias walks, white noise), `kept` (k,) the samples that arrived; the biases walk in
-    place. Ideal: truth + bias + noise; otherwise through the gain/misalignment matrices, temperature offsets
-    (`dtemp` (k,) [K]), g-sensitivity and quantisation (module docstring)."""
+        standard normal draws (bias walks, white noise), `kept` (k,) the samples that arrived (none: the last one,
+    set in place); the biases walk in
+        place. Ideal: truth + bias + noise; otherwise through the gain/misalignment matrices, temperature offsets
+        (`dtemp` (k,) [K]), g-sensitivity and quantisation (module docstring)."""
     k = acc_true.shape[0]
     m = 0
     for s in range(k):
         m += kept[s]
+    if m == 0:  # every sample of the tick lost: keep its last one
+        kept[k - 1] = True
+        m = 1
     acc = np.empty((m, 3))
     gyro = np.empty((m, 3))
     walk_a = np.zeros(3)
