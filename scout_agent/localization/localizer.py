@@ -32,7 +32,7 @@ from scout_agent.signals import ProprioSample
 from scout_agent.state_estimation import StateEstimator
 from scout_agent.state_estimation.pose_update import heading, update_pose
 
-from .matcher import MatchConfig, MatchResult, match_track
+from .matcher import MatchConfig, MatchResult, match_height, match_track
 from .reference import HeightReference
 from .track import FootholdTrack
 
@@ -52,6 +52,10 @@ class SourceConfig:
     track_m: float  # footholds of the last this much walked [m]
     match: MatchConfig
     datum_m: float  # σ of the reference's vertical datum [m]
+    # where the place is not found (flat, ambiguous, edge), fuse the height alone (`match_height`): a DEM's
+    # stated noise and bias bound the height long before its 5 m pixels bound the place; not for the shared
+    # map, whose heights carry the other scouts' own height drift that their cells' scatter does not state
+    height_fix: bool = False
 
 
 @dataclass(frozen=True)
@@ -65,7 +69,11 @@ class LocalizerConfig:
     # the DEM's vertical bias (OrbitalDemConfig, LOLA). Window limits: position ≤ 4 m, heading ≤ 6°.
     dem: SourceConfig = field(
         default_factory=lambda: SourceConfig(
-            15.0, 30.0, MatchConfig(window_m=4.0, step_m=0.5, yaw_window_deg=6.0, max_sigma_m=1.5), 0.03
+            15.0,
+            30.0,
+            MatchConfig(window_m=4.0, step_m=0.5, yaw_window_deg=6.0, max_sigma_m=1.5),
+            0.03,
+            height_fix=True,
         )
     )
     # the shared map: 0.4 m cells with cm-level scatter
@@ -89,6 +97,12 @@ class LocalizerReport:
     last_sigma_m: float | None = None
     match_seconds: float = 0.0  # wall time spent matching and fusing [s]
     corrections_m: list[float] = field(default_factory=list)  # horizontal size of each fused correction
+    height_corrections_m: list[float] = field(default_factory=list)  # each fused height-only correction [m]
+
+    @staticmethod
+    def _largest(values: list[float]) -> float | None:
+        """The value of largest magnitude, rounded (None when there is none)."""
+        return round(float(max(values, key=abs)), 4) if values else None
 
     @property
     def used(self) -> str:
@@ -104,6 +118,7 @@ class LocalizerReport:
             "last_sigma_m": None if self.last_sigma_m is None else round(self.last_sigma_m, 4),
             "match_ms_mean": round(1e3 * self.match_seconds / self.attempts, 2) if self.attempts else None,
             "correction_max_m": round(max(self.corrections_m), 4) if self.corrections_m else None,
+            "height_correction_max_m": self._largest(self.height_corrections_m),
         }
 
 
@@ -199,6 +214,8 @@ class Localizer:
             res = match_track(pts, ref, mc, pivot=ekf.p[:2])
             if not res.ok:
                 self.report.refused[f"{name}_{res.reason}"] += 1
+                if src.height_fix and res.reason in ("flat", "ambiguous", "edge"):
+                    self._fuse_height(name, pts, ref, src, sig_xy)
             else:
                 assert res.cov is not None
                 cov = res.cov.copy()
@@ -220,3 +237,25 @@ class Localizer:
         self.report.last_sigma_m = float(np.sqrt(max(np.linalg.eigvalsh(ekf.P[6:8, 6:8]).max(), 0.0)))
         self.report.match_seconds += time.perf_counter() - w0
         return fused
+
+    def _fuse_height(
+        self, name: str, pts: np.ndarray, ref: HeightReference, src: SourceConfig, sig_xy: float
+    ) -> None:
+        """The height alone from `ref` (`match_height`), χ²-gated with one degree of freedom; counted as
+        fused / refused under "<name>_height"."""
+        fix = match_height(pts, ref, sig_xy, src.match)
+        if fix is None:
+            self.report.refused[f"{name}_height_few"] += 1
+            return
+        ekf = self.est.ekf
+        var = (fix.var_m2 + src.datum_m**2) * max(1.0, src.track_m / src.every_m)
+        meas = np.array([np.nan, np.nan, ekf.p[2] + fix.dz, np.nan])
+        cov = np.diag([np.inf, np.inf, var, np.inf])
+        before = ekf.p.copy()
+        up = update_pose(ekf, meas, cov, float(chi2.ppf(1.0 - self.config.gate_p, 1)))
+        if up.accepted:
+            self.track.shift(before, ekf.p.copy(), float(up.correction[3]))
+            self.report.fused[f"{name}_height"] += 1
+            self.report.height_corrections_m.append(float(up.correction[2]))
+        else:
+            self.report.refused[f"{name}_height_gate"] += 1

@@ -32,7 +32,7 @@ from scipy.optimize import minimize
 
 from .reference import HeightReference
 
-__all__ = ["MatchConfig", "MatchResult", "match_track"]
+__all__ = ["HeightFix", "MatchConfig", "MatchResult", "match_height", "match_track"]
 
 
 @dataclass(frozen=True)
@@ -205,3 +205,51 @@ def match_track(
         cov[3, 3] = np.inf
     return MatchResult(True, "ok", dx=float(off[0]), dy=float(off[1]), dz=dz, dyaw=float(off[2]), cov=cov,
                        sigma_max_m=sig_xy, separation_chi2=sep, points=n, inflation=inflation, pivot=pv)  # fmt: skip
+
+
+@dataclass(frozen=True)
+class HeightFix:
+    """The vertical datum of a foothold track against a reference where its place is not found: dz (reference
+    minus track [m]) at the estimated place, with a variance that holds the horizontal uncertainty too."""
+
+    dz: float
+    var_m2: float
+    points: int
+
+
+def match_height(
+    pts: np.ndarray, ref: HeightReference, sigma_xy_m: float, cfg: MatchConfig = MatchConfig()
+) -> HeightFix | None:
+    """The reference's height under the track where the estimate put it, for a track whose horizontal place
+    the reference does not constrain (flat, ambiguous): a DEM's 5 m pixels bound the height long before the
+    place. dz is the Huber-fitted datum at the estimated place (offset 0); its variance adds (a) the fit's
+    residual scatter per independent reference cell and (b) how much the datum changes over the places the
+    estimate allows (offsets on a grid of ±2 `sigma_xy_m`, weighted by the estimate's Gaussian). None with
+    fewer than `min_points` covered footholds."""
+    pts = np.asarray(pts, dtype=float)
+    n = len(pts)
+    if n < cfg.min_points:
+        return None
+    piv = pts[-1, :2]
+    span = max(2.0 * sigma_xy_m, cfg.step_m)
+    k = max(1, int(np.ceil(span / max(cfg.step_m, span / 8))))
+    offs = np.linspace(-span, span, 2 * k + 1)
+    X, Y = np.meshgrid(offs, offs)
+    cand = np.stack([X.ravel(), Y.ravel(), np.zeros(X.size)], 1)
+    _, DZ, COVER = _scores(pts, ref, cand, piv, cfg.huber_k)
+    centre = len(cand) // 2
+    if COVER[centre] * n < cfg.min_points or not np.isfinite(DZ[centre]):
+        return None
+    w = np.exp(-0.5 * (X.ravel() ** 2 + Y.ravel() ** 2) / max(sigma_xy_m, 1e-6) ** 2) * (
+        COVER * n >= cfg.min_points
+    )
+    w = w / w.sum()
+    var_place = float(np.sum(w * (DZ - np.sum(w * DZ)) ** 2))
+    h, _ = ref.heights(pts[:, 0], pts[:, 1])
+    ok = np.isfinite(h)
+    r = h[ok] - pts[ok, 2] - DZ[centre]
+    cell = max(ref.cell_m, 1e-3)
+    cells = len(np.unique(np.floor(pts[ok, :2] / cell).astype(np.int64), axis=0))
+    inflation = max(1.0, int(ok.sum()) / max(cells, 1))
+    var_fit = float(np.mean(r**2)) * inflation / max(int(ok.sum()), 1)
+    return HeightFix(float(DZ[centre]), var_fit + var_place, int(ok.sum()))

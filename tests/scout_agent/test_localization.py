@@ -151,3 +151,57 @@ def test_a_partial_overlap_is_matched_without_being_pulled_onto_the_map() -> Non
     )
     assert r.ok, r.reason
     assert np.hypot(r.dx - off[0], r.dy - off[1]) < 0.05
+
+
+def test_where_the_place_is_not_found_the_height_is_and_its_sigma_holds_the_place() -> None:
+    """A DEM-like reference (5 m cells, 0.3 m per cell) that cannot place the track still bounds its height:
+    `match_height` returns the datum at the estimated place, its variance grows with the slope times the
+    horizontal σ (the datum differs between the places the estimate allows)."""
+    from scout_agent.localization.matcher import match_height
+
+    pts_xy = _track(600, length=30.0)
+    n = 40
+    for slope, lo, hi in ((0.0, 0.0, 0.05), (0.1, 0.04, 0.2)):
+        z = 0.5 + slope * (np.arange(n) * 5.0)[None, :] + np.zeros((n, n))
+        ref = GridReference(
+            z, np.full(z.shape, 0.3), -2.5, -2.5, 5.0, np.full(z.shape, slope), np.zeros(z.shape)
+        )
+        h, _ = ref.heights(pts_xy[:, 0], pts_xy[:, 1])
+        fix = match_height(
+            np.column_stack([pts_xy, h - 0.4]), ref, sigma_xy_m=1.0, cfg=MatchConfig(step_m=0.5)
+        )
+        assert fix is not None and fix.dz == pytest.approx(0.4, abs=0.02)
+        assert lo <= np.sqrt(fix.var_m2) <= hi, (slope, np.sqrt(fix.var_m2))
+    # off the reference: no fix
+    far = np.column_stack([pts_xy + 500.0, np.zeros(len(pts_xy))])
+    assert match_height(far, ref, 1.0) is None
+
+
+def test_the_localizer_fuses_a_dem_height_where_the_place_is_flat_and_never_moves_the_place() -> None:
+    """On a flat DEM the match is refused ("flat") and the position stays where it was; the height alone is
+    fused (the estimate 0.5 m low comes up by most of it); against the shared map (no `height_fix`) nothing."""
+    from types import SimpleNamespace
+
+    from scout_agent.localization import Localizer, LocalizerConfig
+
+    n = 40
+    flat = GridReference(np.full((n, n), 0.5), np.full((n, n), 0.3), -2.5, -2.5, 5.0, np.zeros((n, n)),
+                         np.zeros((n, n)))  # fmt: skip
+    for use_dem in (True, False):
+        e = _ekf(sig_pos=1.0)
+        e.P[8, 8] = 1.0  # height σ 1 m (a declared datum)
+        e.p[:] = (20.0, 15.0, 0.0)
+        est = SimpleNamespace(ekf=e, feet=None)
+        loc = Localizer(est, LocalizerConfig(), dem=flat if use_dem else None,  # type: ignore[arg-type]
+                        map_source=None if use_dem else (lambda x, y, r: flat))  # fmt: skip
+        pts = np.column_stack([_track(600, length=30.0) + (-5.0, -8.0), np.zeros(600)])
+        loc.track.add(pts, 0.0)
+        loc.localize("dem" if use_dem else "map")
+        name = "dem" if use_dem else "map"
+        assert loc.report.refused[f"{name}_flat"] == 1
+        np.testing.assert_allclose(e.p[:2], (20.0, 15.0), atol=1e-6)
+        if use_dem:
+            assert loc.report.fused["dem_height"] == 1
+            assert 0.3 < e.p[2] < 0.55 and np.sqrt(e.P[8, 8]) < 0.5
+        else:
+            assert not loc.report.fused and e.p[2] == 0.0
