@@ -16,7 +16,7 @@ H_θ = [Rᵀ v]×, H_v = Rᵀ, H_bg = [r]×.
 What is observable: roll and pitch (gravity, through the velocity updates: a tilt error makes the
 accelerometer's gravity leak into v, which the legs contradict), velocity, and the gyro bias about axes not
 parallel to gravity; yaw, the gyro bias about gravity and position are not,
-and drift.
+and drift (the estimator's standstills observe the bias: standstill.py).
 """
 
 from __future__ import annotations

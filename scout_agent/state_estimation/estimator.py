@@ -27,8 +27,9 @@ at the goal of the lunar routes, 42° in 10 s of a 5 cm/s slide in the unit test
 that estimate fell on 3 of 4 walks over the 5° ramp's μ 0.15 patch (none since). Leg velocity noise 0.04 m/s per axis (encoder-velocity noise through a 0.5 m leg is ≈ 5 mm/s; the rest is touchdown
 transients and foot rolling off the sphere model); gate at χ²₃ = 7.8 (p = 0.05), so a fast slip is dropped.
 
-Observable: roll, pitch, velocity, gyro bias about horizontal axes. Not observable, so drifting: yaw (the gyro
-bias about gravity left by the power-on calibration integrates into heading), position (integrated velocity
+Observable: roll, pitch, velocity, gyro bias about horizontal axes. Not observable while walking, so drifting: yaw
+(the gyro bias about gravity integrates into heading; standing still on four feet observes it, standstill.py,
+and the localizer's heading reaches it through the covariance), position (integrated velocity
 error), and the accelerometer's horizontal bias, which the filter cannot tell from a tilt while the robot walks
 straight (a 1 mg bias is a 0.35° tilt error under lunar gravity). `psrmap evaluate` reports the drift.
 
@@ -42,13 +43,16 @@ Consistency (issue 23: the covariance must contain the true error; `psrmap evalu
 containment). Four error sources have no state in the 15-state filter; each widens the covariance by what it
 can do, from what the robot knows:
 - the IMU's bias drifts with temperature by a coefficient the robot does not know, but the thermometer tells it
-  the temperature change ΔT since the power-on calibration: the bias variances grow by TCO² · d(ΔT²), TCO the
-  datasheet's (BMI088 0.015 °/s/K, 0.2 mg/K), so σ_b = TCO·|ΔT|, what the sensor model draws;
+  the temperature change ΔT since the bias was last measured (the gyro's: the last zero-rate update, else power-on;
+  the accelerometer's: power-on): the bias variances grow by TCO² · d(ΔT²), TCO the datasheet's (BMI088
+  0.015 °/s/K, 0.2 mg/K), so σ_b = TCO·|ΔT|, what the sensor model draws; the gyro's also by its g-sensitivity
+  (0.1 °/s/g) times the change of gravity's direction in the IMU since the last zero-rate update;
 - leg odometry's along-track error is a fraction of the distance (1–2 % in the literature, docs/physics.md; foot
   rolling, compliance, link lengths): the horizontal position variance grows along the velocity by
   2 k² d·|v| dt, so σ = k·d with k = `odometry_scale_std` (1 %);
 - the gyro's scale and cross-axis error turn heading by a fraction of the angle turned: the heading variance
-  grows the same way with k = `gyro_scale_std` (1.4 %, BMI088 ±1 % each);
+  grows the same way with k = `gyro_scale_std` (1.4 %, BMI088 ±1 % each), the angle from the yaw rate low-passed
+  over 1 s (the trot's zero-mean wobble turns the robot nowhere);
 - a foot the χ² gate refused was slipping; its neighbours may slip too, under the gate: each refusal adds
   `slip_pos_std_m`² (5 mm) to the horizontal position variance.
 """
