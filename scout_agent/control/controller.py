@@ -405,7 +405,8 @@ class TrotController:
         # (the estimator's standstill updates, state_estimation/standstill.py)
         self.hold = False
         self._frozen_at: float | None = None  # the gait time it stopped at [s]
-        self._stand_feet: np.ndarray | None = None  # (4, 2) centred feet, base frame, when it froze [m]
+        self._stand_feet: np.ndarray | None = None  # (4, 3) centred feet, base frame, when it froze [m]
+        self._stand_centre = np.zeros(3)  # their centre then, base frame [m]
         self.corrections_followed = 0  # ticks whose estimate correction moved the kept points
 
     def set_command(self, forward_speed: float, yaw_rate: float) -> None:
@@ -413,17 +414,21 @@ class TrotController:
         self.yaw_rate_cmd = yaw_rate
 
     def _stand_refs(self, s: RobotState) -> None:
-        """Standing: damp the position but chase no estimate (a pose fix on frozen feet toppled it), and hold
-        the heading against the planted feet, not the estimate: with a wrong gyro bias the estimated heading
-        drifts, and holding it twisted the trunk on its legs at the bias error."""
-        self._ref[0], self._ref[1] = s.pos[0], s.pos[1]
-        f = K.fk(s.q)[:, :2]
-        f = f - f.mean(axis=0)
+        """Standing: hold the trunk where it froze against its planted feet, from the leg kinematics, not the
+        estimate. An estimate update moves neither reference: a pose fix on frozen feet toppled it, and with a
+        wrong gyro bias a held estimated heading twisted the trunk on its legs at the bias error; following the
+        estimate instead let the trunk drift off the stance's centre over a 20 s stand, and the first diagonal
+        to carry it on walking on lost a foot."""
+        f = K.fk(s.q)
+        c = f.mean(axis=0)
         if self._stand_feet is None:
-            self._stand_feet = f
-        f0 = self._stand_feet
+            self._stand_feet = f - c
+            self._stand_centre = c
+        d = s.R @ (c - self._stand_centre)  # the trunk moved by −d over its feet (world frame)
+        self._ref[0], self._ref[1] = s.pos[0] + d[0], s.pos[1] + d[1]
+        f0, f2 = self._stand_feet[:, :2], (f - c)[:, :2]
         # the feet turned by θ in the base frame (2-D Kabsch, closed form): the trunk turned by −θ over them
-        theta = np.arctan2(float(np.sum(f0[:, 0] * f[:, 1] - f0[:, 1] * f[:, 0])), float(np.sum(f0 * f)))
+        theta = np.arctan2(float(np.sum(f0[:, 0] * f2[:, 1] - f0[:, 1] * f2[:, 0])), float(np.sum(f0 * f2)))
         self._ref[2] = np.arctan2(s.R[1, 0], s.R[0, 0]) + theta
 
     @property
