@@ -29,10 +29,12 @@ _NOMINAL_FEET = K.fk(C.HOME_Q)  # (4, 3) base frame
 _NOMINAL_FEET[:, 2] = 0.0
 _EPS = 1e-6  # added to the Jacobian's diagonal before solving with it
 # a state estimate's correction (a filter update that moves the position by more than its velocity explains,
-# a localization fix) larger than this in one tick moves the world-frame points the controller keeps [m]: 1 cm
-# per 10 ms tick is 1 m/s beyond the velocity; the jumps that felled the 100 m walks were 3–5 cm per tick, the
-# filter's ordinary updates and slipping feet stay below it (so ramp and slip behaviour is as before)
+# a localization fix) larger than this, summed over the last ≈ 0.1 s (`CORRECTION_LEAK`), moves the
+# world-frame points the controller keeps [m]. The corrections that felled the 100 m walks were 0.1–0.2 m within
+# 0.1–0.2 s; the filter's ordinary updates and slipping feet stay below it (ramp and slip behaviour as before:
+# following every correction above 2 mm a tick changed the ramp hazard test's back-off)
 CORRECTION_FOLLOW_M = 0.01
+CORRECTION_LEAK = 0.9  # per tick: the pending correction forgets with a ≈ 0.1 s time constant
 
 
 @dataclass(frozen=True)
@@ -461,6 +463,7 @@ class TrotController:
         self.t0 = state.t
         self._last_pos = np.array(state.pos, dtype=float)
         self._last_vel = np.array(state.vel, dtype=float)
+        self._pending = np.zeros(3)  # the estimate's recent correction not yet followed [m]
         self._initialized = True
 
     def _follow_correction(self, s: RobotState, dt: float) -> None:
@@ -471,10 +474,14 @@ class TrotController:
         feet off a crater wall (the 100 m walks' falls, docs/results.md issue 23). The correction is the part
         of the position change its velocity does not explain; below `CORRECTION_FOLLOW_M` it is left alone
         (ordinary walking)."""
-        jump = np.asarray(s.pos, dtype=float) - self._last_pos - 0.5 * (s.vel + self._last_vel) * dt
+        step = np.asarray(s.pos, dtype=float) - self._last_pos - 0.5 * (s.vel + self._last_vel) * dt
         self._last_pos = np.array(s.pos, dtype=float)
         self._last_vel = np.array(s.vel, dtype=float)
+        # a correction spread over a few ticks counts as one (leaky sum, ≈ 0.1 s memory)
+        self._pending = CORRECTION_LEAK * self._pending + step
+        jump = self._pending
         if float(jump @ jump) > CORRECTION_FOLLOW_M**2:
+            self._pending = np.zeros(3)
             self.footholds += jump
             self.liftoff += jump
             self.targets += jump

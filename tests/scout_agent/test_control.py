@@ -123,3 +123,13 @@ def test_controller_moves_its_world_points_with_a_state_estimate_correction():
     for k in range(5):
         again.step(state(k * dt, (0.1 * k * dt, 0.0, 0.33)), dt)
     assert again.corrections_followed == 0
+    # a correction spread over ticks, 4 mm each (the filter moved the estimate 0.2 m in 0.1 s on seed 31's
+    # crater wall), is followed once it adds up to 1 cm
+    spread = TrotController()
+    spread.set_command(0.1, 0.0)
+    spread.step(state(0.0, (0.0, 0.0, 0.33)), dt)
+    f0 = spread.footholds.copy()
+    for k in range(1, 4):
+        spread.step(state(k * dt, (0.1 * k * dt, 0.004 * k, 0.33)), dt)
+    assert spread.corrections_followed == 1
+    assert spread.footholds[0, 1] - f0[0, 1] == pytest.approx(0.004 * (1 + 0.9 * (1 + 0.9)), abs=1e-9)
