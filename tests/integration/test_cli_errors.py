@@ -80,6 +80,7 @@ def test_viewer_without_a_display_is_one_line_before_any_work(command, monkeypat
 
 
 @pytest.mark.parametrize("command", ["mission", "scout"])
+@pytest.mark.serial  # asserts how fast it fails
 def test_connect_viewer_to_nothing_fails_fast_with_a_message(command, capsys, tmp_path, monkeypatch):
     import time
 
@@ -96,6 +97,7 @@ def test_connect_viewer_to_nothing_fails_fast_with_a_message(command, capsys, tm
     assert not (tmp_path / "runs").exists()
 
 
+@pytest.mark.serial  # asserts how fast it fails
 def test_an_anonymous_client_on_a_secured_router_is_told_it_needs_credentials(tmp_path, capsys):
     import subprocess
     import sys

@@ -116,6 +116,7 @@ def in_ns(ns: str, *args: str) -> subprocess.Popen:
     )
 
 
+@pytest.mark.slow
 def test_scout_host_link_cut_for_10s_loses_and_doubles_nothing(procs, tmp_path):
     """The lab network (`--insecure`) and the secured deployment side by side, each on hosts of its own: most
     of a run is the scout's walk and the cut, waiting, so the two overlap."""

@@ -304,6 +304,7 @@ def test_stitch_refuses_a_union_box_over_the_client_limit():
 # ------------------------------------------------------------------ one scout against a default server
 
 
+@pytest.mark.serial  # the tile rate refills with wall time: a slower run merges more
 def test_one_scout_spreading_cells_over_new_tiles_cannot_exhaust_a_default_server():
     """Issue 25: 256 tiny deltas from one scout, each cell in a new tile, grew the server by 3.5 GiB and shut every
     other scout out of new area. A default `psrmap server` (with --db: paging on) now grows ≤ 256 MiB, says why
@@ -327,6 +328,7 @@ def test_one_scout_spreading_cells_over_new_tiles_cannot_exhaust_a_default_serve
     assert out["wal_mib"] < 64, out
 
 
+@pytest.mark.serial  # ack latency percentiles: the machine to itself
 def test_a_thousand_concurrent_queries_do_not_slow_scout_acks():
     """Issue 25: a burst of 1,000 concurrent queries raised scout ack p99 from 9 ms to 4.4 s. Now queries beyond
     the budget are answered `busy` at once, run in the merge worker's gaps within a share of the time, and

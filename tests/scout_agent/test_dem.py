@@ -55,6 +55,7 @@ def test_the_dem_relief_is_the_scene_relief(dem: Path) -> None:
     assert plain.info["craters"] == t.info["craters"]  # the same seeded detail on either relief
 
 
+@pytest.mark.slow
 def test_scout_walks_a_dem_scene_and_evaluate_scores_it(dem: Path, capsys) -> None:
     argv = ["evaluate", "--scene", "lunar", "--seed", "0", "--dem", str(dem), f"--dem-window={X0 + 60},{Y0 - 140}",
             "--route", "direct", "--json"]  # fmt: skip
