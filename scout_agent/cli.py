@@ -31,7 +31,7 @@ from scout_agent.localization import LOCALIZE_MODES
 from scout_agent.loop import STATE_SOURCES, SimConfig
 from scout_agent.mapping import add_mapping_arguments, publish_link
 from scout_agent.onboard.drivers import CONTACT_SOURCES, ContactDetection
-from scout_agent.run import SCENES, ScoutRunConfig, build_world
+from scout_agent.run import SCENES, STANDSTILL_MODES, ScoutRunConfig, build_world
 from scout_agent.sim.friction import Patch
 from scout_agent.sim.sensors import IMU_PRESETS, SENSOR_PROFILES, SensorConfig
 from scout_agent.sim.sensors.imu import IMU_ERROR_PRESETS
@@ -194,10 +194,11 @@ def add_scout_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--standstill",
-        choices=("on", "off"),
-        default="off",
+        choices=STANDSTILL_MODES,
+        default="auto",
         help="on: stand still at power-on (20 s) and pause whenever the gyro bias's heading budget is spent, "
-        "fusing zero-rate updates while standing; the time it costs is reported (default off: walk at once)",
+        "fusing zero-rate updates while standing; the time it costs is reported. auto (default): on for routes "
+        "of 50 m or more, off (walk at once) for shorter ones",
     )
     p.add_argument("--scout-id", default="scout1", type=id_arg("scout"), help="scout id ([A-Za-z0-9_-]+)")
 
@@ -283,7 +284,7 @@ def config_from_args(args: argparse.Namespace) -> ScoutRunConfig:
         dem=_dem(args),
         hazard_control=not args.no_hazard_control,
         localize=args.localize,
-        standstills=args.standstill == "on",
+        standstills=args.standstill,
     )
     try:
         build_world(cfg)

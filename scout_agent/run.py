@@ -60,6 +60,9 @@ OnTick = Callable[
 OnHazard = Callable[[Felt], object]
 
 
+STANDSTILL_MODES = ("auto", "on", "off")
+
+
 @dataclass(frozen=True)
 class ScoutRunConfig:
     scene: str = "ramps"  # one of SCENES
@@ -89,9 +92,11 @@ class ScoutRunConfig:
     localize: str = "on"  # one of LOCALIZE_MODES: match footholds against the DEM / shared map
     localizer: LocalizerConfig = field(default_factory=LocalizerConfig)
     orbital_dem: OrbitalDemConfig = field(default_factory=OrbitalDemConfig)  # procedural scenes' DEM
-    standstills: bool = False  # stand at power-on and pause when the gyro bias's heading budget is spent
-    # (state_estimation/standstill.py; settings: sim.estimator.standstill; `--standstill on`). Off by default
-    # for now: the short runs of the tests and experiments (6–30 s) would spend their time standing
+    standstills: str = "auto"  # one of STANDSTILL_MODES: stand at power-on and pause when the gyro bias's
+    # heading budget is spent (state_estimation/standstill.py; settings: sim.estimator.standstill). "auto": on for
+    # routes of `standstill_route_m` or more, where the gyro's drift dominates the heading error (100 m field:
+    # 41 -> 12 deg); off for shorter ones, which would spend a quarter of their time standing for little gain
+    standstill_route_m: float = 50.0
 
 
 @dataclass(frozen=True)
@@ -167,6 +172,13 @@ def build_world(cfg: ScoutRunConfig) -> World:
 
 
 PATH_EVERY_S = 1.0  # the summary's estimated path: one pose per simulated second
+
+
+def use_standstills(cfg: ScoutRunConfig, waypoints: np.ndarray) -> bool:
+    """Whether the scout stands to calibrate its gyro (`ScoutRunConfig.standstills`) on this route."""
+    if cfg.standstills == "auto":
+        return path_length(waypoints) >= cfg.standstill_route_m
+    return cfg.standstills == "on"
 
 
 def path_length(waypoints: np.ndarray) -> float:
@@ -252,6 +264,8 @@ def run_scout(
     world = world or build_world(cfg)
     if cfg.localize not in LOCALIZE_MODES:
         raise ScoutConfigError(f"--localize {cfg.localize!r}: valid: {', '.join(LOCALIZE_MODES)}")
+    if cfg.standstills not in STANDSTILL_MODES:
+        raise ScoutConfigError(f"--standstill {cfg.standstills!r}: valid: {', '.join(STANDSTILL_MODES)}")
     sim_cfg = replace(cfg.sim, sensors=replace(cfg.sim.sensors, seed=cfg.seed))
     # the height datum of an honest start: the shared map where others have mapped, else the orbital DEM
     dem = dem_reference(cfg, world) if sim_cfg.state_source == "estimate" else None
@@ -273,7 +287,7 @@ def run_scout(
     # budget is spent; only a robot on its own estimate has a use for them
     planner = None
     est_cfg = robot.estimator.config.standstill
-    if cfg.standstills and scout.config.state_source == "estimate" and est_cfg.enabled:
+    if use_standstills(cfg, world.waypoints) and scout.config.state_source == "estimate" and est_cfg.enabled:
         planner = StandstillPlanner(robot.estimator, est_cfg)
     pilot = Pilot(
         world.waypoints,

@@ -103,7 +103,7 @@ def calibrated_and_not():
     sensors = SensorConfig(imu=ImuConfig(gyro_turn_on_bias=3e-3))
     sim = SimConfig(sensors=sensors, launch=LaunchSurvey("exact"))
     off = replace(sim, estimator=replace(sim.estimator, standstill=StandstillConfig(enabled=False)))
-    cfg = ScoutRunConfig(scene="ramps", slope_deg=0.0, seed=2, localize="off", sim=sim, standstills=True)
+    cfg = ScoutRunConfig(scene="ramps", slope_deg=0.0, seed=2, localize="off", sim=sim, standstills="on")
     return run_scout(cfg, progress=False), run_scout(replace(cfg, sim=off), progress=False)
 
 
@@ -116,3 +116,17 @@ def test_a_standstill_calibrated_walk_keeps_its_heading_where_the_estimator_befo
     assert on["zaru"]["updates"] >= 7 and off["zaru"]["updates"] == 0
     assert on["yaw_error_max_deg"] < 1.2 < off["yaw_error_max_deg"]  # measured 0.82 and 1.80
     assert on["inside_3sigma_frac"] >= 0.95
+
+
+def test_auto_standstills_follow_the_route_length_and_bad_modes_are_named():
+    from scout_agent.errors import ScoutConfigError
+    from scout_agent.run import ScoutRunConfig, run_scout, use_standstills
+
+    short, long = np.array([[0.0, 0.0], [20.0, 0.0]]), np.array([[0.0, 0.0], [40.0, 0.0], [40.0, 30.0]])
+    auto = ScoutRunConfig()
+    assert auto.standstills == "auto"
+    assert not use_standstills(auto, short) and use_standstills(auto, long)  # 20 m: walk at once; 70 m: stand
+    assert use_standstills(ScoutRunConfig(standstills="on"), short)
+    assert not use_standstills(ScoutRunConfig(standstills="off"), long)
+    with pytest.raises(ScoutConfigError, match="valid: auto, on, off"):
+        run_scout(ScoutRunConfig(standstills="yes", sim_seconds=0.1), progress=False)
