@@ -12,7 +12,8 @@ Modes:
 - a standstill, asked for by `hold` (the state estimator's planner): stand on four feet, gait frozen, until it
   says walk on (the gyro's zero-rate updates, `state_estimation/standstill.py`).
 - `stop` (`stop_s`): the reflex (`reflex.Senses`) fired — stand still, report the hazard.
-- `back`: walk backwards along its own estimated trail to the last place it held: the trail point from
+- `back`: trot backwards (`back_speed`, turning at most `back_max_yaw_rate`, no velocity loop) along its own
+  estimated trail to the last place it held: the trail point from
   `held_before_s` before the first slip of the episode (or before the trigger) that also lies `clear_m`
   outside the detour's hazard radius, at least `backoff_min_m` and at most `backoff_max_m` back along
   the trail.
@@ -20,7 +21,8 @@ Modes:
   hazards and slips of a known map, when given) and `walk` it; with no detour, or after `max_stops` stops,
   `stopped` with `gave_up` saying why.
 
-`stops` lists each hazard stop as {x, y, t, reason} (map frame, estimated); `detour_m` sums, per stop, the
+With `max_accel_mps2` set, the speed command changes by at most that in every mode (off by default: see the
+field). `stops` lists each hazard stop as {x, y, t, reason} (map frame, estimated); `detour_m` sums, per stop, the
 back-off walked plus the detour planned minus what was left of the route it abandoned.
 """
 
@@ -59,12 +61,15 @@ class PilotConfig:
     senses: ReflexConfig = field(default_factory=ReflexConfig)
     detour: DetourConfig = field(default_factory=DetourConfig)
     stop_s: float = 0.05  # barely: a robot trotting in place on ground it cannot hold slides on
+    max_accel_mps2: float | None = None  # a rate limit on the speed command [m/s²] (None: none; 0.25 fell
+    # more on the ramp matrix, 15 of 50 against 8: it kept the front feet walking onto the patch longer)
     trot: GaitConfig = field(default_factory=GaitConfig)  # the gait where the ground holds
-    crawl: GaitConfig = CRAWL  # one leg at a time (three feet down): the stop, the back-off, near hazards
+    crawl: GaitConfig = CRAWL  # one leg at a time (three feet down), near hazards when crawl_near_m is set
     crawl_near_m: float | None = None  # crawl while within this of a hazard felt, beyond the detour's hazard
     # radius (None: trot everywhere)
     crawl_speed: float = 0.1  # the most a crawl is asked to walk [m/s] (its feet reach 0.15 m from the hips)
-    back_speed: float = 0.1  # [m/s], crawling; no velocity loop: on ground that slips, pushing harder slides
+    back_max_yaw_rate: float = FollowerConfig.max_yaw_rate  # [rad/s] while backing off
+    back_speed: float = 0.1  # [m/s], trotting (a crawl back-off fell in 4 of 4 ramp walks where this one fell in 2); no velocity loop: on ground that slips, pushing harder slides
     held_before_s: float = 1.0
     backoff_min_m: float = 0.4
     backoff_max_m: float = 2.5
@@ -112,6 +117,7 @@ class Pilot:
         self._back_len = 0.0
         self._left_of_route = 0.0
         self._t_prev: float | None = None
+        self._v = 0.0  # the last speed command [m/s]
         self._normal_key: tuple[float, float] | None = None
         self._normal = np.array([0.0, 0.0, 1.0])
 
@@ -121,6 +127,17 @@ class Pilot:
 
     # ------------------------------------------------------------------ command
     def command(self, s: RobotState, dt: float) -> tuple[float, float]:
+        """(forward speed, yaw rate) for the controller; with `max_accel_mps2` set, the speed changes by at most
+        that (the trunk controller turns a step in the command into a braking force of kd·Δv·m, ≈ 0.9 g for a
+        stop from 0.2 m/s)."""
+        v, w = self._command(s, dt)
+        if self.config.max_accel_mps2 is None or not (self.config.adaptive or self.config.reflex):
+            return v, w
+        a = self.config.max_accel_mps2 * dt
+        self._v = self._v + min(a, max(-a, v - self._v))
+        return self._v, w
+
+    def _command(self, s: RobotState, dt: float) -> tuple[float, float]:
         yaw = float(np.arctan2(s.R[1, 0], s.R[0, 0]))
         stand = self.mode == "walk" and self.hold is not None and not self.reached and self.hold(s.t)
         self.controller.hold = (
@@ -248,7 +265,9 @@ class Pilot:
         if len(back) < 2 or walked < 0.05:
             self._go_around(pos, t)
             return
-        back_cfg = FollowerConfig(speed=c.back_speed, goal_tolerance_m=0.1, ki=0.0, max_boost=0.0)
+        back_cfg = FollowerConfig(
+            speed=c.back_speed, goal_tolerance_m=0.1, ki=0.0, max_boost=0.0, max_yaw_rate=c.back_max_yaw_rate
+        )
         self._back = PathFollower(np.array(back), back_cfg, reverse=True)
         self.mode, self._t_mode = "back", t
 

@@ -2,13 +2,20 @@
 
 Four triggers, each from the scout's own estimates (`estimators.TickEstimates`) and sensors only:
 
-- **slip**: a foot lost its hold (its slip grew past creep, `friction_estimate`) *and* the ground's margin
-  μ̂ − tan θ̂ (`adaptation.GaitSetting.margin`) is below `lost_hold_margin` — react with the first foot that
-  loses its hold, before the others walk onto the ground (that margin is wide because the estimate a lost
-  hold gives, the largest force ratio the stance bore, read 0.07–0.11 above the patch's μ on 15–25° ramps); at least `slip_events` slip events within
-  `slip_window_s` with the margin below `slip_hold_margin`; one slip event when the margin is
-  below `slip_sure_margin` (clearly unholdable); or `slip_events_alone` events in the window whatever the margin. Slippery ground the scout can still hold (the paper's patches) makes
-  slips too; there the adaptive gait slows down and walks on.
+- **slip**, any of:
+  - a foot lost its hold (its slip grew past creep, `friction_estimate`) *and* the ground's margin
+    μ̂ − tan θ̂ (`adaptation.GaitSetting.margin`) is below `lost_hold_margin` — react with the first foot
+    that loses its hold, before the others walk onto the ground (that margin is wide because the estimate a
+    lost hold gives, the largest force ratio the stance bore, read 0.07–0.11 above the patch's μ on 15–25°
+    ramps);
+  - at least `slip_events` slip events within `slip_window_s` with the margin below `slip_hold_margin`, or
+    (when set, off by default) `slip_events_many` with it below `slip_many_margin`: on the lunar matrix 9 of 15
+    falls came after a stop that had waited for 6–16 slips in 3 s; 6 slips below 0.15 cut the lunar falls
+    from 15 to 10 of 30 but stopped 8 more holdable ramp walks (goal reached 13 → 5 of 20; docs/results.md);
+  - one slip event when the margin is below `slip_sure_margin` (clearly unholdable);
+  - `slip_events_alone` events in the window whatever the margin.
+  Slippery ground the scout can still hold (the paper's patches) makes slips too; there the adaptive gait
+  slows down and walks on.
 - **margin**: GIIM below `min_giim_rad` or GIAM below `min_giam` on at least `margin_share` of the ticks
   of the last `margin_window_s` (single ticks dip to zero: the IMU's GIA sees the trunk's own jolts).
 - **contact**: a non-foot contact flagged by the estimators on `contact_ticks` consecutive ticks.
@@ -34,6 +41,8 @@ __all__ = ["Felt", "ReflexConfig", "Senses"]
 @dataclass(frozen=True)
 class ReflexConfig:
     slip_events: int = 3
+    slip_events_many: int | None = None  # e.g. 6 (see above)
+    slip_many_margin: float = 0.15
     slip_events_alone: int = 20  # the paper's holdable 10° patch (μ 0.25) made 8 in 3 s: not a hazard
     slip_window_s: float = 3.0
     slip_hold_margin: float = 0.02  # μ̂ − tan θ̂ below which repeated slips mean "cannot hold" (walking
@@ -100,6 +109,11 @@ class Senses:
                 (hold_lost and ground_margin < c.lost_hold_margin)
                 or n >= c.slip_events_alone
                 or (n >= c.slip_events and ground_margin < c.slip_hold_margin)
+                or (
+                    c.slip_events_many is not None
+                    and n >= c.slip_events_many
+                    and ground_margin < c.slip_many_margin
+                )
                 or (n >= 1 and ground_margin < c.slip_sure_margin)
             ):
                 reasons.append("slip")

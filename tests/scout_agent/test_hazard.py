@@ -9,10 +9,11 @@ import numpy as np
 import pytest
 
 from scout_agent.control.adaptation import GaitAdaptation
+from scout_agent.control.controller import RobotState, TrotController
 from scout_agent.control.detour import DetourConfig, plan_detour
 from scout_agent.control.friction_estimate import FrictionEstimate, FrictionEstimateConfig
-from scout_agent.control.pilot import PilotConfig
-from scout_agent.control.reflex import ReflexConfig
+from scout_agent.control.pilot import Pilot, PilotConfig
+from scout_agent.control.reflex import Felt, ReflexConfig
 from scout_agent.mapping import open_mapping
 from scout_agent.run import ScoutRunConfig, World, build_world, run_scout
 from scout_agent.sim.friction import FrictionMap, unholdable
@@ -161,3 +162,26 @@ def test_friction_estimate_tells_creep_from_a_lost_hold():
     assert np.all(est.mu[1:] == FrictionEstimateConfig().prior_mu)
     # once per stance: sliding on does not count again
     assert not _tick(est, (0.2, 0.1, 0.1, 0.1), slipped=(0,), dp=(2 * lost_dp, 0.0, 0.0, 0.0))
+
+
+def test_pilot_changes_the_speed_command_no_faster_than_its_limit():
+    cfg = PilotConfig(max_accel_mps2=0.25)
+    pilot = Pilot(np.array([[0.0, 0.0], [5.0, 0.0]]), TrotController(), (-1.0, -2.0, 6.0, 2.0), cfg)
+    z3 = np.zeros(3)
+
+    def state(t: float) -> RobotState:
+        return RobotState(
+            t, np.array([0.0, 0.0, 0.33]), np.eye(3), z3, z3, np.zeros(12), np.zeros(12), np.ones(4, bool)
+        )
+
+    dt = 0.01
+    vs = [pilot.command(state(k * dt), dt)[0] for k in range(200)]
+    assert vs[0] == pytest.approx(cfg.max_accel_mps2 * dt)  # from standstill: one step of the limit
+    assert np.all(np.abs(np.diff(vs)) <= cfg.max_accel_mps2 * dt + 1e-12)
+    # and it gets there (with the velocity loop's boost: this state stands still)
+    assert vs[-1] >= cfg.follower.speed
+    # the hazard reflex's stop: the command turns from walking to backing off within the same limit
+    pilot._stop(Felt(2.0, 0.5, 0.0, ("slip",), 3), 0.3, 0.0)
+    pilot.trail = [(0.0, -1.0, 0.0), (1.0, 0.0, 0.0)]
+    vs2 = [pilot.command(state(2.0 + k * dt), dt)[0] for k in range(150)]
+    assert np.all(np.abs(np.diff([vs[-1], *vs2])) <= cfg.max_accel_mps2 * dt + 1e-12) and min(vs2) < 0
