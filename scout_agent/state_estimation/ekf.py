@@ -120,15 +120,22 @@ class ErrorStateEKF:
         return H
 
     def update(
-        self, residual: np.ndarray, H: np.ndarray, noise_var: np.ndarray, gate_chi2: float | None = None
+        self,
+        residual: np.ndarray,
+        H: np.ndarray,
+        noise_var: np.ndarray,
+        gate_chi2: float | None = None,
+        hold_heading: bool = False,
     ) -> np.ndarray:
         """Kalman update with stacked 3-row measurements; the error is folded into the nominal state. With
         `gate_chi2`, each 3-row block whose Mahalanobis distance² exceeds it is dropped first (an outlier, e.g.
-        a slipping foot). Returns the kept blocks' mask. Joseph-form covariance update (kernels.update)."""
+        a slipping foot). `hold_heading`: the update does not correct heading (a Schmidt update of the rotation
+        about world z; kernels.update). Returns the kept blocks' mask. Joseph-form covariance update."""
         return kernels.update(
             *self._arrays(),
             np.ascontiguousarray(residual, dtype=float),
             np.ascontiguousarray(H, dtype=float),
             np.ascontiguousarray(noise_var, dtype=float),
             0.0 if gate_chi2 is None else float(gate_chi2),
+            hold_heading,
         )

@@ -33,6 +33,15 @@ and the localizer's heading reaches it through the covariance), position (integr
 error), and the accelerometer's horizontal bias, which the filter cannot tell from a tilt while the robot walks
 straight (a 1 mg bias is a 0.35° tilt error under lunar gravity). `psrmap evaluate` reports the drift.
 
+Heading: a stance foot measures the base velocity in the base frame, Rᵀv, which is the same whatever the heading
+(turn R and v together about gravity). The EKF's update, linearised at an estimate that moves between ticks (the
+trot's wobble), nonetheless finds heading information there: its heading σ shrank and a slip on a slope, the feet
+reporting a sideways velocity the base did not have, turned the heading by 12° within 1 s on a 100 m walk. The
+odometry update is therefore a Schmidt (consider) update of heading (`odometry_holds_heading`; kernels.update): the
+gain's row for the rotation about world z is zeroed, the Joseph form keeps the covariance true for that gain; only
+the standstills (through the bias) and the localizer's pose updates move heading (cf. the observability-constrained
+EKF, Hesch et al. 2014; Bloesch et al. 2013 for legged robots).
+
 IMU lever arm: the IMU sits off the trunk origin (`imu_offset_m`, a CAD value; sensors/suite.py); the
 accelerometer there reads ω̇ × r + ω × (ω × r) more than at the origin (≈ 0.2 m/s² in a trot's roll at 7 cm,
 an eighth of lunar g), which the estimator subtracts, with ω̇ from the difference of consecutive ticks' rates.
@@ -103,6 +112,9 @@ class EstimatorConfig:
     gyro_g_sens_std: float = float(np.radians(0.1) / 9.80665)  # BMI088 0.1 °/s/g per element [rad/s per m/s²]
     odometry_scale_std: float = 0.01  # leg odometry's along-track error per metre walked (1–2 % class)
     slip_pos_std_m: float = 0.005  # horizontal position σ added per foot update the gate rejected [m]
+    # leg odometry measures the base-frame velocity, which says nothing of heading; its updates leave heading
+    # alone (a Schmidt update; "Heading" in the module docstring). False: the plain EKF update
+    odometry_holds_heading: bool = True
     standstill: StandstillConfig = field(default_factory=StandstillConfig)  # standstill.py
 
 
@@ -361,7 +373,13 @@ class StateEstimator:
             feet = (fb, fv, self.feet.foot_omega)
             n_b = e.R.T @ self._normal_w
             residual, H = odometry_rows(use, e.R, e.v, e.bg, feet, tick.imu_gyro, n_b, c.foot_radius_m)
-            keep = e.update(residual, H, self._leg_var[: H.shape[0]], gate_chi2=c.gate_chi2)
+            keep = e.update(
+                residual,
+                H,
+                self._leg_var[: H.shape[0]],
+                gate_chi2=c.gate_chi2,
+                hold_heading=c.odometry_holds_heading,
+            )
             n_rejected = len(keep) - int(np.count_nonzero(keep))
             self.rejected += n_rejected
             self._inflate(tick, dt, n_rejected)

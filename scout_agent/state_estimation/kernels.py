@@ -112,10 +112,13 @@ def update(
     H: np.ndarray,
     noise_var: np.ndarray,
     gate_chi2: float,
+    hold_heading: bool = False,
 ) -> np.ndarray:
     """Kalman update with stacked 3-row blocks, folded into the nominal state in place. `gate_chi2` > 0 drops
     each block whose Mahalanobis distance² exceeds it first (a single-row measurement: pass 0, no gate).
-    Returns the kept blocks' mask."""
+    `hold_heading`: the gain's heading row (the rotation error about world z, u = Rᵀe_z) is zeroed, a
+    Schmidt (consider) update of heading: the measurement does not turn the heading, and the Joseph form,
+    valid for any gain, keeps the covariance that of the filter as run. Returns the kept blocks' mask."""
     m = residual.shape[0]
     PHt = P @ np.ascontiguousarray(H.T)
     S = H @ PHt
@@ -154,6 +157,11 @@ def update(
                     S2[i, j] = S[rows[i], rows[j]]
             S = S2
     K = np.ascontiguousarray(np.linalg.solve(S, np.ascontiguousarray(PHt.T)).T)  # (15, m)
+    if hold_heading:
+        for j in range(K.shape[1]):
+            s = R[2, 0] * K[0, j] + R[2, 1] * K[1, j] + R[2, 2] * K[2, j]
+            for i in range(3):
+                K[i, j] -= R[2, i] * s
     dx = K @ residual
     IKH = np.eye(15) - K @ H
     Kn = K * noise_var
