@@ -9,7 +9,8 @@ on the same run, the same estimators and map fed the simulator's exact base stat
 `elevation_rmse_exact_m`, `slip_precision_exact`) and the paper-form slip detector (`slip_paper_*`); the state
 estimate's drift at the end (`drift_xy_pct`, `drift_z_m`, `drift_yaw_deg`), its error over the whole run and
 whether its covariance contains it (`pos_error_max_m`, `pos_error_final_m`, `yaw_error_max_deg`, `nees_pos_mean`,
-`inside_3sigma_frac`: `scout_agent/state_estimation/consistency.py`), the sensor profile (`sensors`:
+`inside_3sigma_frac`, and for the heading `nees_yaw_mean`, `yaw_inside_3sigma_frac`:
+`scout_agent/state_estimation/consistency.py`), the sensor profile (`sensors`:
 realistic/ideal), `localization` ("off" until a localizer runs), the start it was given (`launch`), and `cot_whole_run_truth` (the
 simulator's exact joint energy at every physics step over the true horizontal path) beside `cot_whole_run`.
 
@@ -63,6 +64,8 @@ ERROR_KEYS = (
     "yaw_error_max_deg",
     "nees_pos_mean",
     "inside_3sigma_frac",
+    "nees_yaw_mean",
+    "yaw_inside_3sigma_frac",
 )
 GT_SLIP_M = 0.02  # ground-truth slip: contact point moved more than this within one stance [m]
 SEGMENTS = {"up": "up", "flat": "platform", "down": "down"}

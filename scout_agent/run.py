@@ -242,6 +242,7 @@ class RunTally:
             sample.base.pos,
             sample.base.quat,
             estimator.position_covariance()[:2, :2] if estimator is not None else None,
+            estimator.heading_variance() if estimator is not None else None,
         )
         vx, vy, _ = truth.base.vel.tolist()
         self.speed_path += math.hypot(vx, vy) * self.control_dt

@@ -8,7 +8,9 @@
 - `nees_pos_mean`: mean normalised estimation error squared of the horizontal position, eᵀ P⁻¹ e with P the
   filter's 2×2 horizontal position covariance; a consistent filter averages 2 (two degrees of freedom);
 - `inside_3sigma_frac`: share of ticks whose true horizontal position lies inside the estimate's 3σ ellipse
-  (eᵀ P⁻¹ e ≤ 9; a consistent Gaussian filter: 98.9 %).
+  (eᵀ P⁻¹ e ≤ 9; a consistent Gaussian filter: 98.9 %);
+- `nees_yaw_mean`, `yaw_inside_3sigma_frac`: the same for the heading (one degree of freedom: a consistent filter
+  averages 1, and 99.7 % of its ticks have |error| ≤ 3σ), when the heading variance is given.
 Only evaluation code calls this; it reads the simulator's truth.
 """
 
@@ -36,6 +38,9 @@ class ConsistencyTracker:
         self.nees_sum = 0.0
         self.nees_n = 0
         self.inside = 0
+        self.nees_yaw_sum = 0.0
+        self.nees_yaw_n = 0
+        self.yaw_inside = 0
 
     def add(
         self,
@@ -44,6 +49,7 @@ class ConsistencyTracker:
         est_pos: np.ndarray,
         est_quat: np.ndarray,
         pos_cov: np.ndarray | None,
+        yaw_var: float | None = None,
     ) -> None:
         (tx, ty, _), (px, py, _) = truth_pos.tolist(), est_pos.tolist()
         ex, ey = tx - px, ty - py
@@ -53,6 +59,11 @@ class ConsistencyTracker:
         self.err_max = max(self.err_max, err)
         dyaw = (yaw_of_quat(est_quat) - yaw_of_quat(truth_quat) + math.pi) % (2 * math.pi) - math.pi
         self.yaw_max = max(self.yaw_max, abs(dyaw))
+        if yaw_var is not None and yaw_var > 0:
+            nees_yaw = dyaw * dyaw / yaw_var
+            self.nees_yaw_sum += nees_yaw
+            self.nees_yaw_n += 1
+            self.yaw_inside += nees_yaw <= 9.0
         if pos_cov is None:
             return
         (a, b), (_, d) = pos_cov[:2, :2].tolist()
@@ -74,4 +85,6 @@ class ConsistencyTracker:
             "yaw_error_max_deg": r(math.degrees(self.yaw_max), 3) if self.n else None,
             "nees_pos_mean": r(self.nees_sum / self.nees_n, 3) if self.nees_n else None,
             "inside_3sigma_frac": r(self.inside / self.nees_n) if self.nees_n else None,
+            "nees_yaw_mean": r(self.nees_yaw_sum / self.nees_yaw_n, 3) if self.nees_yaw_n else None,
+            "yaw_inside_3sigma_frac": r(self.yaw_inside / self.nees_yaw_n) if self.nees_yaw_n else None,
         }

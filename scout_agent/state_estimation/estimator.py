@@ -319,6 +319,12 @@ class StateEstimator:
         """(3, 3) covariance of the base position, world frame [m²]."""
         return self.ekf.P[6:9, 6:9].copy()
 
+    def heading_variance(self) -> float:
+        """Variance of the heading (rotation about world z) [rad²]: the rotation error's covariance, kept in the
+        base frame, turned into the world frame."""
+        R = self.ekf.R
+        return float((R @ self.ekf.P[0:3, 0:3] @ R.T)[2, 2])
+
     def _estimate(self, omega: np.ndarray) -> StateEstimate:
         e = self.ekf
         return StateEstimate(self.t, e.p.copy(), e.R.copy(), matrix_to_quat(e.R), e.v.copy(), omega)

@@ -39,6 +39,8 @@ REQUIRED = (
     "yaw_error_max_deg",
     "nees_pos_mean",
     "inside_3sigma_frac",
+    "nees_yaw_mean",
+    "yaw_inside_3sigma_frac",
 )
 
 
@@ -88,6 +90,7 @@ def test_evaluate_prints_one_json_object_with_the_figures(capsys):
     assert (res["sensors"], res["localization"], res["launch"]["mode"]) == ("realistic", "off", "survey")
     assert res["launch"]["datum"] == "declared"  # no DEM, no map: the height is declared, never read
     assert res["pos_error_final_m"] <= res["pos_error_max_m"] and 0.0 <= res["inside_3sigma_frac"] <= 1.0
+    assert res["nees_yaw_mean"] > 0 and 0.0 <= res["yaw_inside_3sigma_frac"] <= 1.0
     assert 0 < res["drift_xy_pct"] < 5 and abs(res["drift_z_m"]) < 0.05
     assert res["elevation_rmse_exact_m"] <= res["elevation_rmse_m"] + 0.01
     assert res["cot_whole_run"] == pytest.approx(res["cot_whole_run_truth"], rel=0.1)

@@ -1,0 +1,33 @@
+"""The consistency figures: NEES and 3σ containment of the position and the heading, against known errors."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from scout_agent.state_estimation.consistency import ConsistencyTracker
+
+
+def _quat(yaw: float) -> np.ndarray:
+    return np.array([math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)])
+
+
+def test_heading_nees_and_containment_follow_the_errors_and_the_variance() -> None:
+    tr = ConsistencyTracker()
+    sigma = math.radians(1.0)
+    errors_deg = [0.5, -1.0, 2.0, -4.0]  # 0.25, 1, 4 and 16 in NEES; the last is outside 3σ
+    for k, e in enumerate(errors_deg):
+        true_yaw = 3.1 if k % 2 else -3.1  # across ±π: the error wraps
+        tr.add(
+            np.zeros(3), _quat(true_yaw), np.zeros(3), _quat(true_yaw + math.radians(e)), np.eye(2), sigma**2
+        )
+    s = tr.summary()
+    assert s["nees_yaw_mean"] == pytest.approx((0.25 + 1 + 4 + 16) / 4, rel=1e-3)
+    assert s["yaw_inside_3sigma_frac"] == pytest.approx(0.75)
+    assert s["yaw_error_max_deg"] == pytest.approx(4.0, abs=1e-6)
+    # with no heading variance given (the exact state) the heading figures are absent, not zero
+    bare = ConsistencyTracker()
+    bare.add(np.zeros(3), _quat(0.0), np.zeros(3), _quat(0.1), None)
+    assert bare.summary()["nees_yaw_mean"] is None and bare.summary()["yaw_inside_3sigma_frac"] is None
