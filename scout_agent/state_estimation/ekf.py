@@ -119,6 +119,32 @@ class ErrorStateEKF:
         H[0, 8] = 1.0
         return H
 
+    def add_heading_variance(self, q: float) -> None:
+        """Process noise of the heading alone, the rotation about world z [rad²]: in the base-frame error state
+        that is u = Rᵀe_z (R's third row), so P_θθ grows by q·u uᵀ. Adding q to the base-z element instead
+        would, on a slope of α, add sin α of it to the tilt, fully correlated with heading; an update that
+        measures the tilt (gravity) would then turn the heading by cot α × its tilt residual."""
+        u = self.R[2]
+        self.P[0:3, 0:3] += q * np.outer(u, u)
+
+    def heading_variance(self) -> float:
+        """Variance of the heading (rotation about world z) [rad²]: uᵀ P_θθ u, u = Rᵀe_z."""
+        u = self.R[2]
+        return float(u @ self.P[0:3, 0:3] @ u)
+
+    def gravity_update(self, f_base: np.ndarray, std_mps2: float, gate_chi2: float) -> bool:
+        """Standing still the accelerometer reads gravity: f = Rᵀ(−g) + ba, H_θ = [Rᵀ(−g)]×, H_ba = I; σ per
+        axis `std_mps2`, χ²(3)-gated (the trunk accelerating). Gravity says nothing of heading (a rotation about
+        it leaves Rᵀ(−g) unchanged), so this is a Schmidt update of heading, as the leg odometry's: no
+        correlation the linearisation carries turns it. Returns whether it was fused."""
+        u = self.R.T @ -self.g
+        H = np.zeros((3, 15))
+        H[:, 0:3] = skew(u)
+        H[:, 12:15] = np.eye(3)
+        residual = np.asarray(f_base, dtype=float) - (u + self.ba)
+        keep = self.update(residual, H, np.full(3, std_mps2**2), gate_chi2=gate_chi2, hold_heading=True)
+        return bool(keep[0])
+
     def update(
         self,
         residual: np.ndarray,

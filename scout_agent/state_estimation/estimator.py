@@ -79,7 +79,6 @@ from scout_agent.estimators.elevation import terrain_normal
 from scout_agent.estimators.feet import PinocchioFeet
 from scout_agent.onboard.drivers import SensorTick
 from scout_agent.robot import constants as C
-from scout_agent.robot.vectors import skew
 
 from . import kernels
 from .ekf import ErrorStateEKF, NoiseConfig
@@ -306,10 +305,16 @@ class StateEstimator:
         # heading from scale/cross-axis: k × the angle turned, from the yaw rate low-passed over `turn_lowpass_s`
         # (the trot's zero-mean yaw wobble turns the robot nowhere; counting |ω| made the heading σ grow 2° a
         # minute on a straight walk)
+        # about world z (u = Rᵀe_z), not base z: on a slope the base-z variance was also tilt, fully correlated
+        # with heading, and the gravity update then turned the heading by cot(slope) × its tilt residual (3.8° in
+        # 0.4 s at a hazard stop on a 12° slope of a 100 m walk; ekf.add_heading_variance)
+        u = self.ekf.R[2]
         a = min(dt / c.turn_lowpass_s, 1.0)
-        self._wz_lp += a * (float(tick.imu_gyro[2] - self.ekf.bg[2]) - self._wz_lp)
+        self._wz_lp += a * (float(u @ (tick.imu_gyro - self.ekf.bg)) - self._wz_lp)
         wz = abs(self._wz_lp)
-        P[2, 2] += 2.0 * c.gyro_scale_std**2 * self.turned_rad * wz * dt
+        q = 2.0 * c.gyro_scale_std**2 * self.turned_rad * wz * dt
+        if q > 0.0:
+            self.ekf.add_heading_variance(q)
         self.turned_rad += wz * dt
         if n_rejected:  # the gate refused a foot: the others may be sliding too, undetected
             P[6, 6] += n_rejected * c.slip_pos_std_m**2
@@ -322,8 +327,7 @@ class StateEstimator:
     def heading_variance(self) -> float:
         """Variance of the heading (rotation about world z) [rad²]: the rotation error's covariance, kept in the
         base frame, turned into the world frame."""
-        R = self.ekf.R
-        return float((R @ self.ekf.P[0:3, 0:3] @ R.T)[2, 2])
+        return self.ekf.heading_variance()
 
     def _estimate(self, omega: np.ndarray) -> StateEstimate:
         e = self.ekf
@@ -419,12 +423,8 @@ class StateEstimator:
         if t - self._stand_since < ss.settle_s:
             return
         self.standstill_s += dt
-        if ss.level_std_mps2 > 0:  # gravity: f = Rᵀ(−g) + ba; H_θ = [Rᵀ(−g)]×, H_ba = I
-            u = e.R.T @ -e.g
-            H = np.zeros((3, 15))
-            H[:, 0:3] = skew(u)
-            H[:, 12:15] = np.eye(3)
-            e.update(f_base - (u + e.ba), H, np.full(3, ss.level_std_mps2**2), gate_chi2=ss.gate_chi2)
+        if ss.level_std_mps2 > 0:  # gravity: roll, pitch and the accelerometer bias (heading held)
+            e.gravity_update(f_base, ss.level_std_mps2, ss.gate_chi2)
         if self._zaru is None:
             self._zaru = ZeroRateWindow(t, fb)
             return

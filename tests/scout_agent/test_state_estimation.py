@@ -12,6 +12,7 @@ import pytest
 from scout_agent.estimators.pipeline import quat_to_matrix
 from scout_agent.loop import SimConfig, SimulatedScout
 from scout_agent.mapping import Mapper, MapperConfig
+from scout_agent.robot.vectors import skew
 from scout_agent.run import ScoutRunConfig, run_scout
 from scout_agent.signals import BaseState, GroundTruth
 from scout_agent.sim.aliengo import SimulatedAliengo
@@ -346,3 +347,65 @@ def test_slipping_feet_do_not_turn_the_heading_and_the_legs_do_not_claim_to_obse
     before, after, sigma = _heading_error_over_a_slip(hold_heading=False)
     assert abs(after - before) > 0.5 and sigma < 4.5  # measured 0.67°, σ 4.15°
     assert EstimatorConfig().odometry_holds_heading  # what the scout runs
+
+
+def _heading_turned_by_gravity(world_z: bool) -> tuple[float, float]:
+    """A base standing on a 12° slope (pitched), heading σ raised by 5° of process noise (as the gyro's scale
+    term does after turns), then one gravity update whose accelerometer reading carries a 0.1° tilt residual.
+    Returns the heading change [deg] and the tilt variance the heading noise added [rad²] (about the axis a
+    base-z rotation shares with the tilt on this slope: base z less its part along u = Rᵀe_z)."""
+    g = np.array([0.0, 0.0, -1.62])
+    R = so3_exp(np.array([0.0, math.radians(12.0), 0.0]))
+    # tilt and accelerometer bias well known, as after a walk's gravity and leg updates
+    ekf = ErrorStateEKF(R, np.zeros(3), np.zeros(3), g, NoiseConfig(init_tilt=1e-3, init_acc_bias=1e-3))
+    q = math.radians(5.0) ** 2
+    u = ekf.R[2]
+    ez = np.array([0.0, 0.0, 1.0])
+    w = ez - (ez @ u) * u
+    w /= np.linalg.norm(w)
+    tilt_before = float(w @ ekf.P[0:3, 0:3] @ w)
+    heading_before = ekf.heading_variance()
+    if world_z:
+        ekf.add_heading_variance(q)
+    else:  # the estimator before: the variance on the base-z element
+        ekf.P[2, 2] += q
+    # the heading variance grows by q only when added about world z
+    grown = ekf.heading_variance() - heading_before
+    assert (abs(grown - q) < 1e-9 * q) == world_z
+    tilt_added = float(w @ ekf.P[0:3, 0:3] @ w) - tilt_before
+    f_true = (R @ so3_exp(math.radians(0.1) * w)).T @ -g
+    psi0 = math.atan2(ekf.R[1, 0], ekf.R[0, 0])
+    for _ in range(50):
+        H = np.zeros((3, 15))
+        uf = ekf.R.T @ -g
+        H[:, 0:3] = skew(uf)
+        H[:, 12:15] = np.eye(3)
+        ekf.update(f_true - uf - ekf.ba, H, np.full(3, 0.05**2))
+    return math.degrees(math.atan2(ekf.R[1, 0], ekf.R[0, 0]) - psi0), tilt_added
+
+
+def test_heading_noise_is_added_about_world_z_so_gravity_on_a_slope_does_not_turn_the_heading():
+    turned, tilt_added = _heading_turned_by_gravity(world_z=True)
+    assert abs(turned) < 0.02 and abs(tilt_added) < 1e-12  # measured 0.004° (the plain update relinearises)
+    turned_before, tilt_before = _heading_turned_by_gravity(world_z=False)
+    # before: the tilt residual turned the heading by about cot(12°) × 0.1° (measured 0.46°)
+    assert abs(turned_before) > 0.3 and tilt_before > 1e-4
+
+
+def test_the_gravity_update_levels_the_base_and_leaves_the_heading_alone():
+    # a heading error correlated with the tilt (any linearisation can leave one): gravity still must not turn it
+    g = np.array([0.0, 0.0, -1.62])
+    R = so3_exp(np.array([0.0, math.radians(12.0), 0.0]))
+    ekf = ErrorStateEKF(R, np.zeros(3), np.zeros(3), g, NoiseConfig(init_acc_bias=1e-4))
+    ekf.P[2, 2] += math.radians(5.0) ** 2  # base z on a slope: heading and pitch together
+    true_R = R @ so3_exp(np.array([0.0, math.radians(0.3), 0.0]))
+    psi0 = math.atan2(ekf.R[1, 0], ekf.R[0, 0])
+    var0 = ekf.heading_variance()
+    for _ in range(50):
+        assert ekf.gravity_update(true_R.T @ -g, 0.05, 16.3)
+    pitch_err = np.linalg.norm(
+        np.cross(ekf.R.T @ np.array([0.0, 0.0, 1.0]), true_R.T @ np.array([0.0, 0.0, 1.0]))
+    )
+    assert pitch_err < math.radians(0.03)  # levelled from 0.3°
+    assert abs(math.degrees(math.atan2(ekf.R[1, 0], ekf.R[0, 0]) - psi0)) < 1e-3
+    assert ekf.heading_variance() >= 0.99 * var0  # and claims to have learnt no heading from it
