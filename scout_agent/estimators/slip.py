@@ -61,13 +61,14 @@ within a stance matters, not absolute position drift.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 
 from scout_agent.errors import ScoutConfigError
+
+from . import slip_kernel as K
 
 __all__ = ["SlipConfig", "SlipDetector", "SlipTick", "delta_p_paper", "delta_p_vector", "delta_v"]
 
@@ -125,44 +126,51 @@ class SlipTick(NamedTuple):
     eps_v: float  # current ε_v
 
 
-_F4 = (False, False, False, False)
-
-
 class SlipDetector:
     """Stateful detector for the 4 legs; feed it one tick at a time with `update`.
 
-    The per-tick path runs on Python scalars, and ΔV/ΔP only for settled stance feet: at 4 legs numpy's
-    per-call overhead (≈ 1 µs a call) outweighs the arithmetic. `delta_v`/`delta_p_*` above are the
-    vectorised reference forms (tests check the two agree).
+    The per-tick step is compiled (`slip_kernel.slip_step`: the four feet in one call, the state below in
+    place; ΔV/ΔP only for settled stance feet). `delta_v`/`delta_p_*` above are the vectorised reference
+    forms (tests check the two agree).
     """
 
     def __init__(self, config: SlipConfig | None = None) -> None:
         self.config = config or SlipConfig()
         c = self.config
         self._paper = c.form == "paper"
+        self._use_bias = not self._paper and c.bias_tau_s > 0
         # ΔV of finished stances (default form: non-slipping ones only), sized at the second tick
         self._ring = np.zeros(0)
-        self._ring_i = 0
-        self._ring_n = 0
-        self._stance_dv: list[list[float]] = [[], [], [], []]
+        self._stance_dv = np.zeros((4, _STANCE_DV_CAP0))  # this stance's ΔV per leg (circular, see kernel)
+        self._counts = np.zeros(10, np.int64)  # per-leg and ring counts (slip_kernel)
         self.eps_v = c.eps_v_floor
         self._t_prev: float | None = None
-        self._pb = [0.0, 0.0, 0.0]  # base position integrated from the known velocity [m]
-        self._planned_prev = [False] * 4
-        self._contact_prev = [False] * 4
-        self._touched = [False] * 4
-        self._t_td = [0.0] * 4
-        self._p_td = [[0.0, 0.0, 0.0] for _ in range(4)]  # touchdown foot points, integration frame [m]
-        self._vflag = [False] * 4
-        self._pre = [False] * 4  # in contact at the last planned-swing tick
-        self._p_pre = [[0.0, 0.0, 0.0] for _ in range(4)]  # the foot point then, integration frame [m]
-        self._slipped = [False] * 4
-        self._err = [[0.0, 0.0, 0.0] for _ in range(4)]  # low-passed foot velocity error, base frame [m/s]
-        self._err_new = [True] * 4
-        self.bias = [0.0, 0.0, 0.0]  # estimated bias of the known base velocity, world frame [m/s]
-        self._ap_sum = [[0.0, 0.0, 0.0] for _ in range(4)]  # apparent planted-foot velocity this stance
-        self._ap_n = [0] * 4
+        self._pb = np.zeros(3)  # base position integrated from the known velocity [m]
+        self._flags = np.zeros((7, 4), bool)  # per-leg flags, rows in slip_kernel
+        self._flags[K.ERR_NEW] = True
+        self._t_td = np.zeros(4)
+        self._p_td = np.zeros((4, 3))  # touchdown foot points, integration frame [m]
+        self._p_pre = np.zeros((4, 3))  # the foot point at the last planned-swing tick, integration frame [m]
+        self._err = np.zeros((4, 3))  # low-passed foot velocity error, base frame [m/s]
+        self.bias = np.zeros(3)  # estimated bias of the known base velocity, world frame [m/s]
+        self._ap_sum = np.zeros((4, 3))  # apparent planted-foot velocity this stance, summed (world)
         self._dt = 0.0
+        self._out_flags = np.zeros((5, 4), bool)
+        self._out_vals = np.zeros((2, 4))
+        self._params = np.array(
+            [
+                c.eps_v_floor,
+                c.eps_p_m,
+                c.eps_p_alone_m,
+                c.h_mps,
+                c.settle_s,
+                c.bias_settle_s,
+                c.bias_gate_mps**2,
+                c.foot_radius_m,
+                c.bias_tau_s,
+                2.0,  # the ΔP squares' exponent (slip_kernel: libm's pow, as Python's ** calls)
+            ]
+        )
 
     def reset(self) -> None:
         self.__init__(self.config)  # type: ignore[misc]
@@ -170,7 +178,7 @@ class SlipDetector:
     @property
     def base_pos_integrated(self) -> tuple[float, float, float]:
         """The base position integrated from the base velocity since the first tick [m]."""
-        return tuple(self._pb)  # type: ignore[return-value]
+        return tuple(self._pb.tolist())  # type: ignore[return-value]
 
     def update(
         self,
@@ -189,175 +197,81 @@ class SlipDetector:
         self._t_prev = t
         if dt > 0 and len(self._ring) == 0:  # ≈ 2 feet in stance at a time
             self._ring = np.zeros(max(20, 2 * int(round(c.eps_v_window_s / dt))))
-        vx, vy, vz = base_vel_world.tolist()
+            self._grow_stance_dv(len(self._ring))
         paper = self._paper
-        use_bias = not paper and c.bias_tau_s > 0
-        if use_bias:
-            b = self.bias
-            vx, vy, vz = vx - b[0], vy - b[1], vz - b[2]
         a_v = dt / (c.dv_tau_s + dt) if (not paper and c.dv_tau_s > 0 and dt > 0) else 1.0
         self._dt = dt if dt > 0 else self._dt
-        pb = self._pb
-        pb[0] += vx * dt
-        pb[1] += vy * dt
-        pb[2] += vz * dt
-        planned = stance_planned.tolist()
-        cont = contact.tolist()
-        eps_v, eps_p = self.eps_v, c.eps_p_m
-        touched, vflag, slipped = self._touched, self._vflag, self._slipped
-        rot: Any = None  # nested lists, filled on first use (hot path: Python scalars, no numpy)
-        fpos: Any = None
-        fvel: Any = None
-        fomega: Any = None
-        vb = (0.0, 0.0, 0.0)
-        wx = wy = wz = 0.0
-        h = c.h_mps
-        dvl = [math.nan] * 4
-        td = [False] * 4
-        ev = [False] * 4
-        end = [False] * 4
-        slip_out = [False] * 4
-        settled = [False] * 4
-        dp = [math.nan] * 4
-        for i in range(4):
-            p = planned[i]
-            if p != self._planned_prev[i]:  # a planned stance starts or ends: clear the per-stance state
-                if not p and touched[i]:
-                    end[i] = True
-                    slip_out[i] = slipped[i]
-                self._commit(i, slipped[i])
-                touched[i] = vflag[i] = slipped[i] = False
-            ci = cont[i]
-            if not p:
-                if ci and not paper:  # in contact before the planned stance (early touchdown): remember where
-                    if rot is None:
-                        rot, fpos = world_R_base.tolist(), foot_pos.tolist()
-                    f = fpos[i]
-                    self._p_pre[i] = [
-                        pb[k] + rot[k][0] * f[0] + rot[k][1] * f[1] + rot[k][2] * f[2] for k in range(3)
-                    ]
-                self._pre[i] = ci
-                continue
-            if ci and (not self._contact_prev[i] if paper else not touched[i]):
-                if rot is None:
-                    rot, fpos = world_R_base.tolist(), foot_pos.tolist()
-                td[i] = touched[i] = True
-                vflag[i] = False if paper else vflag[i]
-                self._err_new[i] = True
-                self._t_td[i] = t
-                f = fpos[i]
-                # the foot landed in late swing: the reference is its point then (as in the ground truth)
-                if self._pre[i] and not paper:
-                    self._p_td[i] = self._p_pre[i]
-                else:
-                    self._p_td[i] = [
-                        pb[k] + rot[k][0] * f[0] + rot[k][1] * f[1] + rot[k][2] * f[2] for k in range(3)
-                    ]
-            if not (ci and touched[i]) or (not paper and t - self._t_td[i] < c.settle_s - 1e-9):
-                slip_out[i] = slip_out[i] or slipped[i]
-                continue
-            settled[i] = True
-            if rot is None:
-                rot, fpos = world_R_base.tolist(), foot_pos.tolist()
-            if fvel is None:
-                fvel = foot_vel.tolist()
-                fomega = foot_omega.tolist() if foot_omega is not None else None
-                vb = tuple(rot[0][k] * vx + rot[1][k] * vy + rot[2][k] * vz for k in range(3))  # R^T v
-                wx, wy, wz = base_omega.tolist()
-            f = fpos[i]
-            # ΔV (eq. 1): ẋ_des = −(R^T v + ω × x)
-            e0 = -(vb[0] + wy * f[2] - wz * f[1])
-            e1 = -(vb[1] + wz * f[0] - wx * f[2])
-            e2 = -(vb[2] + wx * f[1] - wy * f[0])
-            fv = fvel[i]
-            q0, q1, q2 = e0 - fv[0], e1 - fv[1], e2 - fv[2]  # −(apparent foot velocity in the world)
-            if a_v < 1.0:  # low-pass within the stance (default form)
-                err = self._err[i]
-                if self._err_new[i]:
-                    err[0], err[1], err[2] = q0, q1, q2
-                    self._err_new[i] = False
-                else:
-                    err[0] += a_v * (q0 - err[0])
-                    err[1] += a_v * (q1 - err[1])
-                    err[2] += a_v * (q2 - err[2])
-                q0, q1, q2 = err
-            r0 = q0 / (abs(e0) + h)
-            r1 = q1 / (abs(e1) + h)
-            r2 = q2 / (abs(e2) + h)
-            dvi = dvl[i] = math.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
-            self._stance_dv[i].append(dvi)
-            # x_des = R^T (p_td − p_base): the touchdown point in the base frame now
-            ptd = self._p_td[i]
-            d0, d1, d2 = ptd[0] - pb[0], ptd[1] - pb[1], ptd[2] - pb[2]
-            xd = [rot[0][k] * d0 + rot[1][k] * d1 + rot[2][k] * d2 for k in range(3)]
-            if paper:  # eq. 2: | ‖x_des‖ − ‖x‖ |
-                dpi = abs(
-                    math.sqrt(xd[0] ** 2 + xd[1] ** 2 + xd[2] ** 2)
-                    - math.sqrt(f[0] ** 2 + f[1] ** 2 + f[2] ** 2)
-                )
-                hit = dvi > eps_v and dpi > eps_p
-            else:  # ‖x_des − x‖, ΔV flag held within the stance
-                dpi = math.sqrt((xd[0] - f[0]) ** 2 + (xd[1] - f[1]) ** 2 + (xd[2] - f[2]) ** 2)
-                if dvi > eps_v:
-                    vflag[i] = True
-                hit = dpi > eps_p and (vflag[i] or dpi > c.eps_p_alone_m)
-            if use_bias and t - self._t_td[i] >= c.bias_settle_s - 1e-9:
-                # a planted ball foot moves only by rolling, ω_foot × r·n̂ (n̂ ≈ world up, in the base frame the
-                # third row of R); the rest of its apparent velocity is the base velocity's error. Summed here,
-                # it updates the bias at the end of the stance if the stance had no slip (`_commit`).
-                ap0, ap1, ap2 = -(e0 - fv[0]), -(e1 - fv[1]), -(e2 - fv[2])
-                if fomega is not None:
-                    o = fomega[i]
-                    o0, o1, o2 = o[0] + wx, o[1] + wy, o[2] + wz
-                    n0, n1, n2 = (
-                        rot[2][0] * c.foot_radius_m,
-                        rot[2][1] * c.foot_radius_m,
-                        rot[2][2] * c.foot_radius_m,
-                    )
-                    ap0 -= o1 * n2 - o2 * n1
-                    ap1 -= o2 * n0 - o0 * n2
-                    ap2 -= o0 * n1 - o1 * n0
-                if ap0 * ap0 + ap1 * ap1 + ap2 * ap2 < c.bias_gate_mps**2:
-                    acc = self._ap_sum[i]
-                    for k in range(3):
-                        acc[k] += rot[k][0] * ap0 + rot[k][1] * ap1 + rot[k][2] * ap2
-                    self._ap_n[i] += 1
-            dp[i] = dpi
-            if hit and not slipped[i]:
-                ev[i] = slipped[i] = True
-            slip_out[i] = slipped[i]
-        self._planned_prev = planned
-        self._contact_prev = cont
+        params = self._params
+        params[0] = self.eps_v
+        fed = K.slip_step(
+            t,
+            dt,
+            self._dt,
+            a_v,
+            params,
+            paper,
+            self._use_bias,
+            _bools(stance_planned),
+            _bools(contact),
+            _floats(foot_pos),
+            _floats(foot_vel),
+            _floats(world_R_base),
+            _floats(base_vel_world),
+            _floats(base_omega),
+            _floats(foot_omega) if foot_omega is not None else _NO_OMEGA,
+            foot_omega is not None,
+            self._flags,
+            self._pb,
+            self.bias,
+            self._t_td,
+            self._p_td,
+            self._p_pre,
+            self._err,
+            self._ap_sum,
+            self._stance_dv,
+            self._ring,
+            self._counts,
+            self._out_flags,
+            self._out_vals,
+        )
+        eps_v = self.eps_v  # this tick's decisions used the ε_v from before its finished stances
+        if fed:
+            self._update_eps_v()
+        td, ev, end, slip_out, settled = self._out_flags.tolist()
+        dv, dp = self._out_vals.tolist()
         return SlipTick(
-            tuple(td), tuple(ev), tuple(end), tuple(slip_out), tuple(settled), tuple(dvl), tuple(dp), eps_v
+            tuple(td), tuple(ev), tuple(end), tuple(slip_out), tuple(settled), tuple(dv), tuple(dp), eps_v
         )
 
-    def _commit(self, i: int, slipped: bool) -> None:
-        """A stance of leg i is over. Default form: if it had no slip, its mean apparent foot velocity moves
-        the bias estimate (weight stance duration / bias_tau_s). Its ΔV values join the ε_v history (default
-        form: only without a slip, so dense slipping does not raise the threshold meant to find it); ε_v is
-        recomputed."""
-        n_ap = self._ap_n[i]
-        if n_ap:
-            if not slipped:
-                w = min(1.0, n_ap * self._dt / self.config.bias_tau_s)
-                acc = self._ap_sum[i]
-                for k in range(3):
-                    self.bias[k] += w * (acc[k] / n_ap)
-            self._ap_sum[i] = [0.0, 0.0, 0.0]
-            self._ap_n[i] = 0
-        vals = self._stance_dv[i]
-        if not vals:
-            return
-        self._stance_dv[i] = []
-        n = len(self._ring)
-        if n == 0 or (slipped and not self._paper):
-            return
-        for v in vals[-n:]:
-            self._ring[self._ring_i] = v
-            self._ring_i = (self._ring_i + 1) % n
-        self._ring_n = min(n, self._ring_n + len(vals))
-        if self._ring_n >= 10:
-            hist = self._ring[: self._ring_n]
-            k = min(self._ring_n - 1, int(round(self.config.eps_v_percentile / 100.0 * (self._ring_n - 1))))
+    def _update_eps_v(self) -> None:
+        """ε_v = the configured percentile of the ring's ΔV history (once it holds 10), never below the floor."""
+        ring_n = int(self._counts[K.RING_FILLED])
+        if ring_n >= 10:
+            hist = self._ring[:ring_n]
+            k = min(ring_n - 1, int(round(self.config.eps_v_percentile / 100.0 * (ring_n - 1))))
             self.eps_v = max(float(np.partition(hist, k)[k]), self.config.eps_v_floor)
+
+    def _grow_stance_dv(self, cap: int) -> None:
+        """Make each leg's stance ΔV buffer hold at least `cap` values (the ring's length), keeping its last
+        values in order."""
+        old = self._stance_dv
+        if old.shape[1] >= cap:
+            return
+        new = np.zeros((4, cap))
+        for i in range(4):
+            cnt = int(self._counts[K.STANCE_N + i])
+            for j in range(max(0, cnt - old.shape[1]), cnt):
+                new[i, j % cap] = old[i, j % old.shape[1]]
+        self._stance_dv = new
+
+
+_STANCE_DV_CAP0 = 20  # each leg's stance ΔV buffer before the ring is sized (the first tick's values)
+_NO_OMEGA = np.zeros((4, 3))
+
+
+def _floats(a: np.ndarray) -> np.ndarray:
+    return a if a.dtype == np.float64 and a.flags.c_contiguous else np.ascontiguousarray(a, dtype=float)
+
+
+def _bools(a: np.ndarray) -> np.ndarray:
+    return a if a.dtype == np.bool_ else np.asarray(a, dtype=bool)

@@ -294,6 +294,26 @@ def test_eps_v_is_a_percentile_of_recent_non_slipping_stances_with_a_floor():
     assert det.eps_v == before
 
 
+def test_a_stance_longer_than_the_history_leaves_its_last_values_in_it():
+    # paper form (no low-pass), base still, foot still: ΔV = ‖ẋ‖ / h exactly, ΔP = 0 (never a slip). One leg
+    # stands 1990 ticks at 500 Hz (the history holds 2·1.5 s / 2 ms = 1500 values): 540 ticks at ΔV 5, then
+    # 1450 ticks stepping through 0.5..1.9; ε_v is the 95th percentile of the last 1500 only (50 of them 5:
+    # 3 %; of all 1990 values 27 % are 5).
+    det = SlipDetector(SlipConfig(form="paper"))
+    dvs = np.concatenate([np.full(540, 5.0), np.linspace(0.5, 1.9, 1450)])
+    planned = np.array([True, False, False, False])
+    feet = np.tile(FOOT0, (4, 1))
+    for k, dv in enumerate(dvs):
+        vel = np.zeros((4, 3))
+        vel[0, 0] = dv * 0.05
+        tick = det.update(k * DT, planned, planned, feet, vel, I3, Z3, Z3)
+        assert tick.dv[0] == pytest.approx(dv, rel=1e-12)
+    off = np.zeros(4, dtype=bool)
+    det.update(len(dvs) * DT, off, off, feet, np.zeros((4, 3)), I3, Z3, Z3)
+    assert det.eps_v == pytest.approx(float(np.sort(dvs[-1500:])[round(0.95 * 1499)]), rel=1e-12)
+    assert 1.8 < det.eps_v < 1.9  # the first 490 of the 540 high values fell out
+
+
 def test_detector_indicators_equal_the_reference_formulas():
     rng = np.random.default_rng(5)
     det = SlipDetector(SlipConfig(settle_s=0.0, dv_tau_s=0.0, bias_tau_s=0.0))
