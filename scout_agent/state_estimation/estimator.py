@@ -59,9 +59,9 @@ can do, from what the robot knows:
 - leg odometry's along-track error is a fraction of the distance (1–2 % in the literature, docs/physics.md; foot
   rolling, compliance, link lengths): the horizontal position variance grows along the velocity by
   2 k² d·|v| dt, so σ = k·d with k = `odometry_scale_std` (1 %);
-- the gyro's scale and cross-axis error turn heading by a fraction of the angle turned: the heading variance
-  grows the same way with k = `gyro_scale_std` (1.4 %, BMI088 ±1 % each), the angle from the yaw rate low-passed
-  over 1 s (the trot's zero-mean wobble turns the robot nowhere);
+- the gyro's scale and cross-axis error turn heading by a constant fraction of the net turn: the heading variance
+  is raised to k²·max|ψ − ψ_ref|² with k = `gyro_scale_std` (1.4 %, BMI088 ±1 % each), the reference restarting
+  when a measurement halved the heading variance (a pose fix); it is added about world z (`ErrorStateEKF.add_heading_variance`);
 - a foot the χ² gate refused was slipping; its neighbours may slip too, under the gate: each refusal adds
   `slip_pos_std_m`² (5 mm) to the horizontal position variance.
 """
@@ -106,8 +106,7 @@ class EstimatorConfig:
     # what the filter knows of the IMU's temperature behaviour: the datasheet's TCO as a σ (sensors/imu.py)
     gyro_tempco_std: float = float(np.radians(0.015))  # [rad/s/K]
     acc_tempco_std: float = 0.2e-3 * 9.80665  # [m/s²/K]
-    gyro_scale_std: float = 0.014  # heading error per radian turned: scale ⊕ cross-axis (1 % each)
-    turn_lowpass_s: float = 1.0  # the turned angle counts the yaw rate low-passed over this (1.4 Hz gait) [s]
+    gyro_scale_std: float = 0.014  # heading error per radian of net turn: scale ⊕ cross-axis (1 % each)
     gyro_g_sens_std: float = float(np.radians(0.1) / 9.80665)  # BMI088 0.1 °/s/g per element [rad/s per m/s²]
     odometry_scale_std: float = 0.01  # leg odometry's along-track error per metre walked (1–2 % class)
     slip_pos_std_m: float = 0.005  # horizontal position σ added per foot update the gate rejected [m]
@@ -245,8 +244,9 @@ class StateEstimator:
         self.standstill_s = 0.0  # time stood with standstill updates [s]
         self.bias_heading_rad = 0.0  # ∫σ_bz dt since the last ZARU: heading σ the gyro bias may have added
         self.walked_m = 0.0  # horizontal distance by the estimate [m]
-        self.turned_rad = 0.0  # heading turned by the estimate [rad]
-        self._wz_lp = 0.0  # low-passed yaw rate [rad/s]
+        self.turn_net_rad = 0.0  # net heading turned by the estimate since the scale term's reference [rad]
+        self._turn_peak_rad = 0.0  # the largest |turn_net_rad| since then [rad]
+        self._heading_var_prev = math.inf  # heading variance after the last tick's inflation [rad²]
         self._contact_since = np.full(4, np.inf)
         self._settled = np.zeros(4, bool)
         self._use = np.zeros(4, bool)
@@ -302,20 +302,27 @@ class StateEstimator:
             P[6, 7] += q * ux * uy
             P[7, 6] += q * ux * uy
             self.walked_m += speed * dt
-        # heading from scale/cross-axis: k × the angle turned, from the yaw rate low-passed over `turn_lowpass_s`
-        # (the trot's zero-mean yaw wobble turns the robot nowhere; counting |ω| made the heading σ grow 2° a
-        # minute on a straight walk)
-        # about world z (u = Rᵀe_z), not base z: on a slope the base-z variance was also tilt, fully correlated
-        # with heading, and the gravity update then turned the heading by cot(slope) × its tilt residual (3.8° in
-        # 0.4 s at a hazard stop on a 12° slope of a 100 m walk; ekf.add_heading_variance)
-        u = self.ekf.R[2]
-        a = min(dt / c.turn_lowpass_s, 1.0)
-        self._wz_lp += a * (float(u @ (tick.imu_gyro - self.ekf.bg)) - self._wz_lp)
-        wz = abs(self._wz_lp)
-        q = 2.0 * c.gyro_scale_std**2 * self.turned_rad * wz * dt
+        # heading from the gyro's scale/cross-axis error: a constant factor s of the net turn, s·(ψ − ψ_ref), so
+        # the heading variance is raised to k²·max|ψ − ψ_ref|² (k = `gyro_scale_std`; the largest net turn so
+        # far bounds it whatever the turns' order). Counting every turn's magnitude (k × the angle turned) made
+        # the σ grow without bound as a robot turned back and forth at hazard stops (16° after 660 s, error 3°).
+        # The reference restarts when a measurement at least halved the heading variance (a pose fix: what it
+        # left is mostly the fix's own error, and from there on the scale's is s times the turn since); not on
+        # the small reductions of a standstill's bias correction, which would split one growing error into
+        # segments whose variances add to less than its own.
+        # Added about world z (u = Rᵀe_z), not base z: on a slope the base-z variance was also tilt, fully
+        # correlated with heading, and the gravity update then turned the heading by cot(slope) × its tilt
+        # residual (3.8° in 0.4 s at a hazard stop on a 12° slope of a 100 m walk; ekf.add_heading_variance)
+        e = self.ekf
+        if e.heading_variance() < 0.5 * self._heading_var_prev:
+            self.turn_net_rad = self._turn_peak_rad = 0.0
+        self.turn_net_rad += float(e.R[2] @ (tick.imu_gyro - e.bg)) * dt
+        peak = max(self._turn_peak_rad, abs(self.turn_net_rad))
+        q = c.gyro_scale_std**2 * (peak * peak - self._turn_peak_rad * self._turn_peak_rad)
         if q > 0.0:
-            self.ekf.add_heading_variance(q)
-        self.turned_rad += wz * dt
+            e.add_heading_variance(q)
+        self._turn_peak_rad = peak
+        self._heading_var_prev = e.heading_variance()
         if n_rejected:  # the gate refused a foot: the others may be sliding too, undetected
             P[6, 6] += n_rejected * c.slip_pos_std_m**2
             P[7, 7] += n_rejected * c.slip_pos_std_m**2

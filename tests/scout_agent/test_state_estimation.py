@@ -409,3 +409,46 @@ def test_the_gravity_update_levels_the_base_and_leaves_the_heading_alone():
     assert pitch_err < math.radians(0.03)  # levelled from 0.3°
     assert abs(math.degrees(math.atan2(ekf.R[1, 0], ekf.R[0, 0]) - psi0)) < 1e-3
     assert ekf.heading_variance() >= 0.99 * var0  # and claims to have learnt no heading from it
+
+
+def _heading_after_turns(
+    turns_deg: list[float], scale: float, scale_std: float = 0.014
+) -> tuple[float, float]:
+    """A base turning in place (no contacts, level, exact launch) at 10°/s through `turns_deg` in turn, its gyro
+    reading the yaw rate × (1 + scale), no noise; the filter's scale term `scale_std`. Returns the heading error
+    [deg] and σ [deg] at the end."""
+    from scout_agent.onboard.drivers import SensorTick
+    from scout_agent.robot import constants as C
+    from scout_agent.state_estimation import StateEstimator
+    from scout_agent.state_estimation.launch import LaunchPose
+
+    est = StateEstimator(LaunchPose(0.0, 0.0, 0.0, 0.0), C.HOME_Q, EstimatorConfig(gyro_scale_std=scale_std))
+    f = np.array([0.0, 0.0, C.LUNAR_G])
+    dt, t, yaw = 0.01, 0.0, 0.0
+    for turn in turns_deg:
+        rate = math.copysign(math.radians(10.0), turn)
+        for _ in range(round(abs(turn) / 10.0 / dt)):
+            t += dt
+            yaw += rate * dt
+            tick = SensorTick(
+                f, np.array([0.0, 0.0, rate * (1.0 + scale)]), C.HOME_Q, np.zeros(12), np.zeros(12), 0.0,
+                np.zeros(4), np.zeros(4, bool),
+            )  # fmt: skip
+            est.update(t, tick, dt)
+    psi = math.atan2(est.ekf.R[1, 0], est.ekf.R[0, 0])
+    return math.degrees(psi - yaw), math.degrees(math.sqrt(est.heading_variance()))
+
+
+def test_the_gyro_scale_term_bounds_the_net_turn_not_every_turn():
+    k = EstimatorConfig().gyro_scale_std
+    err_one, sd_one = _heading_after_turns([90.0], scale=k)  # one way: the error is k × 90°
+    assert abs(err_one - 90.0 * k) < 0.02 and sd_one >= abs(err_one)
+    # back and forth four times: the scale error cancels, and the scale term adds (k × 90°)², not (k × 720°)²
+    # (counting every turn's magnitude); beside it the same turns without the term (the bias's and noise's σ)
+    err_back, sd_back = _heading_after_turns([90.0, -90.0] * 4, scale=k)
+    _, sd_none = _heading_after_turns([90.0, -90.0] * 4, scale=k, scale_std=0.0)
+    assert abs(err_back) < 0.02
+    assert abs(math.sqrt(sd_back**2 - sd_none**2) - 90.0 * k) < 0.05
+    # ends 90° away after the back-and-forth: still inside its σ
+    err_far, sd_far = _heading_after_turns([90.0, -90.0] * 3 + [90.0], scale=k)
+    assert abs(err_far) <= sd_far
