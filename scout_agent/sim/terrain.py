@@ -5,7 +5,8 @@ lower-left sample at `(x0, y0)`) that MuJoCo collides with as a triangulated hei
 `slope_deg(x, y)` evaluate the very triangles MuJoCo uses (each cell split along its (ix, iy)-(ix+1, iy+1)
 diagonal), so they are exact, not interpolations of a smoother surface.
 
-Lunar terrain, after OmniLRS ("lunaryard", BSD-3): coarse uniform noise bicubic-upsampled plus fine noise;
+Lunar terrain, after OmniLRS ("lunaryard", BSD-3): coarse uniform noise bicubic-upsampled plus fine noise
+(fields larger than the paper's 20 m: a self-affine relief with LOLA's scaling instead, `FractalRelief`);
 craters by a hard-core Poisson process per size class, ellipticity 0.85–1, random rotation, cosine bowl with
 a raised rim; rocks by a Thomas cluster process as smooth bumps. What a trot can cross is capped where
 routes run (see `LunarConfig`): craters touching a surveyed corridor get depth/diameter ≤ 0.15, rocks there
@@ -234,6 +235,104 @@ def make_ramps(cfg: RampConfig = RampConfig()) -> Terrain:
 
 
 @dataclass(frozen=True)
+class FractalRelief:
+    """A self-affine broad relief by spectral synthesis: a Gaussian random surface whose deviogram (RMS height
+    difference of points a baseline L apart) is v(L) = s·L0·(L/L0)^H, so its RMS slope at baseline L,
+    v(L)/L = s·(L/L0)^(H−1), falls slowly with L while the relief v(L) grows with it. LOLA measures the
+    Moon's topography this way (Rosenburg et al. 2011, JGR 116 E02001; NASA PGDA product 70: Hurst exponents
+    from deviograms over 57 m–2.7 km baselines, H ≈ 0.95 on the maria and lower, ≈ 0.7–0.8, in the highlands;
+    median slopes of a few degrees on the maria, more in the highlands). Stated here: H = 0.8 and a median
+    |slope| of 3° at 25 m (3.6° at 10 m, the paper's 20 m field's 3.2° there; 2.6° at 50 m): a smooth
+    intercrater plain, at the gentle end of the highlands, so that a scout can walk it. For a Gaussian height
+    difference the median |slope| is 0.674 of the RMS one: s = tan 3° / 0.674 ≈ 0.078 (4.4° RMS at 25 m).
+    Wavelengths shorter than `min_wavelength_m` are left out: at those scales the craters, rocks and fine
+    noise of `make_lunar` stand for the surface, and the broad relief's local slope stays bounded."""
+
+    hurst: float = 0.8
+    median_slope_deg: float = 3.0  # median |bidirectional slope| at `baseline_m` [deg]
+    baseline_m: float = 25.0
+    min_wavelength_m: float = 12.0  # shortest wavelength synthesised [m]
+    grid_m: float = 1.0  # synthesis grid (cubic-spline upsampled to the field's res) [m]
+    pad: int = 4  # the synthesis domain is this many field sides (a periodic FFT: no wrap-around)
+    # where routes run (within `grade_band_m`), hillsides steeper than `grade_above_deg` are graded (smoothed
+    # at `grade_sigma_m`): a route is surveyed where the ground is walkable
+    grade_above_deg: float = 12.0
+    grade_band_m: float = 3.0
+    grade_sigma_m: float = 4.0
+
+    @property
+    def rms_slope(self) -> float:
+        """s: the RMS slope (tangent) at `baseline_m`."""
+        return float(np.tan(np.radians(self.median_slope_deg)) / MEDIAN_OVER_RMS)
+
+    def rms_slope_at(self, baseline_m: float) -> float:
+        """The stated RMS slope (tangent) at `baseline_m`: s·(L/L0)^(H−1) (the self-affine law)."""
+        return self.rms_slope * (baseline_m / self.baseline_m) ** (self.hurst - 1.0)
+
+
+MEDIAN_OVER_RMS = 0.6745  # median |x| / RMS of a zero-mean Gaussian
+
+
+def fractal_relief(
+    cfg: FractalRelief, size_m: float, res: float, seed: int, routes: tuple | None = None
+) -> np.ndarray:
+    """The (n, n) self-affine relief [m] of a `size_m` field at `res` (n = size/res + 1), seeded. Random phases
+    and Gaussian amplitudes under the power law |A(k)|² ∝ k^−2(H+1) (an isotropic self-affine surface) on a
+    `pad`× larger periodic grid, band-limited to `min_wavelength_m`; scaled so that the *expected* deviogram
+    at `baseline_m` (computed exactly from the discrete spectrum) is the stated one: each seed's own figure
+    scatters about it as a real surface's would. With `routes` (polylines), the relief is graded where they
+    run (`_grade_routes`)."""
+    rng = np.random.default_rng([seed, 2])
+    m = int(np.ceil(cfg.pad * size_m / cfg.grid_m))
+    f = np.fft.fftfreq(m, d=cfg.grid_m)  # cycles per metre
+    FX, FY = np.meshgrid(f, f)
+    k = np.hypot(FX, FY)
+    amp = np.where(
+        (k > 0) & (k <= 1.0 / cfg.min_wavelength_m), np.maximum(k, 1e-12) ** -(cfg.hurst + 1.0), 0.0
+    )
+    xi = rng.normal(size=(m, m)) + 1j * rng.normal(size=(m, m))
+    z = np.real(np.fft.ifft2(amp * xi))
+    # E[(z(x+L) − z(x))²] along x (and y, the same) for this spectrum: Σ |A|² 2(1 − cos 2π f L) / m⁴
+    L = cfg.baseline_m
+    v2 = float(np.sum(amp**2 * (2.0 - np.cos(2 * np.pi * FX * L) - np.cos(2 * np.pi * FY * L))) / m**4)
+    z *= cfg.rms_slope * L / np.sqrt(v2)
+    nc = int(round(size_m / cfg.grid_m)) + 1
+    zc = z[:nc, :nc]
+    if routes is not None:
+        zc = _grade_routes(zc, cfg, routes)
+    n = int(round(size_m / res)) + 1
+    return zoom(zc, (n - 1) / (nc - 1) + 1e-9, order=3, mode="nearest")[:n, :n]
+
+
+def _grade_routes(zc: np.ndarray, cfg: FractalRelief, routes: tuple) -> np.ndarray:
+    """Where a route crosses the relief's steeper spots (its slope above `grade_above_deg` within
+    `grade_band_m` of the route), blend it toward its `grade_sigma_m`-smoothed self: a surveyed route is
+    laid where the ground is walkable, and a slope that is steep over metres cannot be capped by the
+    corridors' local smoothing (`_cap_corridor_slopes` handles crater walls and rocks, not hillsides)."""
+    g = cfg.grid_m
+    xs = np.arange(zc.shape[0]) * g
+    X, Y = np.meshgrid(xs, xs)
+    d = np.full(zc.shape, np.inf)
+    for route in routes:
+        d = np.minimum(d, _polyline_distance(X, Y, route))
+    near = np.clip((cfg.grade_band_m + 4.0 - d) / 4.0, 0.0, 1.0)
+    for _ in range(3):
+        slope = np.degrees(np.arctan(np.hypot(*np.gradient(gaussian_filter(zc, 1.0), g))))
+        steep = np.clip((slope - cfg.grade_above_deg) / 4.0, 0.0, 1.0)
+        w = np.clip(gaussian_filter(steep, 3.0 / g) * 3.0, 0.0, 1.0) * near
+        zc = zc * (1.0 - w) + gaussian_filter(zc, cfg.grade_sigma_m / g, mode="nearest") * w
+    return zc
+
+
+def deviogram_slope(z: np.ndarray, res: float, baseline_m: float) -> tuple[float, float]:
+    """(RMS, median |·|) of the bidirectional slope (height difference / baseline, a tangent) of the grid `z`
+    (spacing `res`) between points `baseline_m` apart along x and along y, pooled."""
+    lag = int(round(baseline_m / res))
+    d = np.concatenate([(z[:, lag:] - z[:, :-lag]).ravel(), (z[lag:, :] - z[:-lag, :]).ravel()]) / (lag * res)
+    return float(np.sqrt(np.mean(d**2))), float(np.median(np.abs(d)))
+
+
+@dataclass(frozen=True)
 class LunarConfig:
     """Seeded lunar field (OmniLRS-like). Lengths in metres, slopes in degrees."""
 
@@ -243,6 +342,11 @@ class LunarConfig:
     relief_m: float = 3.0  # peak-to-peak of the coarse relief (±1.5 m), before the slope cap
     relief_spacing_m: float = 10.0  # coarse noise grid spacing (bicubic-upsampled): 3 × 3 on 20 m
     relief_max_slope_deg: float = 12.0  # the broad relief is scaled down until its steepest slope is this
+    # the broad relief's model: "paper" (the above: coarse noise normalised over the whole field, which on a
+    # larger field makes its relief ever smoother), "fractal" (self-affine, `FractalRelief`: relief that
+    # grows with scale as the Moon's does), "auto": paper on fields up to the paper's 20 m, fractal beyond
+    broad_relief: str = "auto"
+    fractal: FractalRelief = field(default_factory=FractalRelief)
     fine_noise_m: float = 0.004  # smoothed fine noise std
     # crater classes: (min radius, max radius, density per m²), OmniLRS-like
     crater_classes: tuple[tuple[float, float, float], ...] = (
@@ -281,9 +385,17 @@ class LunarConfig:
     base_info: dict = field(default_factory=dict, compare=False, repr=False)
 
 
+def _fractal(cfg: LunarConfig) -> bool:
+    if cfg.broad_relief not in ("auto", "paper", "fractal"):
+        raise ScoutConfigError(f"broad_relief {cfg.broad_relief!r}; valid: auto, paper, fractal")
+    return cfg.broad_relief == "fractal" or (cfg.broad_relief == "auto" and cfg.size_m > PAPER_FIELD_M)
+
+
 def make_lunar(cfg: LunarConfig = LunarConfig()) -> Terrain:
-    """The seeded field. Densities are per m², so a larger field holds proportionally more craters and rocks
-    and the same relief per coarse cell (`relief_spacing_m`): its statistics do not change with size."""
+    """The seeded field. Densities are per m², so a larger field holds proportionally more craters and rocks;
+    its broad relief is the paper's on the 20 m field and self-affine beyond (`broad_relief`), so the relief a
+    longer walk crosses grows with its length as on the Moon."""
+    fractal = _fractal(cfg)
     rng = np.random.default_rng(cfg.seed)
     named = lunar_routes(cfg.size_m)
     routes = cfg.routes if cfg.routes is not None else tuple(named.values())
@@ -297,6 +409,8 @@ def make_lunar(cfg: LunarConfig = LunarConfig()) -> Terrain:
         if cfg.base.shape != (n, n):
             raise ScoutConfigError(f"base relief {cfg.base.shape}: need ({n}, {n}) at res {cfg.res} m")
         z = np.array(cfg.base, dtype=np.float64)
+    elif fractal:
+        z = fractal_relief(cfg.fractal, cfg.size_m, cfg.res, cfg.seed, routes=tuple(routes))
     else:
         z = zoom(coarse, (n - 1) / (cells - 1) + 1e-9, order=3, mode="nearest")[:n, :n]
         z = (z - z.min()) / max(np.ptp(z), 1e-9) * cfg.relief_m - cfg.relief_m / 2
