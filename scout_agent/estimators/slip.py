@@ -211,14 +211,14 @@ class SlipDetector:
             params,
             paper,
             self._use_bias,
-            _bools(stance_planned),
-            _bools(contact),
-            _floats(foot_pos),
-            _floats(foot_vel),
-            _floats(world_R_base),
-            _floats(base_vel_world),
-            _floats(base_omega),
-            _floats(foot_omega) if foot_omega is not None else _NO_OMEGA,
+            stance_planned,  # (numba compiles a variant for other dtypes or layouts: no copies here)
+            contact,
+            foot_pos,
+            foot_vel,
+            world_R_base,
+            base_vel_world,
+            base_omega,
+            foot_omega if foot_omega is not None else _NO_OMEGA,
             foot_omega is not None,
             self._flags,
             self._pb,
@@ -267,11 +267,3 @@ class SlipDetector:
 
 _STANCE_DV_CAP0 = 20  # each leg's stance ΔV buffer before the ring is sized (the first tick's values)
 _NO_OMEGA = np.zeros((4, 3))
-
-
-def _floats(a: np.ndarray) -> np.ndarray:
-    return a if a.dtype == np.float64 and a.flags.c_contiguous else np.ascontiguousarray(a, dtype=float)
-
-
-def _bools(a: np.ndarray) -> np.ndarray:
-    return a if a.dtype == np.bool_ else np.asarray(a, dtype=bool)
