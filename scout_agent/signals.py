@@ -15,12 +15,8 @@ mission's map frame, z up, gravity along -z.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
-
-if TYPE_CHECKING:  # (an annotation only: this module imports no sibling)
-    from scout_agent.robot.kinematics import LegMotion
 
 LEG_NAMES: tuple[str, ...] = ("FL", "FR", "RL", "RR")
 JOINT_NAMES: tuple[str, ...] = tuple(
@@ -56,7 +52,6 @@ class ProprioSample:
     foot_vel_des_base: np.ndarray  # (4, 3) controller's desired foot velocities, base frame [m/s]
     stance_planned: np.ndarray  # (4,) bool, the gait schedule puts the leg in stance
     phase: np.ndarray  # (4,) gait phase of each leg in [0, 1)
-    legs: LegMotion | None = None  # the tick's leg kinematics from `q`, `dq` (computed once, shared)
 
 
 @dataclass(frozen=True, slots=True)

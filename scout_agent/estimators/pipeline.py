@@ -189,18 +189,12 @@ class EstimatorPipeline:
         self._t_prev = s.t
         if self._t0 is None:
             self._t0 = s.t
-        f_om: np.ndarray | None
-        legs = s.legs  # the tick's leg kinematics when the robot's software ran it (once a tick), else ours
-        if legs is not None:
-            feet_b, vel_b, f_om, jac = legs.feet, legs.vel, legs.omega, legs.jacobians
+        if self._combined is not None:
+            feet_b, vel_b = self._combined(s.q, s.dq)
         else:
-            if self._combined is not None:
-                feet_b, vel_b = self._combined(s.q, s.dq)
-            else:
-                feet_b, vel_b = self.kin.feet_base(s.q), self.kin.feet_vel_base(s.q, s.dq)
-            f_om = getattr(self.kin, "foot_omega", None)
-            jac = self._jacobians(s.q)
+            feet_b, vel_b = self.kin.feet_base(s.q), self.kin.feet_vel_base(s.q, s.dq)
         rot = quat_to_matrix(s.base.quat)
+        f_om = getattr(self.kin, "foot_omega", None)
         st = self.slip.update(
             s.t, s.stance_planned, s.contact, feet_b, vel_b, rot, s.base.vel, s.base.omega, f_om
         )
@@ -212,7 +206,9 @@ class EstimatorPipeline:
 
         # foot sphere centres (4, 3), world [m]; ground forces on the feet from their joint torques (4, 3),
         # world [N], zero off contact
-        fw_a, f_w = _world_feet_and_forces(feet_b, rot, s.base.pos, jac, s.tau, _ZERO12, s.contact)
+        fw_a, f_w = _world_feet_and_forces(
+            feet_b, rot, s.base.pos, self._jacobians(s.q), s.tau, _ZERO12, s.contact
+        )
         fw = fw_a.tolist()
         R = rot.tolist()
         bx, by, bz = s.base.pos.tolist()

@@ -169,11 +169,7 @@ class Localizer:
         due = self._due
         est = self.est.ekf
         if _due_feet(np.asarray(sample.contact, bool), self._since, self._taken, t, c.settle_s, due):
-            fb = (
-                sample.legs.feet
-                if sample.legs is not None
-                else self.feet.feet_base_and_vel(sample.q, sample.dq)[0]
-            )
+            fb, _ = self.feet.feet_base_and_vel(sample.q, sample.dq)
             pts = fb[due] @ est.R.T + est.p
             pts[:, 2] -= C.FOOT_RADIUS
             self.track.add(pts, self.walked_m)

@@ -28,7 +28,6 @@ from scout_agent.control.controller import ControllerConfig, ControlOutput, Robo
 from scout_agent.lowlevel import LowCmd, LowState
 from scout_agent.onboard.drivers import ContactDetection, ContactDetector
 from scout_agent.robot import constants as C
-from scout_agent.robot.kinematics import leg_motion_of
 from scout_agent.signals import BaseState, ProprioSample
 from scout_agent.state_estimation import EstimatorConfig, StateEstimator
 from scout_agent.state_estimation.launch import LaunchPose
@@ -101,7 +100,6 @@ class OnboardSoftware:
             raise RuntimeError("sense() before command(): the robot has not commanded a control tick")
         self.t += self.control_dt
         tick = self.drivers.read(low_state)
-        legs = leg_motion_of(tick.q, tick.dq)  # once a tick: the estimator, estimators and localizer read it
         if exact is not None:
             self.state = RobotState(
                 self.t, exact.pos, exact.R, exact.vel, exact.omega, tick.q, tick.dq, tick.contact
@@ -109,12 +107,7 @@ class OnboardSoftware:
             base = BaseState(exact.pos.copy(), exact.quat.copy(), exact.vel.copy(), exact.omega.copy())
         else:
             est = self.estimator.update(
-                self.t,
-                tick,
-                self.control_dt,
-                self._mid_stance(out),
-                standing=self.controller.standing,
-                legs=legs,
+                self.t, tick, self.control_dt, self._mid_stance(out), standing=self.controller.standing
             )
             self.state = RobotState(self.t, est.pos, est.R, est.vel, est.omega, tick.q, tick.dq, tick.contact)
             base = BaseState(est.pos, est.quat, est.vel, est.omega)
@@ -133,7 +126,6 @@ class OnboardSoftware:
             foot_vel_des_base=out.foot_vel_des_base,
             stance_planned=out.stance_planned,
             phase=out.phase,
-            legs=legs,
         )
 
     def take_exact_state(self, state: RobotState) -> None:

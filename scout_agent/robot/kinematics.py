@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import os
 import tempfile
-from typing import NamedTuple
 
 import numpy as np
 import pinocchio as pin
@@ -96,24 +95,6 @@ def fk(q: np.ndarray) -> np.ndarray:
     feet = np.empty((4, 3))
     leg_kinematics(np.ascontiguousarray(q, dtype=float).reshape(12), feet, np.empty((4, 3, 3)))
     return feet
-
-
-class LegMotion(NamedTuple):
-    """One tick's leg kinematics (`leg_motion`), relative to the base, base frame: computed once per tick by
-    the robot's software (`ProprioSample.legs`) and read by the state estimator, the estimators and the
-    localizer, which each ran their own pass on the same joint readings before."""
-
-    feet: np.ndarray  # (4, 3) foot-sphere centres [m]
-    vel: np.ndarray  # (4, 3) foot velocities J·q̇ [m/s]
-    omega: np.ndarray  # (4, 3) the feet's (calves') angular velocities [rad/s]
-    jacobians: np.ndarray  # (4, 3, 3) d foot / d leg joints
-
-
-def leg_motion_of(q: np.ndarray, dq: np.ndarray) -> LegMotion:
-    """The legs' `LegMotion` at joint angles `q` (12,) [rad] and rates `dq` (12,) [rad/s] (fresh arrays)."""
-    m = LegMotion(np.empty((4, 3)), np.empty((4, 3)), np.empty((4, 3)), np.empty((4, 3, 3)))
-    leg_motion(np.ascontiguousarray(q, dtype=float), np.ascontiguousarray(dq, dtype=float), *m)
-    return m
 
 
 def jacobians(q: np.ndarray) -> np.ndarray:

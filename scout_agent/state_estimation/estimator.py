@@ -79,7 +79,6 @@ from scout_agent.estimators.elevation import terrain_normal
 from scout_agent.estimators.feet import PinocchioFeet
 from scout_agent.onboard.drivers import SensorTick
 from scout_agent.robot import constants as C
-from scout_agent.robot.kinematics import LegMotion
 
 from . import kernels
 from .ekf import ErrorStateEKF, NoiseConfig
@@ -348,13 +347,11 @@ class StateEstimator:
         dt: float,
         mid_stance: np.ndarray | None = None,
         standing: bool = False,
-        legs: LegMotion | None = None,
     ) -> StateEstimate:
         """One tick. `mid_stance` (4,) bool, optional: the gait schedule puts the leg in the middle of its stance
         (the robot's own controller knows its schedule); odometry then uses only those feet. `standing`: the
         controller holds the robot still on four feet (its gait frozen); with every foot settled the tick
-        brings the standstill's updates (standstill.py). `legs`: the tick's leg kinematics when the caller
-        already ran it on `tick.q`, `tick.dq` (else the estimator's own `feet` pass)."""
+        brings the standstill's updates (standstill.py)."""
         c, e = self.config, self.ekf
         self.t = t
         if not tick.fresh:  # a lost packet: hold the last reading, no measurement
@@ -387,13 +384,10 @@ class StateEstimator:
             use,
         )
         any_contact = n_contact > 0
-        if legs is not None:
-            fb, fv, foot_omega = legs.feet, legs.vel, legs.omega
-        elif any_contact or stand:
+        if any_contact or stand:
             fb, fv = self.feet.feet_base_and_vel(tick.q, tick.dq)
-            foot_omega = self.feet.foot_omega
         if n_use:
-            feet = (fb, fv, foot_omega)
+            feet = (fb, fv, self.feet.foot_omega)
             n_b = e.R.T @ self._normal_w
             residual, H = odometry_rows(use, e.R, e.v, e.bg, feet, tick.imu_gyro, n_b, c.foot_radius_m)
             keep = e.update(

@@ -3,7 +3,6 @@ GIIM/GIAM, margins over the four most recent footholds, and `record` into the ce
 
 from __future__ import annotations
 
-import dataclasses
 import math
 
 import numpy as np
@@ -11,9 +10,8 @@ import pytest
 
 from scout_agent.cells import CellAccumulator
 from scout_agent.estimators import EstimatorPipeline, PipelineConfig, margins, record
-from scout_agent.estimators.feet import PinocchioFeet
 from scout_agent.robot.constants import HOME_Q
-from scout_agent.robot.kinematics import jacobians, leg_motion_of
+from scout_agent.robot.kinematics import jacobians
 from scout_agent.signals import BaseState, ProprioSample
 
 DT = 0.01
@@ -146,26 +144,3 @@ def test_a_slipping_stance_gives_a_slip_event_no_foothold_and_no_stability_sampl
     assert ticks[0].giim == pytest.approx(0.0, abs=1e-12)
     assert layers["elevation"]["n"].sum() == sum(len(e.footholds) for e in ticks)
     assert layers["contacts"]["nonfoot"].sum() == 0
-
-
-class NoPass:
-    """Kinematics double that must not be used: the sample carries the tick's leg kinematics."""
-
-    def feet_base_and_vel(self, q, dq):
-        raise AssertionError("the pipeline ran its own kinematics pass although the sample carries one")
-
-
-def test_the_samples_leg_kinematics_give_the_estimates_of_the_pipelines_own_pass():
-    rng = np.random.default_rng(3)
-    cfg = PipelineConfig(mass_kg=MASS, gravity_mps2=G, foot_radius_m=R_FOOT, paper_slip=True)
-    own, shared = EstimatorPipeline(PinocchioFeet(), cfg), EstimatorPipeline(NoPass(), cfg)
-    for sample, _, _ in trot(150):
-        q, dq = HOME_Q + rng.normal(0.0, 0.05, 12), rng.normal(0.0, 1.0, 12)
-        s = dataclasses.replace(sample, q=q, dq=dq)
-        a, b = own.update(s), shared.update(dataclasses.replace(s, legs=leg_motion_of(q, dq)))
-        for fa, fb in zip(a, b, strict=True):
-            if isinstance(fa, tuple):  # SlipTick
-                for x, y in zip(fa, fb, strict=True):
-                    np.testing.assert_array_equal(x, y)
-            else:
-                np.testing.assert_array_equal(fa, fb)
