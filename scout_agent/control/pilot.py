@@ -18,8 +18,17 @@ Modes:
   outside the detour's hazard radius, at least `backoff_min_m` and at most `backoff_max_m` back along
   the trail.
 - then plan a detour (`detour.plan_detour`) from there to the goal around every hazard it has felt (and the
-  hazards and slips of a known map, when given) and `walk` it; with no detour, or after `max_stops` stops,
-  `stopped` with `gave_up` saying why.
+  hazards and slips of a known map, when given) and `walk` it; with no detour, `stopped` with `gave_up` saying
+  why. The stop policy scales with the route: it gives up after `max_stops` stops in a row (a stop after
+  `progress_m` walked since the previous one starts the count again: the detour got it past that place), or
+  when all its stops reach the route's budget, `stops_per_100m` per 100 m of route and never fewer than
+  `max_stops` (a 25 m route: 3, as before; a 137 m corner-to-corner walk of the 100 m field: 11).
+
+A standstill makes one long stance of four planted feet (6 s and more); the slip detector's ΔP of those feet
+integrates the base velocity's error over it and read 5 cm on all four feet at once — "lost holds" at 0.01 m
+of true displacement (ground truth, 100 m field seed 33: two of its three stops). So the feet whose stance
+overlapped a standstill give the friction estimate and the reflex no slip observations until that stance
+ends (`_standstill_stances`).
 
 With `max_accel_mps2` set, the speed command changes by at most that in every mode (off by default: see the
 field). `stops` lists each hazard stop as {x, y, t, reason} (map frame, estimated); `detour_m` sums, per stop, the
@@ -76,7 +85,9 @@ class PilotConfig:
     back_timeout_s: float = 25.0
     trail_step_m: float = 0.05
     clear_m: float = 0.2  # back off until this far outside the detour's hazard radius (or backoff_max_m)
-    max_stops: int = 3
+    max_stops: int = 3  # hazard stops in a row (less than progress_m walked between them) before giving up
+    progress_m: float = 10.0  # walked since the last stop (estimated trail, walking): the next stop counts 1
+    stops_per_100m: float = 8.0  # all stops of a walk: at most this per 100 m of route (at least max_stops)
 
 
 def _length(points: np.ndarray) -> float:
@@ -112,6 +123,11 @@ class Pilot:
         self.hazards: list[tuple[float, float]] = []
         self.detour_m = 0.0
         self.trail: list[tuple[float, float, float]] = []  # t, x, y of the estimate, every trail_step_m
+        self.route_m = _length(self.route)
+        self.stop_budget = max(config.max_stops, math.ceil(self.route_m * config.stops_per_100m / 100.0))
+        self.stops_in_a_row = 0
+        self._walked_since_stop = 0.0  # [m] walking, since the last hazard stop
+        self._standstill_feet = np.zeros(4, dtype=bool)  # feet whose current stance overlapped a standstill
         self._t_mode = 0.0
         self._back: PathFollower | None = None
         self._back_len = 0.0
@@ -171,9 +187,13 @@ class Pilot:
         R = quat_to_matrix(sample.base.quat)
         x, y = float(sample.base.pos[0]), float(sample.base.pos[1])
         if not self.trail or math.hypot(x - self.trail[-1][1], y - self.trail[-1][2]) >= c.trail_step_m:
+            if self.trail and self.mode == "walk":
+                self._walked_since_stop += math.hypot(x - self.trail[-1][1], y - self.trail[-1][2])
             self.trail.append((t, x, y))
         grad, _ = self.controller.plane()
         lost = False
+        if est is not None:
+            est = self._standstill_stances(sample, est)
         if c.adaptive and est is not None:
             sl = est.slip
             lost = self.friction.update(
@@ -203,6 +223,32 @@ class Pilot:
             return None
         self._stop(felt, x, y)
         return felt
+
+    def _standstill_stances(self, sample: ProprioSample, est: TickEstimates) -> TickEstimates:
+        """`est` without the slip observations of feet whose current stance overlapped a standstill (their ΔP
+        holds the base velocity's error integrated over it), until that stance ends."""
+        held = self._standstill_feet
+        planted = np.asarray(sample.stance_planned, dtype=bool) | np.asarray(sample.contact, dtype=bool)
+        if self.controller.hold:
+            held |= planted
+        if not held.any():
+            return est
+        sl = est.slip
+        out = est
+        if any(e and h for e, h in zip(sl.event, held, strict=True)):
+            rows = [i for i in range(4) if sl.event[i]]  # slip_xy: one row per event, in leg order
+            keep = [k for k, i in enumerate(rows) if not held[i]]
+            out = out._replace(slip_xy=est.slip_xy[keep])
+        masked = sl._replace(
+            event=tuple(e and not h for e, h in zip(sl.event, held, strict=True)),
+            slipped=tuple(s and not h for s, h in zip(sl.slipped, held, strict=True)),
+            dp=tuple(math.nan if h else d for d, h in zip(sl.dp, held, strict=True)),
+        )
+        # the stance ends (or the foot leaves its planned stance): its next stance is a walking one again
+        held &= ~np.asarray(sl.stance_end, dtype=bool) & planted
+        if self.controller.hold:
+            held |= planted
+        return out._replace(slip=masked)
 
     def _plane_normal(self, grad: np.ndarray) -> np.ndarray:
         """Unit upward normal of the foothold plane z = g·(x, y) + c (kept while the plane does not change:
@@ -237,6 +283,9 @@ class Pilot:
             }
         )
         self.hazards.append((felt.x, felt.y))
+        progressed = self._walked_since_stop >= self.config.progress_m
+        self.stops_in_a_row = 1 if progressed else self.stops_in_a_row + 1
+        self._walked_since_stop = 0.0
         f = self.follower
         nxt = min(f.segment + 1, len(f.points) - 1)
         self._left_of_route = math.hypot(*(f.points[nxt] - (x, y))) + _length(f.points[nxt:])
@@ -274,8 +323,19 @@ class Pilot:
     def _go_around(self, pos: np.ndarray, t: float) -> None:
         c = self.config
         self._back = None
-        if len(self.stops) >= c.max_stops:
-            self._give_up(f"{len(self.stops)} hazard stops: the limit (max_stops {c.max_stops})", t)
+        if self.stops_in_a_row >= c.max_stops:
+            self._give_up(
+                f"{self.stops_in_a_row} hazard stops in a row, less than {c.progress_m:g} m walked between them "
+                f"(max_stops {c.max_stops})",
+                t,
+            )
+            return
+        if len(self.stops) >= self.stop_budget:
+            self._give_up(
+                f"{len(self.stops)} hazard stops: the route's budget ({self.stop_budget} for "
+                f"{self.route_m:.0f} m, stops_per_100m {c.stops_per_100m:g}, at least max_stops {c.max_stops})",
+                t,
+            )
             return
         known = self.known() if self.known is not None else None
         way = plan_detour(pos, self.goal, self.hazards, self.bounds, c.detour, known)
