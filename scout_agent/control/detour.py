@@ -1,8 +1,8 @@
 """Going around: a path to the goal on what the scout knows, avoiding the ground it could not hold.
 
 A cost grid of `res` cells over the field (`bounds`, the mission area) costs 1 per metre everywhere; cells
-within `hazard_radius_m` of a hazard the scout felt (its own reports, and any in a known map's `hazard`
-layer) are impassable; cells of a known map whose slip rate is above `slip_rate_avoid` cost
+within `hazard_radius_m` of a hazard the scout felt (its own reports, each with its own radius when given as
+(x, y, r), and any in a known map's `hazard` layer) are impassable; cells of a known map whose slip rate is above `slip_rate_avoid` cost
 `slip_penalty` more per metre. The search is the planner's own (`psrmap_common.pathsearch.plan_path`, exact
 8-connected Dijkstra). The cell path becomes waypoints by keeping only the cells where a straight walk to
 the next kept one would cross a dearer or forbidden cell (line of sight on the grid).
@@ -54,19 +54,20 @@ def plan_detour(
     config: DetourConfig = DetourConfig(),
     known: LayerGrid | None = None,
 ) -> np.ndarray | None:
-    """Waypoints (k, 2) [m, map frame] from `start` to `goal` around `hazards` [(x, y)], or None."""
+    """Waypoints (k, 2) [m, map frame] from `start` to `goal` around `hazards` [(x, y) or (x, y, radius)],
+    or None."""
     c = config
     xa, ya, xb, yb = bounds
     inner = (xa + c.edge_margin_m, ya + c.edge_margin_m, xb - c.edge_margin_m, yb - c.edge_margin_m)
     cost, X, Y = _grid(bounds, c.res)
     cost[(X < inner[0]) | (X > inner[2]) | (Y < inner[1]) | (Y > inner[3])] = np.inf
-    pts = [tuple(h[:2]) for h in hazards]
+    pts = [(float(h[0]), float(h[1]), float(h[2]) if len(h) > 2 else c.hazard_radius_m) for h in hazards]
     if known is not None:
-        pts += _known_hazards(known)
+        pts += [(x, y, c.hazard_radius_m) for x, y in _known_hazards(known)]
         _add_slip(cost, X, Y, known, c)
     sx, sy = float(start[0]), float(start[1])
-    for hx, hy in pts:
-        r = min(c.hazard_radius_m, math.hypot(sx - hx, sy - hy) - c.res)
+    for hx, hy, hr in pts:
+        r = min(hr, math.hypot(sx - hx, sy - hy) - c.res)
         cost[(X - hx) ** 2 + (Y - hy) ** 2 < r * r] = np.inf
     rc = lambda x, y: (  # noqa: E731
         int(np.clip((y - ya) // c.res, 0, cost.shape[0] - 1)),

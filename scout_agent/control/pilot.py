@@ -19,10 +19,12 @@ Modes:
   the trail.
 - then plan a detour (`detour.plan_detour`) from there to the goal around every hazard it has felt (and the
   hazards and slips of a known map, when given) and `walk` it; with no detour, `stopped` with `gave_up` saying
-  why. The stop policy scales with the route: it gives up after `max_stops` stops in a row (a stop after
-  `progress_m` walked since the previous one starts the count again: the detour got it past that place), or
-  when all its stops reach the route's budget, `stops_per_100m` per 100 m of route and never fewer than
-  `max_stops` (a 25 m route: 3, as before; a 137 m corner-to-corner walk of the 100 m field: 11).
+  why. The stop policy scales with the route: it gives up after `max_stops` stops at one place (within
+  `same_place_m` of the newest: the detours did not get it past), or when all its stops reach the route's
+  budget, `stops_per_100m` per 100 m of route and never fewer than `max_stops` (a 25 m route: 3, as before;
+  a 137 m corner-to-corner walk of the 100 m field: 11). A detour keeps `hazard_radius_m` (the detour's) times
+  the number of stops felt within `same_place_m` of a hazard away from it: a second stop at the same crater
+  wall means the first detour hugged it, so the next one swings wider (and the back-off clears that radius).
 
 A standstill makes one long stance of four planted feet (6 s and more); the slip detector's ΔP of those feet
 integrates the base velocity's error over it and read 5 cm on all four feet at once — "lost holds" at 0.01 m
@@ -85,8 +87,8 @@ class PilotConfig:
     back_timeout_s: float = 25.0
     trail_step_m: float = 0.05
     clear_m: float = 0.2  # back off until this far outside the detour's hazard radius (or backoff_max_m)
-    max_stops: int = 3  # hazard stops in a row (less than progress_m walked between them) before giving up
-    progress_m: float = 10.0  # walked since the last stop (estimated trail, walking): the next stop counts 1
+    max_stops: int = 3  # hazard stops at one place (within same_place_m of the newest) before giving up
+    same_place_m: float = 4.0  # stops this close count as one place (and widen each other's detour radius)
     stops_per_100m: float = 8.0  # all stops of a walk: at most this per 100 m of route (at least max_stops)
 
 
@@ -125,8 +127,7 @@ class Pilot:
         self.trail: list[tuple[float, float, float]] = []  # t, x, y of the estimate, every trail_step_m
         self.route_m = _length(self.route)
         self.stop_budget = max(config.max_stops, math.ceil(self.route_m * config.stops_per_100m / 100.0))
-        self.stops_in_a_row = 0
-        self._walked_since_stop = 0.0  # [m] walking, since the last hazard stop
+        self.stops_here = 0  # stops within same_place_m of the newest (itself included)
         self._standstill_feet = np.zeros(4, dtype=bool)  # feet whose current stance overlapped a standstill
         self._t_mode = 0.0
         self._back: PathFollower | None = None
@@ -187,8 +188,6 @@ class Pilot:
         R = quat_to_matrix(sample.base.quat)
         x, y = float(sample.base.pos[0]), float(sample.base.pos[1])
         if not self.trail or math.hypot(x - self.trail[-1][1], y - self.trail[-1][2]) >= c.trail_step_m:
-            if self.trail and self.mode == "walk":
-                self._walked_since_stop += math.hypot(x - self.trail[-1][1], y - self.trail[-1][2])
             self.trail.append((t, x, y))
         grad, _ = self.controller.plane()
         lost = False
@@ -283,9 +282,7 @@ class Pilot:
             }
         )
         self.hazards.append((felt.x, felt.y))
-        progressed = self._walked_since_stop >= self.config.progress_m
-        self.stops_in_a_row = 1 if progressed else self.stops_in_a_row + 1
-        self._walked_since_stop = 0.0
+        self.stops_here = self._stops_near(felt.x, felt.y)
         f = self.follower
         nxt = min(f.segment + 1, len(f.points) - 1)
         self._left_of_route = math.hypot(*(f.points[nxt] - (x, y))) + _length(f.points[nxt:])
@@ -298,7 +295,7 @@ class Pilot:
         c = self.config
         back = [(float(pos[0]), float(pos[1]))]
         hx, hy = self.hazards[-1]
-        clear = c.detour.hazard_radius_m + c.clear_m
+        clear = self._radius(hx, hy) + c.clear_m
         walked = 0.0
         for p in reversed(self.trail):  # newest first
             q = (p[1], p[2])
@@ -323,10 +320,10 @@ class Pilot:
     def _go_around(self, pos: np.ndarray, t: float) -> None:
         c = self.config
         self._back = None
-        if self.stops_in_a_row >= c.max_stops:
+        if self.stops_here >= c.max_stops:
             self._give_up(
-                f"{self.stops_in_a_row} hazard stops in a row, less than {c.progress_m:g} m walked between them "
-                f"(max_stops {c.max_stops})",
+                f"{self.stops_here} hazard stops at one place (within {c.same_place_m:g} m; max_stops "
+                f"{c.max_stops})",
                 t,
             )
             return
@@ -338,13 +335,22 @@ class Pilot:
             )
             return
         known = self.known() if self.known is not None else None
-        way = plan_detour(pos, self.goal, self.hazards, self.bounds, c.detour, known)
+        hazards = [(hx, hy, self._radius(hx, hy)) for hx, hy in self.hazards]
+        way = plan_detour(pos, self.goal, hazards, self.bounds, c.detour, known)
         if way is None or len(way) < 2:
             self._give_up(f"no path to the goal around the {len(self.hazards)} hazard(s) felt", t)
             return
         self.detour_m += self._back_len + _length(way) - self._left_of_route
         self.follower = PathFollower(way, c.follower)
         self.mode, self._t_mode = "walk", t
+
+    def _stops_near(self, x: float, y: float) -> int:
+        d = self.config.same_place_m
+        return sum(math.hypot(x - hx, y - hy) <= d for hx, hy in self.hazards)
+
+    def _radius(self, x: float, y: float) -> float:
+        """The detour's keep-out radius around a hazard felt at (x, y) [m]: wider for each stop felt there."""
+        return self.config.detour.hazard_radius_m * min(self._stops_near(x, y), self.config.max_stops)
 
     def _give_up(self, why: str, t: float) -> None:
         self.gave_up = why

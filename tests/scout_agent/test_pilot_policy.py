@@ -8,6 +8,7 @@ import math
 import numpy as np
 
 from scout_agent.control.controller import RobotState, TrotController
+from scout_agent.control.detour import plan_detour
 from scout_agent.control.pilot import Pilot, PilotConfig
 from scout_agent.control.reflex import Felt
 from scout_agent.estimators import TickEstimates
@@ -49,52 +50,55 @@ def test_the_stop_budget_scales_with_the_route_and_short_routes_keep_three():
     assert _pilot(137.0).stop_budget == math.ceil(137.0 * 0.08) == 11  # the 100 m field corner to corner
 
 
-def _stop_and_go_around(p: Pilot, t: float, x: float) -> None:
-    p._stop(Felt(t, x + 0.3, 0.0, ("slip",), 3), x, 0.0)
-    p._go_around(np.array([x - 1.0, 0.0]), t + 1.0)
+def _stop_and_go_around(p: Pilot, t: float, x: float, y: float = 0.0) -> None:
+    p._stop(Felt(t, x + 0.3, y, ("slip",), 3), x, y)
+    p._go_around(np.array([x - 5.0, y]), t + 1.0)  # backed off 5 m
 
 
-def _walk(p: Pilot, t: float, x0: float, x1: float) -> float:
-    """Feed the pilot a walk from x0 to x1 along y = 0 (no estimates: nothing fires); the time after it."""
-    for x in np.arange(x0, x1, 0.1):
-        p.feel(_sample(t, float(x)), None)
-        t += 0.25
-    return t
-
-
-def test_three_stops_in_a_row_give_up_but_a_stop_after_progress_counts_anew():
+def test_three_stops_at_one_place_give_up_but_stops_along_the_route_do_not():
     p = _pilot(137.0)
-    t = _walk(p, 0.0, 0.0, 5.0)
-    for k in range(2):  # two stops, 2 m apart, then a third: the same place, three in a row
-        _stop_and_go_around(p, t, 5.0 + 2 * k)
-        assert p.mode == "walk" and p.gave_up is None
-        t = _walk(p, t + 2.0, 5.0 + 2 * k, 7.0 + 2 * k)
-    _stop_and_go_around(p, t, 9.0)
-    assert p.mode == "stopped" and "3 hazard stops in a row" in (p.gave_up or "")
+    # two stops 1.5 m apart: the second detour keeps twice the radius from both
+    _stop_and_go_around(p, 10.0, 20.0, 0.0)
+    r = p.config.detour.hazard_radius_m
+    _stop_and_go_around(p, 20.0, 21.5, 1.0)
+    assert p.mode == "walk" and p.gave_up is None and p.stops_here == 2
+    way = p.follower.points
+    u = np.linspace(0.0, 1.0, 40)[:, None]
+    legs = np.concatenate([a + (b - a) * u for a, b in zip(way[:-1], way[1:], strict=True)])
+    for hx, hy in p.hazards:
+        assert np.hypot(legs[:, 0] - hx, legs[:, 1] - hy).min() >= 2 * r - p.config.detour.res
+    # a third there: the detours did not get it past
+    _stop_and_go_around(p, 30.0, 22.0, -1.0)
+    assert p.mode == "stopped" and "3 hazard stops at one place" in (p.gave_up or "")
 
-    # the same three stops, but 12 m walked after each: the detour got it past, each stop counts 1
+    # stops 12 m apart along the route: each place counts 1, until the route's budget is spent
     p = _pilot(137.0)
-    t, x = 0.0, 0.0
-    for _ in range(p.stop_budget - 1):
-        t = _walk(p, t, x, x + 12.0)
-        x += 12.0
-        _stop_and_go_around(p, t, x)
-        assert p.gave_up is None and p.stops_in_a_row == 1
-    # ... until the route's budget is spent
-    t = _walk(p, t, x, x + 12.0)
-    _stop_and_go_around(p, t, x + 12.0)
+    for k in range(p.stop_budget - 1):
+        _stop_and_go_around(p, 10.0 * k, 12.0 * (k + 1))
+        assert p.gave_up is None and p.stops_here == 1
+    _stop_and_go_around(p, 200.0, 12.0 * p.stop_budget)
     assert p.mode == "stopped" and "the route's budget (11 for 137 m" in (p.gave_up or "")
 
 
-def test_a_short_route_still_gives_up_after_three_stops_whatever_it_walked():
+def test_a_short_route_still_gives_up_after_three_stops_anywhere():
     p = _pilot(25.0)
-    t, x = 0.0, 0.0
-    for _ in range(3):
-        t = _walk(p, t, x, x + 11.0)
-        x += 11.0
-        _stop_and_go_around(p, t, x)
-    assert p.mode == "stopped" and p.stops_in_a_row == 1 and len(p.stops) == 3
+    for k in range(3):
+        _stop_and_go_around(p, 10.0 * k, 6.0 * (k + 1))
+    assert p.mode == "stopped" and p.stops_here == 1 and len(p.stops) == 3
     assert "the route's budget (3 for 25 m" in (p.gave_up or "")
+
+
+def test_detour_keeps_each_hazards_own_radius():
+    bounds = (0.0, 0.0, 20.0, 10.0)
+    wide = plan_detour((1.0, 5.0), (19.0, 5.0), [(10.0, 5.0, 3.0)], bounds)
+    assert wide is not None
+    u = np.linspace(0.0, 1.0, 60)[:, None]
+    legs = np.concatenate([a + (b - a) * u for a, b in zip(wide[:-1], wide[1:], strict=True)])
+    assert np.hypot(legs[:, 0] - 10.0, legs[:, 1] - 5.0).min() >= 3.0 - 0.2
+    narrow = plan_detour((1.0, 5.0), (19.0, 5.0), [(10.0, 5.0)], bounds)
+    assert narrow is not None
+    legs = np.concatenate([a + (b - a) * u for a, b in zip(narrow[:-1], narrow[1:], strict=True)])
+    assert np.hypot(legs[:, 0] - 10.0, legs[:, 1] - 5.0).min() < 2.0  # the default 1.2 m hugs closer
 
 
 def test_a_standstills_long_stance_gives_the_reflex_no_slip_and_the_next_stance_does():
