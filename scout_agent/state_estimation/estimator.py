@@ -81,6 +81,7 @@ from scout_agent.onboard.drivers import SensorTick
 from scout_agent.robot import constants as C
 
 from . import kernels
+from .bias_temperature import GyroTempco
 from .ekf import ErrorStateEKF, NoiseConfig
 from .launch import LaunchPose
 from .leg_odometry import odometry_rows
@@ -105,6 +106,9 @@ class EstimatorConfig:
     imu_offset_m: tuple[float, float, float] = (0.0, 0.0, 0.0)  # IMU position on the trunk (CAD) [m]
     # what the filter knows of the IMU's temperature behaviour: the datasheet's TCO as a σ (sensors/imu.py)
     gyro_tempco_std: float = float(np.radians(0.015))  # [rad/s/K]
+    # learn the gyro's temperature coefficient from the standstills' zero-rate windows (bias_temperature.py): the
+    # bias nominal follows k̂·ΔT and its variance grows by σ_k̂² instead of the datasheet's TCO². False: as before
+    gyro_tempco_learn: bool = True
     acc_tempco_std: float = 0.2e-3 * 9.80665  # [m/s²/K]
     gyro_scale_std: float = 0.014  # heading error per radian of net turn: scale ⊕ cross-axis (1 % each)
     gyro_g_sens_std: float = float(np.radians(0.1) / 9.80665)  # BMI088 0.1 °/s/g per element [rad/s per m/s²]
@@ -234,9 +238,14 @@ class StateEstimator:
         self._temp0 = math.nan  # IMU temperature at the first reading (the power-on calibration's) [°C]
         self._dtemp_prev = 0.0
         self._gyro_temp0 = math.nan  # IMU temperature at the last ZARU (the gyro bias's reference) [°C]
+        self._temp_prev = math.nan  # the last tick's IMU temperature [°C]
+        self.tempco = GyroTempco(c.gyro_tempco_std)  # the gyro's temperature coefficient, learnt standing
+        self._tempco_k = np.zeros(3)  # its estimate [rad/s/K] and σ, per axis (the datasheet's before a fit)
+        self._tempco_sd = np.full(3, c.gyro_tempco_std)
+        self._u_first: np.ndarray | None = None  # gravity in the base frame at the first ZARU [m/s²]
         self._gyro_dtemp_prev = 0.0
         self._u_zaru: np.ndarray | None = None  # gravity in the base frame at the last ZARU [m/s²]
-        self._du2_prev = 0.0
+        self._du2_peak = 0.0
         self._stand_since: float | None = None  # standing on four settled feet since [s]
         self._zaru: ZeroRateWindow | None = None  # the standstill's open window (standstill.py)
         self.zaru_updates = 0  # zero-rate updates fused
@@ -279,16 +288,24 @@ class StateEstimator:
             dtemp_g = temp - self._gyro_temp0  # gyro: since the last zero-rate update
             d2g = abs(dtemp_g * dtemp_g - self._gyro_dtemp_prev * self._gyro_dtemp_prev)
             self._gyro_dtemp_prev = dtemp_g
+            # the gyro's offset follows the learnt coefficient; what is left of it is the fit's σ (the datasheet's
+            # TCO until the standstills have measured it: bias_temperature.py)
+            if self._temp_prev == self._temp_prev and temp != self._temp_prev:
+                self.ekf.bg += self._tempco_k * (temp - self._temp_prev)
+            self._temp_prev = temp
             for i in range(3):
-                P[9 + i, 9 + i] += c.gyro_tempco_std**2 * d2g
+                P[9 + i, 9 + i] += self._tempco_sd[i] ** 2 * d2g
                 P[12 + i, 12 + i] += c.acc_tempco_std**2 * d2
         # g-sensitivity: the gyro's offset moves with the specific force's direction in the IMU (tilt on a
-        # slope); since the last zero-rate update the bias variance grows by gs² × d|Δu|², u = Rᵀ(−g)
+        # slope), by G·Δu since the last zero-rate update, u = Rᵀ(−g): the bias variance is raised to
+        # gs² × max|Δu|² (the largest shift so far bounds it). Adding gs² × |d|Δu|²| every tick instead summed
+        # the trot's roll and pitch wobble, up and down, into a variance growing without bound (1e-9 (rad/s)²/s
+        # on a 100 m walk, ten times the bias walk's), which spent the standstills' heading budget
         if self._u_zaru is None:
             self._u_zaru = self.ekf.R.T @ -self.ekf.g
         du2 = kernels.gravity_shift2(self.ekf.R, self.ekf.g, self._u_zaru)
-        q = c.gyro_g_sens_std**2 * abs(du2 - self._du2_prev)
-        self._du2_prev = du2
+        q = c.gyro_g_sens_std**2 * max(du2 - self._du2_peak, 0.0)
+        self._du2_peak = max(du2, self._du2_peak)
         for i in range(3):
             P[9 + i, 9 + i] += q
         self.bias_heading_rad += math.sqrt(P[11, 11]) * dt
@@ -446,17 +463,25 @@ class StateEstimator:
             return
         H = np.zeros((3, 15))
         H[:, 9:12] = np.eye(3)
-        keep = e.update(
-            z - e.bg, H, np.full(3, ss.zaru_var(span, win.turned_rad))
-        )  # no χ² gate: a bias larger than believed
+        var = ss.zaru_var(span, win.turned_rad)
+        keep = e.update(z - e.bg, H, np.full(3, var))  # no χ² gate: a bias larger than believed
         if not keep[0]:  # (the feet check above refuses a slip; a gate would lock a big bias out)
             self.zaru_refused += 1
             return
         self.zaru_updates += 1
         self.bias_heading_rad = 0.0
         temp = tick.imu_temp_c
+        u = e.R.T @ -e.g
         if temp == temp:  # the bias's temperature drift restarts from here
             self._gyro_temp0 = temp
             self._gyro_dtemp_prev = 0.0
-        self._u_zaru = e.R.T @ -e.g  # and its g-sensitivity from this attitude
-        self._du2_prev = 0.0
+            if (
+                self.config.gyro_tempco_learn
+            ):  # and the window joins the temperature fit, its variance widened by
+                if self._u_first is None:  # what the g-sensitivity may have moved since the first window
+                    self._u_first = u
+                gs2 = self.config.gyro_g_sens_std**2 * float(np.sum((u - self._u_first) ** 2))
+                self.tempco.add(temp, z, np.full(3, var + gs2))
+                self._tempco_k, self._tempco_sd = self.tempco.slope()
+        self._u_zaru = u  # and its g-sensitivity from this attitude
+        self._du2_peak = 0.0

@@ -130,3 +130,30 @@ def test_auto_standstills_follow_the_route_length_and_bad_modes_are_named():
     assert not use_standstills(ScoutRunConfig(standstills="off"), long)
     with pytest.raises(ScoutConfigError, match="valid: auto, on, off"):
         run_scout(ScoutRunConfig(standstills="yes", sim_seconds=0.1), progress=False)
+
+
+def test_the_gyro_tempco_is_learnt_from_windows_at_different_temperatures():
+    from scout_agent.state_estimation.bias_temperature import GyroTempco
+
+    tco = np.radians(0.015)
+    rng = np.random.default_rng(4)
+    k_true = np.array([-1.7, 0.5, 1.0]) * tco  # a unit 1.7σ off on x (as the seed-23 run's part)
+    b0 = rng.normal(0.0, 1e-4, 3)
+    model = GyroTempco(tco)
+    k, sd = model.slope()
+    assert np.all(k == 0.0) and np.allclose(sd, tco)  # the datasheet before any window
+    model.add(20.0, b0, np.full(3, (1.5e-4) ** 2))
+    assert np.allclose(model.slope()[1], tco)  # one temperature says nothing of a slope
+    # a warming board: windows over 4 K, each with the gyro's 1.5e-4 rad/s of white noise
+    temps = 20.0 + 8.0 * (1.0 - np.exp(-np.linspace(20.0, 500.0, 14) / 600.0))
+    errs = []
+    for t in temps:
+        model.add(t, b0 + k_true * (t - 20.0) + rng.normal(0.0, 1.5e-4, 3), np.full(3, (1.5e-4) ** 2))
+        k, sd = model.slope()
+        errs.append(np.abs(k - k_true) / sd)
+    assert np.all(sd < 0.25 * tco)  # learnt: a quarter of the datasheet's spread
+    assert np.all(np.abs(k - k_true) < 3.0 * sd)
+    assert np.mean(np.concatenate(errs) ** 2) < 3.0  # its σ holds the error along the way (χ²₁ mean 1)
+    off = GyroTempco(0.0)  # an ideal IMU: nothing to learn, no slope
+    off.add(20.0, b0, np.ones(3))
+    assert np.all(off.slope()[0] == 0.0) and np.all(off.slope()[1] == 0.0)

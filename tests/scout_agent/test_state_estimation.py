@@ -12,6 +12,7 @@ import pytest
 from scout_agent.estimators.pipeline import quat_to_matrix
 from scout_agent.loop import SimConfig, SimulatedScout
 from scout_agent.mapping import Mapper, MapperConfig
+from scout_agent.robot.constants import LUNAR_G as C_LUNAR_G
 from scout_agent.robot.vectors import skew
 from scout_agent.run import ScoutRunConfig, run_scout
 from scout_agent.signals import BaseState, GroundTruth
@@ -452,3 +453,37 @@ def test_the_gyro_scale_term_bounds_the_net_turn_not_every_turn():
     # ends 90° away after the back-and-forth: still inside its σ
     err_far, sd_far = _heading_after_turns([90.0, -90.0] * 3 + [90.0], scale=k)
     assert abs(err_far) <= sd_far
+
+
+def _gyro_z_bias_variance_after_wobble(g_sens_std: float, seconds: float) -> float:
+    """P_bz [(rad/s)²] after `seconds` of a base rolling ±3° at 1.4 Hz (the trot's wobble; no contacts, no
+    updates: only process noise) with the filter's g-sensitivity σ `g_sens_std`."""
+    from scout_agent.onboard.drivers import SensorTick
+    from scout_agent.robot import constants as C
+    from scout_agent.state_estimation import StateEstimator
+    from scout_agent.state_estimation.launch import LaunchPose
+
+    est = StateEstimator(
+        LaunchPose(0.0, 0.0, 0.0, 0.0), C.HOME_Q, EstimatorConfig(gyro_g_sens_std=g_sens_std)
+    )
+    dt, w, amp = 0.01, 2.0 * math.pi * 1.4, math.radians(3.0)
+    for k in range(round(seconds / dt)):
+        t = (k + 1) * dt
+        roll = amp * math.sin(w * t)
+        f = np.array([0.0, math.sin(roll), math.cos(roll)]) * C.LUNAR_G
+        gyro = np.array([amp * w * math.cos(w * t), 0.0, 0.0])
+        tick = SensorTick(f, gyro, C.HOME_Q, np.zeros(12), np.zeros(12), 0.0, np.zeros(4), np.zeros(4, bool))
+        est.update(t, tick, dt)
+    return float(est.ekf.P[11, 11])
+
+
+def test_the_g_sensitivity_term_bounds_the_gravity_shift_and_does_not_sum_the_wobble():
+    gs = EstimatorConfig().gyro_g_sens_std
+    bound = (gs * C_LUNAR_G * 2.0 * math.sin(math.radians(3.0))) ** 2  # gs² × max|Δu|² (±3° roll)
+    for seconds in (10.0, 60.0):
+        added = _gyro_z_bias_variance_after_wobble(gs, seconds) - _gyro_z_bias_variance_after_wobble(
+            0.0, seconds
+        )
+        # raised once to gs² × max|Δu|² (from the level start: 1.62·2 sin 1.5°, a quarter of the bound above),
+        # not growing with every swing (summing |d|Δu|²| every tick gave 84 × the bound after 60 s)
+        assert 0.2 * bound < added <= 1.0001 * bound, (seconds, added, bound)
