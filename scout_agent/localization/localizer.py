@@ -36,7 +36,15 @@ from .matcher import MatchConfig, MatchResult, match_height, match_track
 from .reference import HeightReference
 from .track import FootholdTrack
 
-__all__ = ["LOCALIZE_MODES", "Localizer", "LocalizerConfig", "LocalizerReport", "MapSource", "SourceConfig"]
+__all__ = [
+    "LOCALIZE_MODES",
+    "Localizer",
+    "LocalizerConfig",
+    "LocalizerReport",
+    "MapSource",
+    "SourceConfig",
+    "search_config",
+]
 
 LOCALIZE_MODES = ("on", "off")
 
@@ -56,6 +64,7 @@ class SourceConfig:
     # stated noise and bias bound the height long before its 5 m pixels bound the place; not for the shared
     # map, whose heights carry the other scouts' own height drift that their cells' scatter does not state
     height_fix: bool = False
+    first_m: float | None = None  # the first match once this much is walked (default: `track_m`)
 
 
 @dataclass(frozen=True)
@@ -64,16 +73,19 @@ class LocalizerConfig:
     gate_p: float = 0.001  # χ² gate's false-rejection probability
     window_sigmas: float = 3.0  # the search window covers this many σ of the filter's position and heading
     yaw_steps: int = 3  # yaw candidates each side of the estimate's heading
-    # a DEM: 5 m pixels with 0.3 m noise: a long track, coarse steps, a wide window, a loose σ limit (a σ of
-    # 1.5 m still bounds a drift of metres; the gate keeps it from pulling a better estimate away); datum σ:
-    # the DEM's vertical bias (OrbitalDemConfig, LOLA). Window limits: position ≤ 4 m, heading ≤ 6°.
+    # a DEM: 5 m pixels with 0.3 m noise: the likelihood's moments over a wide window (benchmarks/dem_match.py:
+    # on the 100 m field's relief, true footholds, 60 m tracks are never placed within ±8 m and ±6°, 100 m
+    # ones sometimes, σ ≈ 2.3 m and 1.9°), so the longest track (up to 100 m), every 25 m from 30 m; a loose σ
+    # limit (2.5 m still bounds a drift of metres; the gate keeps it from pulling a better estimate away);
+    # datum σ: the DEM's vertical bias (OrbitalDemConfig, LOLA).
     dem: SourceConfig = field(
         default_factory=lambda: SourceConfig(
-            15.0,
-            30.0,
-            MatchConfig(window_m=4.0, step_m=0.5, yaw_window_deg=6.0, max_sigma_m=1.5),
+            25.0,
+            100.0,
+            MatchConfig(window_m=8.0, step_m=0.5, yaw_window_deg=6.0, max_sigma_m=2.5, method="moments"),
             0.03,
             height_fix=True,
+            first_m=30.0,
         )
     )
     # the shared map: 0.4 m cells with cm-level scatter
@@ -138,6 +150,18 @@ def _due_feet(
     return n
 
 
+def search_config(c: LocalizerConfig, src: SourceConfig, sig_xy_m: float, sig_yaw_deg: float) -> MatchConfig:
+    """The source's match configuration with its search window sized by the filter's own σ: position ±3σ
+    (+ a step), heading ±3σ, within the source's limits; at least `yaw_steps` heading candidates a side, and
+    steps fine enough that the track's far end moves no more than two position steps between them (a long
+    DEM track turned by a coarse step lands nowhere near the relief it crossed)."""
+    mc = src.match
+    win = float(np.clip(c.window_sigmas * sig_xy_m + mc.step_m, 3 * mc.step_m, mc.window_m))
+    ywin = float(np.clip(c.window_sigmas * sig_yaw_deg, 0.5, mc.yaw_window_deg))
+    ystep = min(ywin / c.yaw_steps, float(np.degrees(2.0 * mc.step_m / max(src.track_m, 1.0))))
+    return replace(mc, window_m=win, yaw_window_deg=ywin, yaw_step_deg=ywin / np.ceil(ywin / ystep))
+
+
 class Localizer:
     def __init__(
         self,
@@ -160,7 +184,8 @@ class Localizer:
         self._due = np.zeros(4, bool)
         self.walked_m = 0.0
         # each source's first match once its track is full
-        self._next = {"dem": config.dem.track_m, "map": config.map.track_m}
+        self._next = {n: src.first_m if src.first_m is not None else src.track_m
+                      for n, src in (("dem", config.dem), ("map", config.map))}  # fmt: skip
         self._prev_xy: tuple[float, float] | None = None
 
     def on_tick(self, sample: ProprioSample) -> None:
@@ -205,13 +230,8 @@ class Localizer:
             self.report.refused[f"no_{name}"] += 1
         else:
             sig_xy = float(np.sqrt(max(np.linalg.eigvalsh(ekf.P[6:8, 6:8]).max(), 0.0)))
-            mc = src.match
-            win = float(np.clip(c.window_sigmas * sig_xy + mc.step_m, 3 * mc.step_m, mc.window_m))
-            # heading: ±3σ of the filter's (δθ about the vertical), within the source's limit, yaw_steps a side
             sig_yaw = float(np.degrees(np.sqrt(max(ekf.P[2, 2], 0.0))))
-            ywin = float(np.clip(c.window_sigmas * sig_yaw, 0.5, mc.yaw_window_deg))
-            mc = replace(mc, window_m=win, yaw_window_deg=ywin, yaw_step_deg=ywin / c.yaw_steps)
-            res = match_track(pts, ref, mc, pivot=ekf.p[:2])
+            res = match_track(pts, ref, search_config(c, src, sig_xy, sig_yaw), pivot=ekf.p[:2])
             if not res.ok:
                 self.report.refused[f"{name}_{res.reason}"] += 1
                 if src.height_fix and res.reason in ("flat", "ambiguous", "edge"):
@@ -220,7 +240,7 @@ class Localizer:
                 assert res.cov is not None
                 cov = res.cov.copy()
                 cov[2, 2] += src.datum_m**2
-                cov *= max(1.0, src.track_m / src.every_m)
+                cov *= max(1.0, min(src.track_m, self.walked_m) / src.every_m)  # footholds shared
                 meas = np.r_[
                     ekf.p[0] + res.dx, ekf.p[1] + res.dy, ekf.p[2] + res.dz, heading(ekf.R) + res.dyaw
                 ]
@@ -248,7 +268,7 @@ class Localizer:
             self.report.refused[f"{name}_height_few"] += 1
             return
         ekf = self.est.ekf
-        var = (fix.var_m2 + src.datum_m**2) * max(1.0, src.track_m / src.every_m)
+        var = (fix.var_m2 + src.datum_m**2) * max(1.0, min(src.track_m, self.walked_m) / src.every_m)
         meas = np.array([np.nan, np.nan, ekf.p[2] + fix.dz, np.nan])
         cov = np.diag([np.inf, np.inf, var, np.inf])
         before = ekf.p.copy()

@@ -16,8 +16,8 @@ shared by every foothold in it).
 Refused (`MatchResult.ok` False, `reason` says which):
 - "few": fewer than `min_points` footholds on the reference, or under `min_coverage` of them;
 - "flat" (checked first): no offset in the window scores `min_separation_chi2` worse than the best;
-- "ambiguous": another place, farther than `exclusion_sigma` of the best's σ (and 3 steps),
-  scores within `min_separation_chi2` of it (a periodic or repeated relief);
+- "ambiguous": another place, farther than `exclusion_sigma` of the best's own σ (Mahalanobis, in the
+  searched x, y, yaw; and 3 steps), scores within `min_separation_chi2` of it (a periodic or repeated relief);
 - "edge": the best lies on the window's border (the true offset may lie outside);
 - "flat": the offset's σ along its worst direction exceeds `max_sigma_m` (the terrain does not constrain it),
   or the score has no minimum there.
@@ -47,6 +47,12 @@ class MatchConfig:
     max_sigma_m: float = 0.5
     min_separation_chi2: float = 9.0  # a second place within Δχ² 9 (3σ) of the best: ambiguous
     exclusion_sigma: float = 3.0  # "another place": farther than this many σ (and 3 grid steps)
+    # "laplace": the best offset refined off the grid, covariance from the score's curvature there (a sharp,
+    # single peak: the shared map's 0.4 m cells). "moments": the likelihood exp(−½Δχ²) over the whole grid,
+    # its mean and covariance (a DEM's 5 m pixels with 0.3 m noise: a broad, rough likelihood whose best
+    # grid point is a noise minimum as often as not, and whose curvature there says nothing of its width)
+    method: str = "laplace"
+    edge_mass: float = 0.05  # moments: refused ("edge") when this much likelihood lies on the window's rim
 
 
 @dataclass(frozen=True)
@@ -145,14 +151,8 @@ def match_track(
     inflation = max(1.0, covered.sum() / max(len(cells), 1))
     if 2.0 * (float(S.max()) - float(S[b])) / inflation < cfg.min_separation_chi2:
         return MatchResult(False, "flat", separation_chi2=0.0, points=n, inflation=inflation, pivot=pv)
-    # another place as good? (before the edge test: a periodic relief's best is as often on the edge)
-    far = np.hypot(cand[:, 0] - cand[b, 0], cand[:, 1] - cand[b, 1]) > 3 * cfg.step_m
-    sep = 2.0 * (float(S[far].min()) - float(S[b])) / inflation if far.any() else float("inf")
-    if sep < cfg.min_separation_chi2:
-        return MatchResult(False, "ambiguous", separation_chi2=sep, points=n, inflation=inflation, pivot=pv)
-    on_edge = abs(cand[b, 0]) >= dxs[-1] - 1e-9 or abs(cand[b, 1]) >= dxs[-1] - 1e-9
-    if on_edge or (yh and abs(cand[b, 2]) >= dyaws[-1] - 1e-12):
-        return MatchResult(False, "edge", separation_chi2=sep, points=n, inflation=inflation, pivot=pv)
+    if cfg.method == "moments":
+        return _moments(pts, ref, cfg, cand, S, piv, inflation, dxs, dyaws, ystep)
     # off the grid: Nelder–Mead in units of one step, yaw only when searched
     scale = np.r_[cfg.step_m, cfg.step_m, ystep][: 3 if yh else 2]
 
@@ -166,20 +166,30 @@ def match_track(
     opt = minimize(lambda u: float(f(u)[0]), x0, method="Nelder-Mead",
                    options={"xatol": 0.02, "fatol": 1e-3, "maxfev": 150, "initial_simplex": x0 + np.vstack([np.zeros(len(x0)), 0.5 * np.eye(len(x0))])})  # fmt: skip
     best = opt.x if opt.fun <= S[b] else x0
+    s_best = min(float(opt.fun), float(S[b]))
     H = _hessian(f, best, np.full(len(best), 0.5)) / np.outer(scale, scale)
-    if np.linalg.eigvalsh(H).min() <= 0:
+    pd = np.linalg.eigvalsh(H).min() > 0
+    C = np.linalg.inv(H) * inflation if pd else None
+    # another place as good? Farther than `exclusion_sigma` of the best's own (Laplace) σ, in the searched
+    # (x, y, yaw), and 3 steps in position, yet within Δχ² `min_separation_chi2` of it: a periodic or repeated
+    # relief (checked before the edge: a periodic relief's best is as often on the edge). A broad peak's own
+    # slopes are not "another place": on a quadratic bowl a point d σ away scores Δχ² = d².
+    far = np.hypot(cand[:, 0] - cand[b, 0], cand[:, 1] - cand[b, 1]) > 3 * cfg.step_m
+    if C is not None:
+        dv = cand[:, : len(scale)] - best * scale
+        far &= np.einsum("ij,jk,ik->i", dv, np.linalg.inv(C), dv) > cfg.exclusion_sigma**2
+    sep = 2.0 * (float(S[far].min()) - s_best) / inflation if far.any() else float("inf")
+    if sep < cfg.min_separation_chi2:
+        return MatchResult(False, "ambiguous", separation_chi2=sep, points=n, inflation=inflation, pivot=pv)
+    on_edge = abs(cand[b, 0]) >= dxs[-1] - 1e-9 or abs(cand[b, 1]) >= dxs[-1] - 1e-9
+    if on_edge or (yh and abs(cand[b, 2]) >= dyaws[-1] - 1e-12):
+        return MatchResult(False, "edge", separation_chi2=sep, points=n, inflation=inflation, pivot=pv)
+    if C is None:
         return MatchResult(False, "flat", separation_chi2=sep, points=n, inflation=inflation, pivot=pv)
-    C = np.linalg.inv(H) * inflation
     sig_xy = float(np.sqrt(np.linalg.eigvalsh(C[:2, :2]).max()))
     if sig_xy > cfg.max_sigma_m:
         return MatchResult(False, "flat", sigma_max_m=sig_xy, separation_chi2=sep, points=n,
                            inflation=inflation, pivot=pv)  # fmt: skip
-    if sig_xy * cfg.exclusion_sigma > 3 * cfg.step_m:  # a broad peak: the other place must lie beyond it
-        far = np.hypot(cand[:, 0] - cand[b, 0], cand[:, 1] - cand[b, 1]) > cfg.exclusion_sigma * sig_xy
-        sep = 2.0 * (float(S[far].min()) - float(S[b])) / inflation if far.any() else float("inf")
-        if sep < cfg.min_separation_chi2:
-            return MatchResult(False, "ambiguous", sigma_max_m=sig_xy, separation_chi2=sep, points=n,
-                               inflation=inflation, pivot=pv)  # fmt: skip
     off = np.zeros(3)
     off[: len(best)] = best * scale
     _, DZ, _ = _scores(pts, ref, off[None, :], piv, cfg.huber_k)
@@ -205,6 +215,62 @@ def match_track(
         cov[3, 3] = np.inf
     return MatchResult(True, "ok", dx=float(off[0]), dy=float(off[1]), dz=dz, dyaw=float(off[2]), cov=cov,
                        sigma_max_m=sig_xy, separation_chi2=sep, points=n, inflation=inflation, pivot=pv)  # fmt: skip
+
+
+def _moments(
+    pts: np.ndarray,
+    ref: HeightReference,
+    cfg: MatchConfig,
+    cand: np.ndarray,
+    S: np.ndarray,
+    piv: np.ndarray,
+    inflation: float,
+    dxs: np.ndarray,
+    dyaws: np.ndarray,
+    ystep: float,
+) -> MatchResult:
+    """The likelihood exp(−ΔS / inflation) (= exp(−½Δχ²), footholds per independent cell tempering it) over
+    the grid of candidates: its mean is the offset, its covariance (+ the grid's own step²/12) the offset's.
+    Refused: "edge" when more than `edge_mass` of it lies on the window's rim (the window cuts it: its
+    covariance would be too small), "ambiguous" when its σ exceeds `max_sigma_m` (spread over several places
+    or one broad one)."""
+    n = len(pts)
+    pv = (float(piv[0]), float(piv[1]))
+    w = np.exp(-(S - S.min()) / inflation)
+    w /= w.sum()
+    yawed = len(dyaws) > 1
+    use = cand if yawed else cand[:, :2]
+    mean = w @ use
+    d = use - mean
+    C = (w[:, None] * d).T @ d + np.diag(np.r_[cfg.step_m, cfg.step_m, ystep][: use.shape[1]] ** 2 / 12.0)
+    rim = (np.abs(cand[:, 0]) >= dxs[-1] - 1e-9) | (np.abs(cand[:, 1]) >= dxs[-1] - 1e-9)
+    if yawed:
+        rim |= np.abs(cand[:, 2]) >= dyaws[-1] - 1e-12
+    sig_xy = float(np.sqrt(np.linalg.eigvalsh(C[:2, :2]).max()))
+    b = int(np.argmin(S))
+    far = np.hypot(cand[:, 0] - cand[b, 0], cand[:, 1] - cand[b, 1]) > cfg.exclusion_sigma * sig_xy
+    sep = 2.0 * (float(S[far].min()) - float(S[b])) / inflation if far.any() else float("inf")
+    common = {"sigma_max_m": sig_xy, "separation_chi2": sep, "points": n, "inflation": inflation, "pivot": pv}
+    if float(w[rim].sum()) > cfg.edge_mass:
+        return MatchResult(False, "edge", **common)
+    if sig_xy > cfg.max_sigma_m:
+        return MatchResult(False, "ambiguous", **common)
+    off = np.zeros(3)
+    off[: len(mean)] = mean
+    _, DZ, _ = _scores(pts, ref, off[None, :], piv, cfg.huber_k)
+    dz = float(DZ[0])
+    dzs = _scores(pts, ref, cand, piv, cfg.huber_k)[1]
+    cov = np.zeros((4, 4))
+    cov[:2, :2] = C[:2, :2]
+    cov[2, 2] = float(w @ (dzs - dz) ** 2) + 1e-6  # the datum's spread over the places the likelihood allows
+    if yawed:
+        cov[3, 3] = C[2, 2]
+        cov[:2, 3] = cov[3, :2] = C[:2, 2]
+    else:
+        cov[3, 3] = np.inf
+    return MatchResult(
+        True, "ok", dx=float(off[0]), dy=float(off[1]), dz=dz, dyaw=float(off[2]), cov=cov, **common
+    )
 
 
 @dataclass(frozen=True)

@@ -205,3 +205,54 @@ def test_the_localizer_fuses_a_dem_height_where_the_place_is_flat_and_never_move
             assert 0.3 < e.p[2] < 0.55 and np.sqrt(e.P[8, 8]) < 0.5
         else:
             assert not loc.report.fused and e.p[2] == 0.0
+
+
+def _dem_like(
+    seed: int, amp_m: float, noise_m: float = 0.3, n: int = 40
+) -> tuple[GridReference, GridReference]:
+    """A 5 m/px reference over 200 m (bilinear, as DemReference reads a DEM) with `noise_m` per pixel, and the
+    noise-free one the footholds stand on."""
+    from scout_agent.dem_reader import DemGrid
+    from scout_agent.localization import DemReference
+
+    rng = np.random.default_rng(seed)
+    clean = gaussian_filter(rng.normal(0, 1, (n, n)), 2.0) * amp_m
+    noisy = clean + rng.normal(0, noise_m, (n, n))
+    return (DemReference(DemGrid(noisy, 2.5, 2.5, 5.0, noise_m, "test"), subpixel_m=0.05),  # type: ignore[return-value]
+            DemReference(DemGrid(clean, 2.5, 2.5, 5.0, 0.0, "test"), subpixel_m=0.05))  # fmt: skip
+
+
+def test_the_dem_likelihood_moments_hold_the_true_offset_and_refuse_what_the_window_cuts() -> None:
+    """method "moments" (the DEM's): over seeds, the recovered (x, y, yaw) offset's error lies inside its
+    covariance as a χ²₃ should (mean normalised error² near 3, none beyond p = 0.001); a window too small
+    for the likelihood is refused ("edge"), never fused with a cut covariance."""
+    nees, refused = [], 0
+    for seed in range(8):
+        noisy, clean = _dem_like(seed, amp_m=20.0)
+        xy = _track(800, length=80.0, heading_rad=0.7) + 40.0
+        h, _ = clean.heights(xy[:, 0], xy[:, 1])
+        off, a = np.array([1.2, -0.8]), np.radians(2.0)
+        pivot = xy[-1]
+        rot = np.array([[np.cos(-a), -np.sin(-a)], [np.sin(-a), np.cos(-a)]])
+        est = pivot - off + (xy - pivot) @ rot.T
+        cfg = MatchConfig(window_m=6.0, step_m=0.5, yaw_window_deg=6.0, yaw_step_deg=0.75, max_sigma_m=2.5,
+                          method="moments")  # fmt: skip
+        r = match_track(np.column_stack([est, h - 0.3]), noisy, cfg, pivot=pivot - off)
+        if not r.ok:
+            refused += 1
+            continue
+        e = np.array([r.dx - off[0], r.dy - off[1], r.dyaw - a])
+        C = r.cov[np.ix_([0, 1, 3], [0, 1, 3])]
+        nees.append(float(e @ np.linalg.solve(C, e)))
+        assert r.dz == pytest.approx(0.3, abs=4 * np.sqrt(r.cov[2, 2]) + 0.05)
+    assert refused <= 2 and len(nees) >= 6
+    assert max(nees) < 16.3 and 0.5 < np.mean(nees) < 6.0, nees
+    # the same track with a window of ±1 m: the likelihood (σ ≈ 0.5-1 m) is cut by it
+    cut = match_track(np.column_stack([est, h - 0.3]), noisy, replace_window(cfg, 1.0), pivot=pivot - off)
+    assert not cut.ok and cut.reason == "edge"
+
+
+def replace_window(cfg: MatchConfig, window_m: float) -> MatchConfig:
+    from dataclasses import replace
+
+    return replace(cfg, window_m=window_m)
