@@ -26,6 +26,7 @@ Refused (`MatchResult.ok` False, `reason` says which):
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 from scipy.optimize import minimize
@@ -250,11 +251,12 @@ def _moments(
     b = int(np.argmin(S))
     far = np.hypot(cand[:, 0] - cand[b, 0], cand[:, 1] - cand[b, 1]) > cfg.exclusion_sigma * sig_xy
     sep = 2.0 * (float(S[far].min()) - float(S[b])) / inflation if far.any() else float("inf")
-    common = {"sigma_max_m": sig_xy, "separation_chi2": sep, "points": n, "inflation": inflation, "pivot": pv}
+    refuse = partial(MatchResult, False, sigma_max_m=sig_xy, separation_chi2=sep, points=n, inflation=inflation,
+                     pivot=pv)  # fmt: skip
     if float(w[rim].sum()) > cfg.edge_mass:
-        return MatchResult(False, "edge", **common)
+        return refuse("edge")
     if sig_xy > cfg.max_sigma_m:
-        return MatchResult(False, "ambiguous", **common)
+        return refuse("ambiguous")
     off = np.zeros(3)
     off[: len(mean)] = mean
     _, DZ, _ = _scores(pts, ref, off[None, :], piv, cfg.huber_k)
@@ -268,9 +270,8 @@ def _moments(
         cov[:2, 3] = cov[3, :2] = C[:2, 2]
     else:
         cov[3, 3] = np.inf
-    return MatchResult(
-        True, "ok", dx=float(off[0]), dy=float(off[1]), dz=dz, dyaw=float(off[2]), cov=cov, **common
-    )
+    return MatchResult(True, "ok", dx=float(off[0]), dy=float(off[1]), dz=dz, dyaw=float(off[2]), cov=cov,
+                       sigma_max_m=sig_xy, separation_chi2=sep, points=n, inflation=inflation, pivot=pv)  # fmt: skip
 
 
 @dataclass(frozen=True)
