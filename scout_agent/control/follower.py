@@ -7,6 +7,7 @@ robot holds e.g. 0.2 m/s up slopes where the balance controller alone would lag.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -36,6 +37,7 @@ class PathFollower:
         self.points = np.asarray(waypoints, dtype=float)[:, :2]
         if len(self.points) < 2:
             raise ScoutConfigError("a path needs at least a start and a goal")
+        self._xy: list[tuple[float, float]] = [(float(x), float(y)) for x, y in self.points]
         self.segment = 0
         self.integral = 0.0
         self.reached = False
@@ -44,50 +46,61 @@ class PathFollower:
     def goal(self) -> np.ndarray:
         return self.points[-1]
 
-    def _lookahead(self, p: np.ndarray) -> np.ndarray:
-        pts = self.points
+    def _lookahead(self, px: float, py: float) -> tuple[float, float]:
+        """The pursuit target `lookahead_m` along the path ahead of the robot's projection on it (scalar
+        arithmetic on Python floats: a few 2-vectors a tick, where numpy's per-call cost dominates)."""
+        pts, look = self._xy, self.config.lookahead_m
+        last = len(pts) - 2
         # advance the segment once the robot projects beyond its end
-        while self.segment < len(pts) - 2:
-            a, b = pts[self.segment], pts[self.segment + 1]
-            ab = b - a
-            if (p - a) @ ab / (ab @ ab) >= 1.0 or np.hypot(*(p - b)) < self.config.lookahead_m:
+        while self.segment < last:
+            (ax, ay), (bx, by) = pts[self.segment], pts[self.segment + 1]
+            abx, aby = bx - ax, by - ay
+            if ((px - ax) * abx + (py - ay) * aby) / (abx * abx + aby * aby) >= 1.0 or math.hypot(
+                px - bx, py - by
+            ) < look:
                 self.segment += 1
             else:
                 break
-        a, b = pts[self.segment], pts[self.segment + 1]
-        ab = b - a
-        t = min(1.0, max(0.0, float((p - a) @ ab / (ab @ ab))))
-        target = a + ab * t
-        remaining = self.config.lookahead_m
+        (ax, ay), (bx, by) = pts[self.segment], pts[self.segment + 1]
+        abx, aby = bx - ax, by - ay
+        t = min(1.0, max(0.0, ((px - ax) * abx + (py - ay) * aby) / (abx * abx + aby * aby)))
+        tx, ty = ax + abx * t, ay + aby * t
+        remaining = look
         seg = self.segment
         while True:
-            end = pts[seg + 1]
-            d = float(np.hypot(*(end - target)))
-            if d >= remaining or seg == len(pts) - 2:
-                return target + (end - target) * min(1.0, remaining / max(d, 1e-9))
+            ex, ey = pts[seg + 1]
+            d = math.hypot(ex - tx, ey - ty)
+            if d >= remaining or seg == last:
+                f = min(1.0, remaining / max(d, 1e-9))
+                return tx + (ex - tx) * f, ty + (ey - ty) * f
             remaining -= d
-            target = end
+            tx, ty = ex, ey
             seg += 1
 
     def command(self, pos_xy: np.ndarray, yaw: float, vel_xy: np.ndarray, dt: float) -> tuple[float, float]:
         """(forward speed [m/s], yaw rate [rad/s]) for the controller; sets `reached` at the goal."""
+        px, py = pos_xy.tolist()
+        vx, vy = vel_xy.tolist()
         if self.reverse:  # pursue with the tail: the heading is the trunk's reversed, speed is backwards
-            v, w = self._forward(pos_xy, yaw + np.pi, vel_xy, dt)
+            v, w = self._forward(px, py, float(yaw) + math.pi, vx, vy, dt)
             return -v, w
-        return self._forward(pos_xy, yaw, vel_xy, dt)
+        return self._forward(px, py, float(yaw), vx, vy, dt)
 
-    def _forward(self, pos_xy: np.ndarray, yaw: float, vel_xy: np.ndarray, dt: float) -> tuple[float, float]:
+    def _forward(
+        self, px: float, py: float, yaw: float, vx: float, vy: float, dt: float
+    ) -> tuple[float, float]:
         c = self.config
-        if self.reached or np.hypot(*(self.goal - pos_xy)) < c.goal_tolerance_m:
+        gx, gy = self._xy[-1]
+        if self.reached or math.hypot(gx - px, gy - py) < c.goal_tolerance_m:
             self.reached = True
             return 0.0, 0.0
-        target = self._lookahead(pos_xy)
-        heading = np.arctan2(target[1] - pos_xy[1], target[0] - pos_xy[0])
-        err = (heading - yaw + np.pi) % (2 * np.pi) - np.pi
-        yaw_rate = min(c.max_yaw_rate, max(-c.max_yaw_rate, float(c.yaw_gain * err)))
-        scale = 1.0 if abs(err) < c.slow_heading_err_rad else max(0.0, np.cos(err))
+        tx, ty = self._lookahead(px, py)
+        heading = math.atan2(ty - py, tx - px)
+        err = (heading - yaw + math.pi) % (2 * math.pi) - math.pi
+        yaw_rate = min(c.max_yaw_rate, max(-c.max_yaw_rate, c.yaw_gain * err))
+        scale = 1.0 if abs(err) < c.slow_heading_err_rad else max(0.0, math.cos(err))
         v_ref = c.speed * scale
-        v_meas = float(vel_xy @ np.array([np.cos(yaw), np.sin(yaw)]))
+        v_meas = vx * math.cos(yaw) + vy * math.sin(yaw)
         if scale == 1.0:
             self.integral = min(c.max_boost, max(-0.05, self.integral + c.ki * (v_ref - v_meas) * dt))
         return v_ref + self.integral * scale, yaw_rate
