@@ -236,14 +236,11 @@ class RunTally:
             self.next_path_t += PATH_EVERY_S
             self.path_estimate.append([round(t, 3), *(round(float(c), 3) for c in sample.base.pos)])
         self.nonfoot_ticks += truth.nonfoot_contacts > 0
-        self.errors.add(
-            truth.base.pos,
-            truth.base.quat,
-            sample.base.pos,
-            sample.base.quat,
-            estimator.position_covariance()[:2, :2] if estimator is not None else None,
-            estimator.heading_variance() if estimator is not None else None,
-        )
+        tb, eb = truth.base, sample.base
+        if estimator is not None:
+            self.errors.add_filter(tb.pos, tb.quat, eb.pos, eb.quat, estimator.ekf.P, estimator.ekf.R)
+        else:
+            self.errors.add(tb.pos, tb.quat, eb.pos, eb.quat, None, None)
         vx, vy, _ = truth.base.vel.tolist()
         self.speed_path += math.hypot(vx, vy) * self.control_dt
 

@@ -19,6 +19,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numba import njit
 
 __all__ = ["ConsistencyTracker", "yaw_of_quat"]
 
@@ -29,18 +30,75 @@ def yaw_of_quat(quat: np.ndarray) -> float:
     return math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
 
 
+# the tracker's running figures, one float each, updated in place by the compiled tick
+_N, _ERR_MAX, _ERR_FINAL, _YAW_MAX, _NEES_SUM, _NEES_N, _INSIDE, _NEES_YAW_SUM, _NEES_YAW_N, _YAW_INSIDE = (
+    range(10)
+)
+
+
+@njit(cache=True, nogil=True)
+def _yaw(q: np.ndarray) -> float:
+    return math.atan2(2 * (q[0] * q[3] + q[1] * q[2]), 1 - 2 * (q[2] * q[2] + q[3] * q[3]))
+
+
+@njit(cache=True, nogil=True)
+def _add(
+    acc: np.ndarray,
+    truth_pos: np.ndarray,
+    truth_quat: np.ndarray,
+    est_pos: np.ndarray,
+    est_quat: np.ndarray,
+    cov_xx: float,
+    cov_xy: float,
+    cov_yy: float,
+    yaw_var: float,
+) -> None:
+    """One tick into `acc`; a NaN `cov_xx` (no covariance) or `yaw_var` (no heading variance) leaves out the
+    position or heading NEES."""
+    ex, ey = truth_pos[0] - est_pos[0], truth_pos[1] - est_pos[1]
+    err = math.hypot(ex, ey)
+    acc[_N] += 1.0
+    acc[_ERR_FINAL] = err
+    acc[_ERR_MAX] = max(acc[_ERR_MAX], err)
+    dyaw = (_yaw(est_quat) - _yaw(truth_quat) + math.pi) % (2 * math.pi) - math.pi
+    acc[_YAW_MAX] = max(acc[_YAW_MAX], abs(dyaw))
+    if yaw_var > 0:  # False for NaN
+        nees_yaw = dyaw * dyaw / yaw_var
+        acc[_NEES_YAW_SUM] += nees_yaw
+        acc[_NEES_YAW_N] += 1.0
+        acc[_YAW_INSIDE] += nees_yaw <= 9.0
+    det = cov_xx * cov_yy - cov_xy * cov_xy
+    if not det > 0:  # also NaN: no covariance
+        return
+    nees = (cov_yy * ex * ex - 2 * cov_xy * ex * ey + cov_xx * ey * ey) / det
+    acc[_NEES_SUM] += nees
+    acc[_NEES_N] += 1.0
+    acc[_INSIDE] += nees <= 9.0
+
+
+@njit(cache=True, nogil=True)
+def _add_filter(
+    acc: np.ndarray,
+    truth_pos: np.ndarray,
+    truth_quat: np.ndarray,
+    est_pos: np.ndarray,
+    est_quat: np.ndarray,
+    P: np.ndarray,
+    R: np.ndarray,
+) -> None:
+    """`_add` with the filter's own figures: the horizontal position block P[6:8, 6:8] and the heading variance
+    uᵀ P_θθ u, u = Rᵀe_z (`ErrorStateEKF.heading_variance`)."""
+    yaw_var = 0.0
+    for i in range(3):
+        for j in range(3):
+            yaw_var += R[2, i] * P[i, j] * R[2, j]
+    _add(acc, truth_pos, truth_quat, est_pos, est_quat, P[6, 6], P[6, 7], P[7, 7], yaw_var)
+
+
 class ConsistencyTracker:
     def __init__(self) -> None:
-        self.n = 0
-        self.err_max = 0.0
-        self.err_final = math.nan
-        self.yaw_max = 0.0
-        self.nees_sum = 0.0
-        self.nees_n = 0
-        self.inside = 0
-        self.nees_yaw_sum = 0.0
-        self.nees_yaw_n = 0
-        self.yaw_inside = 0
+        self._acc = np.zeros(10)
+        self._acc[_ERR_FINAL] = math.nan
 
     def add(
         self,
@@ -51,40 +109,54 @@ class ConsistencyTracker:
         pos_cov: np.ndarray | None,
         yaw_var: float | None = None,
     ) -> None:
-        (tx, ty, _), (px, py, _) = truth_pos.tolist(), est_pos.tolist()
-        ex, ey = tx - px, ty - py
-        err = math.hypot(ex, ey)
-        self.n += 1
-        self.err_final = err
-        self.err_max = max(self.err_max, err)
-        dyaw = (yaw_of_quat(est_quat) - yaw_of_quat(truth_quat) + math.pi) % (2 * math.pi) - math.pi
-        self.yaw_max = max(self.yaw_max, abs(dyaw))
-        if yaw_var is not None and yaw_var > 0:
-            nees_yaw = dyaw * dyaw / yaw_var
-            self.nees_yaw_sum += nees_yaw
-            self.nees_yaw_n += 1
-            self.yaw_inside += nees_yaw <= 9.0
-        if pos_cov is None:
-            return
-        (a, b), (_, d) = pos_cov[:2, :2].tolist()
-        det = a * d - b * b
-        if not det > 0:
-            return
-        nees = (d * ex * ex - 2 * b * ex * ey + a * ey * ey) / det
-        self.nees_sum += nees
-        self.nees_n += 1
-        self.inside += nees <= 9.0
+        """One tick: the true and estimated pose, the estimate's horizontal position covariance (2×2 or larger;
+        None: not judged) and heading variance [rad²] (None: not judged)."""
+        (a, b), (_, d) = pos_cov[:2, :2].tolist() if pos_cov is not None else ((math.nan, 0.0), (0.0, 0.0))
+        _add(
+            self._acc,
+            _f3(truth_pos),
+            _f4(truth_quat),
+            _f3(est_pos),
+            _f4(est_quat),
+            a,
+            b,
+            d,
+            math.nan if yaw_var is None else float(yaw_var),
+        )
+
+    def add_filter(
+        self,
+        truth_pos: np.ndarray,
+        truth_quat: np.ndarray,
+        est_pos: np.ndarray,
+        est_quat: np.ndarray,
+        P: np.ndarray,
+        R: np.ndarray,
+    ) -> None:
+        """`add` judged by the error-state filter's covariance `P` (15, 15) and attitude `R` (3, 3)
+        (`ErrorStateEKF`: rotation error first, position at 6:9) in one compiled call: the run loop's form."""
+        _add_filter(self._acc, truth_pos, truth_quat, est_pos, est_quat, P, R)
 
     def summary(self) -> dict[str, float | None]:
         def r(v: float, nd: int = 4) -> float | None:
             return round(v, nd) if math.isfinite(v) else None
 
+        acc = self._acc.tolist()
+        n, nees_n, nees_yaw_n = acc[_N], acc[_NEES_N], acc[_NEES_YAW_N]
         return {
-            "pos_error_max_m": r(self.err_max) if self.n else None,
-            "pos_error_final_m": r(self.err_final) if self.n else None,
-            "yaw_error_max_deg": r(math.degrees(self.yaw_max), 3) if self.n else None,
-            "nees_pos_mean": r(self.nees_sum / self.nees_n, 3) if self.nees_n else None,
-            "inside_3sigma_frac": r(self.inside / self.nees_n) if self.nees_n else None,
-            "nees_yaw_mean": r(self.nees_yaw_sum / self.nees_yaw_n, 3) if self.nees_yaw_n else None,
-            "yaw_inside_3sigma_frac": r(self.yaw_inside / self.nees_yaw_n) if self.nees_yaw_n else None,
+            "pos_error_max_m": r(acc[_ERR_MAX]) if n else None,
+            "pos_error_final_m": r(acc[_ERR_FINAL]) if n else None,
+            "yaw_error_max_deg": r(math.degrees(acc[_YAW_MAX]), 3) if n else None,
+            "nees_pos_mean": r(acc[_NEES_SUM] / nees_n, 3) if nees_n else None,
+            "inside_3sigma_frac": r(acc[_INSIDE] / nees_n) if nees_n else None,
+            "nees_yaw_mean": r(acc[_NEES_YAW_SUM] / nees_yaw_n, 3) if nees_yaw_n else None,
+            "yaw_inside_3sigma_frac": r(acc[_YAW_INSIDE] / nees_yaw_n) if nees_yaw_n else None,
         }
+
+
+def _f3(v: np.ndarray) -> np.ndarray:
+    return np.ascontiguousarray(v, dtype=float).reshape(3)
+
+
+def _f4(v: np.ndarray) -> np.ndarray:
+    return np.ascontiguousarray(v, dtype=float).reshape(4)
