@@ -162,14 +162,18 @@ class SimulatedAliengo:
         """Apply `cmd` to the joint drivers and run one control tick of physics under it; the sensors sample
         it, and `read()` then returns their `LowState`."""
         m, d, cfg = self.model, self.data, self.config
-        if cmd.dq_des.any():  # the driver's Kd (dq_des − dq): the dq_des part is a feed-forward torque
-            self._v_ctrl_tau[:] = cmd.tau_ff + cmd.kd * cmd.dq_des
-        else:
-            self._v_ctrl_tau[:] = cmd.tau_ff
-        self._v_ctrl_pd[:] = cmd.q_des
-        self._v_kp[:] = cmd.kp
-        np.negative(cmd.kp, out=self._v_bias_p)
-        np.negative(cmd.kd, out=self._v_bias_d)
+        _set_controls(
+            cmd.q_des,
+            cmd.dq_des,
+            cmd.kp,
+            cmd.kd,
+            cmd.tau_ff,
+            self._v_ctrl_tau,
+            self._v_ctrl_pd,
+            self._v_kp,
+            self._v_bias_p,
+            self._v_bias_d,
+        )
         sens, q, tau, dq = self._blk_sensors, self._blk_q, self._blk_tau, self._blk_dq
         v_sens, v_q, v_tau, v_dq = self._v_sensors, self._v_q, self._v_tau, self._v_dq
         step = mujoco.mj_step
@@ -242,6 +246,30 @@ class SimulatedAliengo:
         if not self.fell and (tilt > cfg.fall_tilt_deg or clearance < cfg.fall_min_height_m or trunk_touch):
             self.fell = True
             self.fall_xy = (float(pos[0]), float(pos[1]))
+
+
+@njit(cache=True, nogil=True)
+def _set_controls(
+    q_des: np.ndarray,
+    dq_des: np.ndarray,
+    kp: np.ndarray,
+    kd: np.ndarray,
+    tau_ff: np.ndarray,
+    ctrl_tau: np.ndarray,
+    ctrl_pd: np.ndarray,
+    gain_p: np.ndarray,
+    bias_p: np.ndarray,
+    bias_d: np.ndarray,
+) -> None:
+    """The joint drivers' command into MuJoCo's actuators: the torque motors get τ_ff + Kd·dq_des (the driver's
+    Kd (dq_des − dq): the dq_des part is a feed-forward torque), the position servos q_des with gain Kp and
+    biases −Kp, −Kd."""
+    for j in range(12):
+        ctrl_tau[j] = tau_ff[j] + kd[j] * dq_des[j] if dq_des[j] != 0.0 else tau_ff[j]
+        ctrl_pd[j] = q_des[j]
+        gain_p[j] = kp[j]
+        bias_p[j] = -kp[j]
+        bias_d[j] = -kd[j]
 
 
 @njit(cache=True, nogil=True)
