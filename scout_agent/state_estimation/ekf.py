@@ -124,13 +124,11 @@ class ErrorStateEKF:
         that is u = Rᵀe_z (R's third row), so P_θθ grows by q·u uᵀ. Adding q to the base-z element instead
         would, on a slope of α, add sin α of it to the tilt, fully correlated with heading; an update that
         measures the tilt (gravity) would then turn the heading by cot α × its tilt residual."""
-        u = self.R[2]
-        self.P[0:3, 0:3] += q * np.outer(u, u)
+        kernels.add_heading_variance(self.R, self.P, q)
 
     def heading_variance(self) -> float:
         """Variance of the heading (rotation about world z) [rad²]: uᵀ P_θθ u, u = Rᵀe_z."""
-        u = self.R[2]
-        return float(u @ self.P[0:3, 0:3] @ u)
+        return kernels.heading_variance(self.R, self.P)
 
     def gravity_update(self, f_base: np.ndarray, std_mps2: float, gate_chi2: float) -> bool:
         """Standing still the accelerometer reads gravity: f = Rᵀ(−g) + ba, H_θ = [Rᵀ(−g)]×, H_ba = I; σ per

@@ -333,7 +333,7 @@ class StateEstimator:
         e = self.ekf
         if e.heading_variance() < 0.5 * self._heading_var_prev:
             self.turn_net_rad = self._turn_peak_rad = 0.0
-        self.turn_net_rad += float(e.R[2] @ (tick.imu_gyro - e.bg)) * dt
+        self.turn_net_rad += kernels.world_z_rate(e.R, tick.imu_gyro, e.bg) * dt
         peak = max(self._turn_peak_rad, abs(self.turn_net_rad))
         q = c.gyro_scale_std**2 * (peak * peak - self._turn_peak_rad * self._turn_peak_rad)
         if q > 0.0:

@@ -12,7 +12,17 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["gravity_shift2", "imu_to_base", "propagate", "so3_exp", "update", "velocity_rows_many"]
+__all__ = [
+    "add_heading_variance",
+    "gravity_shift2",
+    "heading_variance",
+    "imu_to_base",
+    "propagate",
+    "so3_exp",
+    "update",
+    "velocity_rows_many",
+    "world_z_rate",
+]
 
 
 @njit(cache=True, nogil=True)
@@ -199,3 +209,27 @@ def gravity_shift2(R: np.ndarray, g: np.ndarray, u0: np.ndarray) -> float:
     u = np.dot(np.ascontiguousarray(R.T), -g)
     d0, d1, d2 = u[0] - u0[0], u[1] - u0[1], u[2] - u0[2]
     return (d0 * d0 + d1 * d1) + d2 * d2
+
+
+@njit(cache=True, nogil=True)
+def heading_variance(R: np.ndarray, P: np.ndarray) -> float:
+    """uᵀ P_θθ u, u = Rᵀe_z (R's third row): the variance of the rotation about world z [rad²]."""
+    s = 0.0
+    for i in range(3):
+        for j in range(3):
+            s += R[2, i] * P[i, j] * R[2, j]
+    return s
+
+
+@njit(cache=True, nogil=True)
+def add_heading_variance(R: np.ndarray, P: np.ndarray, q: float) -> None:
+    """P_θθ += q·u uᵀ, u = Rᵀe_z, in place."""
+    for i in range(3):
+        for j in range(3):
+            P[i, j] += q * R[2, i] * R[2, j]
+
+
+@njit(cache=True, nogil=True)
+def world_z_rate(R: np.ndarray, gyro: np.ndarray, bg: np.ndarray) -> float:
+    """The bias-corrected turn rate about world z: (Rᵀe_z)·(ω − b_g) [rad/s]."""
+    return R[2, 0] * (gyro[0] - bg[0]) + R[2, 1] * (gyro[1] - bg[1]) + R[2, 2] * (gyro[2] - bg[2])
