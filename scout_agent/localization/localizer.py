@@ -82,7 +82,14 @@ class LocalizerConfig:
         default_factory=lambda: SourceConfig(
             25.0,
             100.0,
-            MatchConfig(window_m=8.0, step_m=0.5, yaw_window_deg=6.0, max_sigma_m=2.5, method="moments"),
+            MatchConfig(
+                window_m=8.0,
+                step_m=0.5,
+                yaw_window_deg=6.0,
+                max_sigma_m=2.5,
+                method="moments",
+                max_points=200,
+            ),
             0.03,
             height_fix=True,
             first_m=30.0,

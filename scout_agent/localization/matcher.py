@@ -54,6 +54,9 @@ class MatchConfig:
     # grid point is a noise minimum as often as not, and whose curvature there says nothing of its width)
     method: str = "laplace"
     edge_mass: float = 0.05  # moments: refused ("edge") when this much likelihood lies on the window's rim
+    # at most this many footholds, evenly along the track (0: all): a DEM's information is per 5 m pixel, not
+    # per foothold (the footholds per pixel temper the likelihood either way), and the cost is per foothold
+    max_points: int = 0
 
 
 @dataclass(frozen=True)
@@ -132,6 +135,9 @@ def match_track(
     pv = (float(piv[0]), float(piv[1]))
     if n < cfg.min_points:
         return MatchResult(False, "few", points=n, pivot=pv)
+    if cfg.max_points and n > cfg.max_points:  # evenly along the track, the newest kept
+        pts = pts[np.linspace(0, n - 1, cfg.max_points).round().astype(int)]
+        n = len(pts)
     half = int(round(cfg.window_m / cfg.step_m))
     dxs = np.arange(-half, half + 1) * cfg.step_m
     yh = int(round(cfg.yaw_window_deg / cfg.yaw_step_deg)) if cfg.yaw_window_deg > 0 else 0
@@ -139,7 +145,7 @@ def match_track(
     dyaws = np.arange(-yh, yh + 1) * ystep
     A, Y, X = np.meshgrid(dyaws, dxs, dxs, indexing="ij")
     cand = np.stack([X.ravel(), Y.ravel(), A.ravel()], 1)
-    S, _, COVER = _scores(pts, ref, cand, piv, cfg.huber_k)
+    S, DZS, COVER = _scores(pts, ref, cand, piv, cfg.huber_k)
     b = int(np.argmin(S))
     if COVER[b] < cfg.min_coverage or COVER[b] * n < cfg.min_points:
         return MatchResult(False, "few", points=n, pivot=pv)
@@ -153,7 +159,7 @@ def match_track(
     if 2.0 * (float(S.max()) - float(S[b])) / inflation < cfg.min_separation_chi2:
         return MatchResult(False, "flat", separation_chi2=0.0, points=n, inflation=inflation, pivot=pv)
     if cfg.method == "moments":
-        return _moments(pts, ref, cfg, cand, S, piv, inflation, dxs, dyaws, ystep)
+        return _moments(pts, ref, cfg, cand, S, DZS, piv, inflation, dxs, dyaws, ystep)
     # off the grid: Nelder–Mead in units of one step, yaw only when searched
     scale = np.r_[cfg.step_m, cfg.step_m, ystep][: 3 if yh else 2]
 
@@ -224,6 +230,7 @@ def _moments(
     cfg: MatchConfig,
     cand: np.ndarray,
     S: np.ndarray,
+    DZS: np.ndarray,
     piv: np.ndarray,
     inflation: float,
     dxs: np.ndarray,
@@ -261,10 +268,9 @@ def _moments(
     off[: len(mean)] = mean
     _, DZ, _ = _scores(pts, ref, off[None, :], piv, cfg.huber_k)
     dz = float(DZ[0])
-    dzs = _scores(pts, ref, cand, piv, cfg.huber_k)[1]
     cov = np.zeros((4, 4))
     cov[:2, :2] = C[:2, :2]
-    cov[2, 2] = float(w @ (dzs - dz) ** 2) + 1e-6  # the datum's spread over the places the likelihood allows
+    cov[2, 2] = float(w @ (DZS - dz) ** 2) + 1e-6  # the datum's spread over the places the likelihood allows
     if yawed:
         cov[3, 3] = C[2, 2]
         cov[:2, 3] = cov[3, :2] = C[:2, 2]
