@@ -111,6 +111,22 @@ def velocity_rows_many(
 
 
 @njit(cache=True, nogil=True)
+def _mahalanobis2_3(S: np.ndarray, r: np.ndarray, o: int) -> float:
+    """rᵀ B⁻¹ r of the 3-row block at offset `o` (B = S[o:o+3, o:o+3], symmetric positive definite), in closed
+    form (adjugate over determinant: no LAPACK call and no allocation per block); inf for a singular B."""
+    a, b, c = S[o, o], S[o, o + 1], S[o, o + 2]
+    d, e, f = S[o + 1, o + 1], S[o + 1, o + 2], S[o + 2, o + 2]
+    A00, A01, A02 = d * f - e * e, c * e - b * f, b * e - c * d
+    A11, A12, A22 = a * f - c * c, b * c - a * e, a * d - b * b
+    det = a * A00 + b * A01 + c * A02
+    if not det > 0.0:
+        return np.inf
+    x, y, z = r[o], r[o + 1], r[o + 2]
+    q = A00 * x * x + A11 * y * y + A22 * z * z + 2.0 * (A01 * x * y + A02 * x * z + A12 * y * z)
+    return q / det
+
+
+@njit(cache=True, nogil=True)
 def update(
     R: np.ndarray,
     v: np.ndarray,
@@ -138,11 +154,7 @@ def update(
     keep = np.ones(nb, np.bool_)
     if gate_chi2 > 0.0 and m % 3 == 0:
         for b in range(nb):
-            o = 3 * b
-            B = np.ascontiguousarray(S[o : o + 3, o : o + 3])
-            rb = residual[o : o + 3].copy()
-            d2 = rb @ np.linalg.solve(B, rb)
-            keep[b] = d2 <= gate_chi2
+            keep[b] = _mahalanobis2_3(S, residual, 3 * b) <= gate_chi2
         nk = 0
         for b in range(nb):
             if keep[b]:
