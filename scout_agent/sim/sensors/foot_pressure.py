@@ -45,20 +45,38 @@ class FootContactSensors:
     def reading(self, normal_force_n: np.ndarray, dt: float = 0.0) -> np.ndarray:
         """Readings [N] for the true normal forces; `dt` [s] since the last reading drives the offset drift."""
         c = self.config
-        if c.offset_walk_n and dt > 0:
-            self.offset = self.offset + self.rng.normal(0.0, c.offset_walk_n * math.sqrt(dt), 4)
-        noise = self.rng.normal(0.0, c.noise_n, 4)
+        walk = c.offset_walk_n * math.sqrt(dt) if c.offset_walk_n and dt > 0 else 0.0
+        # one draw for both: the offset walk's four normals, then the noise's (the order of two draws)
+        z = self.rng.standard_normal(8 if walk else 4)
         return _readings(
-            np.asarray(normal_force_n, dtype=float), self.gain, self.offset, noise, c.saturation_n
+            np.asarray(normal_force_n, dtype=float),
+            self.gain,
+            self.offset,
+            z,
+            walk,
+            c.noise_n,
+            c.saturation_n,
         )
 
 
 @njit(cache=True, nogil=True)
 def _readings(
-    normal_force_n: np.ndarray, gain: np.ndarray, offset: np.ndarray, noise: np.ndarray, saturation_n: float
+    normal_force_n: np.ndarray,
+    gain: np.ndarray,
+    offset: np.ndarray,
+    z: np.ndarray,
+    walk_n: float,
+    noise_n: float,
+    saturation_n: float,
 ) -> np.ndarray:
-    """gain · max(f, 0) + offset + noise, saturated (compiled: every control tick)."""
+    """gain · max(f, 0) + offset + noise, saturated (compiled: every control tick). `z`: standard normals, the
+    offset's walk (σ `walk_n`, in place; only when `walk_n` > 0) first, then the noise's (σ `noise_n`)."""
+    o = 0
+    if walk_n > 0.0:
+        for i in range(4):
+            offset[i] = offset[i] + walk_n * z[i]
+        o = 4
     r = np.empty(4)
     for i in range(4):
-        r[i] = min(gain[i] * max(normal_force_n[i], 0.0) + offset[i] + noise[i], saturation_n)
+        r[i] = min(gain[i] * max(normal_force_n[i], 0.0) + offset[i] + noise_n * z[o + i], saturation_n)
     return r
