@@ -25,6 +25,7 @@ from skimage.draw import line
 
 from consumer_planner.costs import CostMap
 from consumer_planner.errors import PlannerError
+from protocol.layers import LAYERS, layer_derived
 from psrmap_common.pathsearch import Method, PathSearchError, nearest_passable, plan_path, step_lengths
 from psrmap_mapcore import LayerGrid
 
@@ -44,6 +45,8 @@ class Breakdown:
     max_slope_deg: float
     mean_placement_sigma_m: float  # how well the path's cells are placed: the scouts' horizontal σ [m]
     max_placement_sigma_m: float
+    mean_height_sigma_m: float  # how well the path's heights are known: the scouts' vertical σ [m]
+    max_height_sigma_m: float
     unknown_fraction: float
     inferred_fraction: float
     impassable_cells: int
@@ -97,16 +100,22 @@ def _extreme(fn, v: np.ndarray) -> float:
 
 
 def breakdown(
-    costs: CostMap, cells: np.ndarray, res: float, placement: np.ndarray | None = None
+    costs: CostMap,
+    cells: np.ndarray,
+    res: float,
+    placement: np.ndarray | None = None,
+    height_sigma: np.ndarray | None = None,
 ) -> Breakdown:
     """The figures above for a path of 8-connected cells (k, 2) on `costs`; `placement` (h, w): the map's
-    placement σ per cell [m] (`protocol.layers` "placement"), read only for the breakdown."""
+    placement σ per cell [m] (`protocol.layers` "placement"), `height_sigma` (h, w): its vertical σ per cell
+    [m] (the "height" layer's `sigma`), both read only for the breakdown."""
     cells = np.asarray(cells, dtype=np.int64)
     r, c = cells[:, 0], cells[:, 1]
     w = cell_weights(cells, res)
     length = float(w.sum())
     m = {k: v[r, c] for k, v in costs.metrics.items()}
     place = placement[r, c] if placement is not None else np.full(len(r), np.nan)
+    vert = height_sigma[r, c] if height_sigma is not None else np.full(len(r), np.nan)
     blocked = costs.impassable[r, c]
     cost = math.inf if blocked.any() else float(np.sum(w * costs.cost[r, c]))
     frac = (lambda mask: float(np.sum(w[mask]) / length)) if length > 0 else (lambda mask: 0.0)
@@ -122,11 +131,21 @@ def breakdown(
         max_slope_deg=_extreme(np.max, m["slope_deg"]),
         mean_placement_sigma_m=_wmean(w, place),
         max_placement_sigma_m=_extreme(np.max, place),
+        mean_height_sigma_m=_wmean(w, vert),
+        max_height_sigma_m=_extreme(np.max, vert),
         unknown_fraction=frac(~costs.known[r, c]),
         inferred_fraction=frac(costs.inferred[r, c]),
         impassable_cells=int(blocked.sum()),
         terms={k: float(np.sum(w * v[r, c])) for k, v in costs.terms.items()},
     )
+
+
+def _sigmas(grid: LayerGrid) -> tuple[np.ndarray, np.ndarray | None]:
+    """The map's placement σ and vertical σ per cell [m] (None without the height layer's raw stats)."""
+    stats = grid.layers.get("height")
+    if stats is None or not all(s in stats for s in LAYERS["height"].stats):
+        return grid.value("placement"), None
+    return grid.value("placement"), layer_derived("height", "sigma", stats)
 
 
 def _cell(grid: LayerGrid, xy: Sequence[float], what: str) -> tuple[int, int]:
@@ -156,7 +175,7 @@ def evaluate_route(
 ) -> Route:
     """A given route (map-frame waypoints [m]) on the map, with its breakdown."""
     cells = route_cells(grid, waypoints)
-    return Route(name, cells, grid.centers(cells), breakdown(costs, cells, grid.res, grid.value("placement")))
+    return Route(name, cells, grid.centers(cells), breakdown(costs, cells, grid.res, *_sigmas(grid)))
 
 
 def plan_route(
@@ -180,5 +199,5 @@ def plan_route(
         raise PlannerError(str(exc)) from None
     if found is None:
         return None
-    b = breakdown(costs, found.cells, grid.res, grid.value("placement"))
+    b = breakdown(costs, found.cells, grid.res, *_sigmas(grid))
     return Route(name, found.cells, grid.centers(found.cells), b)

@@ -10,7 +10,10 @@ A delta's statistics are sums over samples; the server adds them. Two kinds of c
   * the moment matrix of (1, x, y, z) is positive semi-definite (`n`, `sum`, `sumsq` alone: sumsq ≥ sum²/n,
     a variance ≥ 0; with the plane-fit sums `sx sy sxx syy sxy sxz syz` the whole 4×4 Gram matrix, which also
     forbids sxy² > sxx·syy and a `sum` with n = 0);
-  * where n > 0: min ≤ max, and min ≤ mean (= sum/n) ≤ max for the stats a layer has.
+  * where n > 0: min ≤ max, and min ≤ mean (= sum/n) ≤ max for the stats a layer has;
+  * the `height` layer (weighted moments): the weighted moment matrix of (1, x, y) positive semi-definite; where
+    n > 0, w > 0 and 0 < min_sigma with n·min_sigma² ≤ var and w ≤ n / min_sigma² (every σ at least the
+    smallest); where n = 0, every sum 0.
   Rounding: the matrix is scaled to unit diagonal and may have eigenvalues down to -k·`GRAM_TOL`; the mean may
   leave [min, max] by `GRAM_TOL` of its scale.
 
@@ -37,12 +40,20 @@ _PLANE_AT = {
     "syy": (2, 2), "syz": (2, 3), "sumsq": (3, 3),
 }  # fmt: skip
 _MOMENTS = ("n", "sum", "sumsq")
+# the height layer's weights: the moment matrix of (1, x, y) weighted by 1/σ² (it carries no Σw·z²)
+_WEIGHTED_AT = {"w": (0, 0), "wx": (0, 1), "wy": (0, 2), "wxx": (1, 1), "wxy": (1, 2), "wyy": (2, 2)}
+_WEIGHTED_SUMS = ("w", "wz", "wx", "wy", "wxx", "wyy", "wxy", "wxz", "wyz", "var")
 
 
 def _gram(layer: Layer, block: np.ndarray) -> list[list[np.ndarray]] | None:
     """The cells' moment matrices as a k×k nested list of (N,) arrays (entry [r][c] is shared with [c][r]
     until the elimination writes it), or None when the layer has no moment statistics."""
     idx = {s: r for r, s in enumerate(layer.stats)}
+    if all(s in idx for s in _WEIGHTED_AT):
+        w: list[list[np.ndarray]] = [[block[idx["w"]]] * 3 for _ in range(3)]
+        for s, (r, c) in _WEIGHTED_AT.items():
+            w[r][c] = w[c][r] = block[idx[s]]
+        return w
     if all(s in idx for s in _PLANE):
         g: list[list[np.ndarray]] = [[block[0]] * 4 for _ in range(4)]
         for s, (r, c) in _PLANE_AT.items():
@@ -107,9 +118,22 @@ def _bad_cells(layer: Layer, block: np.ndarray) -> dict[str, np.ndarray]:
                 bad |= pos & (mean < lo - tol)
             if hi is not None:
                 bad |= pos & (mean > hi + tol)
+    if "min_sigma" in idx and all(s in idx for s in _WEIGHTED_SUMS):
+        bad |= _bad_sigmas(block, idx)
     if bad.any():
         out["inconsistent"] = bad
     return out
+
+
+def _bad_sigmas(block: np.ndarray, idx: dict[str, int]) -> np.ndarray:
+    """The height layer's cells whose σ statistics no set of footholds has (module docstring)."""
+    n, w, var, smin = (block[idx[s]] for s in ("n", "w", "var", "min_sigma"))
+    pos = n > 0
+    tol = 1.0 + GRAM_TOL
+    floor2 = np.where(pos & (smin > 0), smin * smin, 1.0)
+    bad = pos & ~((w > 0) & (smin > 0) & (n * floor2 <= var * tol) & (w * floor2 <= n * tol))
+    sums = np.stack([block[idx[s]] for s in _WEIGHTED_SUMS])
+    return bad | (~pos & (sums != 0).any(axis=0))
 
 
 def check_consistent(where: str, layer: Layer, block: np.ndarray) -> None:
@@ -129,5 +153,6 @@ def check_consistent(where: str, layer: Layer, block: np.ndarray) -> None:
         raise ProtocolError(
             "inconsistent",
             f"{where} cell {k} ({vals}): no set of samples has these statistics (need sumsq ≥ sum²/n, the "
-            "moment matrix of (1, x, y, z) positive semi-definite, min ≤ sum/n ≤ max)",
+            "moment matrix of (1, x, y, z) positive semi-definite, min ≤ sum/n ≤ max; height: σ > 0, "
+            "n·min_sigma² ≤ var, w ≤ n/min_sigma², all sums 0 where n = 0)",
         )

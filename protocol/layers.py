@@ -33,6 +33,7 @@ __all__ = [
     "get_layer",
     "layer_derived",
     "layer_value",
+    "map_height",
     "merge_op",
 ]
 
@@ -124,6 +125,20 @@ LAYERS: dict[str, Layer] = {
             "n = footholds, var = sum of σ² [m²], max = the largest σ [m]; value = sqrt(var / n), the RMS σ",
             counts=("n", "var"),
         ),
+        Layer(
+            "height",
+            ("n", "w", "wz", "wx", "wy", "wxx", "wyy", "wxy", "wxz", "wyz", "var", "min_sigma"),
+            "m",
+            "how well the cell's height is known, and the height weighted by it (contract extension of issue "
+            "23): per elevation foothold the scout's vertical σ (its filter's height σ when it placed the "
+            "foothold, after any later fix it was corrected by, with a floor for the foot's sinkage); "
+            "n = footholds, w = Σ 1/σ² [1/m²], wz, wx, wy, wxx, wyy, wxy, wxz, wyz = the elevation layer's plane-"
+            "fit moments each weighted by 1/σ² (x, y relative to the cell centre), var = Σ σ² [m²], "
+            "min_sigma = the smallest σ [m]; value = the inverse-variance weighted plane-fit height at the "
+            "cell centre [m] (a well-datumed scout is not pulled toward a poorly datumed one); sigma = "
+            "sqrt(var / n), the RMS σ; best = min_sigma",
+            counts=("n", "w", "var", "wxx", "wyy"),
+        ),
     )
 }
 
@@ -166,7 +181,7 @@ def _ratio(num: np.ndarray, den: np.ndarray, ok: np.ndarray) -> np.ndarray:
 
 
 def plane_fit(
-    stats: Stats, min_spread_m: float | None = None
+    stats: Stats, min_spread_m: float | None = None, count: np.ndarray | None = None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Least-squares plane z = z0 + gx·dx + gy·dy per cell from summed moments -> (z0, gx, gy, rank).
 
@@ -176,6 +191,9 @@ def plane_fit(
     pseudo-inverse). `rank` (0, 1, 2) says how many directions were fitted: 2 is a full plane; 1 is a cell
     crossed by one straight foot track, whose slope is then the slope *along* the track (a lower bound of the
     true slope); 0 leaves z0 = the mean height and no slope. NaN where n == 0.
+
+    Weighted fits (the `height` layer) pass weighted moments, `n` = the sum of the weights, and `count` = the
+    footholds behind them (a plane needs at least three; default: `n`).
     """
     spread = MIN_PLANE_SPREAD_M if min_spread_m is None else min_spread_m
     n = _f(stats, "n")
@@ -193,7 +211,7 @@ def plane_fit(
     lam_max, lam_min = half_tr + root, half_tr - root
     theta = 0.5 * np.arctan2(2.0 * cxy, cxx - cyy)  # direction of the largest spread
     vx, vy = np.cos(theta), np.sin(theta)  # unit eigenvector of lam_max; (-vy, vx) is lam_min's
-    enough = n >= 3
+    enough = (n if count is None else np.asarray(count, dtype=np.float64)) >= 3
     keep_max = enough & (lam_max >= spread**2)
     keep_min = enough & (lam_min >= spread**2)
     c_max = np.where(keep_max, (vx * cxz + vy * cyz) / np.where(keep_max, lam_max, 1.0), 0.0)
@@ -229,6 +247,30 @@ def _elevation(stats: Stats) -> np.ndarray:
     return plane_fit(stats)[0]
 
 
+# the height layer's weighted moments under the names `plane_fit` reads
+_WEIGHTED = {"n": "w", "sum": "wz", "sx": "wx", "sy": "wy", "sxx": "wxx", "syy": "wyy", "sxy": "wxy",
+             "sxz": "wxz", "syz": "wyz"}  # fmt: skip
+
+
+def _weighted_height(stats: Stats) -> np.ndarray:
+    n = _f(stats, "n")
+    moments = {k: _f(stats, w) for k, w in _WEIGHTED.items()}
+    z0 = plane_fit(moments, count=n)[0]
+    return np.where((n > 0) & (moments["n"] > 0), z0, np.nan)
+
+
+def map_height(layers: Mapping[str, Stats]) -> np.ndarray:
+    """The map's height per cell from a reply's (or a map's) layers: the inverse-variance weighted fit of the
+    `height` layer where the cell's footholds stated their vertical σ, else the `elevation` layer's value;
+    NaN where neither has data. `layers` must hold `elevation` (and may hold `height`) with their raw
+    statistics."""
+    value = layer_value("elevation", layers["elevation"])
+    if "height" not in layers:
+        return value
+    weighted = layer_value("height", layers["height"])
+    return np.where(np.isfinite(weighted), weighted, value)
+
+
 def _worst(stats: Stats) -> np.ndarray:
     return np.where(_f(stats, "n") > 0, _f(stats, "min"), np.nan)
 
@@ -244,6 +286,7 @@ _VALUE = {
     "contacts": lambda s: _ratio(_f(s, "nonfoot"), _f(s, "n"), _f(s, "n") > 0),
     "hazard": lambda s: np.where(_f(s, "n") > 0, _f(s, "n"), np.nan),
     "placement": lambda s: np.sqrt(_ratio(_f(s, "var"), _f(s, "n"), _f(s, "n") > 0)),
+    "height": _weighted_height,
 }
 
 # Named quantities beyond `value` that a reader (or a region query) may ask for.
@@ -271,6 +314,10 @@ _DERIVED = {
         for reason in ("slip", "margin", "contact", "attitude")
     },
     "placement": {"worst": lambda s: np.where(_f(s, "n") > 0, _f(s, "max"), np.nan)},
+    "height": {
+        "sigma": lambda s: np.sqrt(_ratio(_f(s, "var"), _f(s, "n"), _f(s, "n") > 0)),
+        "best": lambda s: np.where(_f(s, "n") > 0, _f(s, "min_sigma"), np.nan),
+    },
 }
 
 
@@ -281,7 +328,8 @@ def layer_value(layer_name: str, stats: Stats) -> np.ndarray:
     at least `MIN_PLANE_SPREAD_M`; the mean height where they span none) [m];
     slip: events / n; cot: work / dist (NaN where dist < `MIN_COT_DIST_M`); giim, giam: mean;
     contacts: nonfoot / n; hazard: n (hazard reports); placement: sqrt(var / n), the RMS horizontal σ of
-    the scout's position when it placed the cell's footholds [m].
+    the scout's position when it placed the cell's footholds [m]; height: the plane fit of the footholds
+    weighted by 1/σ² of their vertical σ, at the cell centre [m].
     """
     get_layer(layer_name)
     return _VALUE[layer_name](stats)

@@ -19,7 +19,8 @@ MAP, SCOUT, RES = "m1", "s1", 0.4
 def layer_cells(name: str, ix, iy, rng: np.random.Generator | None = None, scale: float = 1.0) -> dict:
     """Valid cells of `layer` with integer-valued (exactly summable) statistics that a real sample set has:
     moment sums (n, sum, sumsq, sx … syz), min and max are those of 1..19 integer samples (x, y, z) per cell
-    (protocol.consistency accepts them); other statistics are random integers (counts >= 0)."""
+    (protocol.consistency accepts them), the height layer's the same samples weighted by one σ of 0.5 or 1 m
+    per cell; other statistics are random integers (counts >= 0)."""
     rng = rng or np.random.default_rng(0)
     ix = np.asarray(ix, dtype=np.int32)
     iy = np.asarray(iy, dtype=np.int32)
@@ -33,8 +34,18 @@ def layer_cells(name: str, ix, iy, rng: np.random.Generator | None = None, scale
         "sxx": (x * x).sum(1), "syy": (y * y).sum(1), "sxy": (x * y).sum(1), "sxz": (x * z).sum(1),
         "syz": (y * z).sum(1), "min": np.where(live, z, np.inf).min(1), "max": np.where(live, z, -np.inf).max(1),
     }  # fmt: skip
+    # the height layer: each cell's footholds with one σ of 0.5 or 1 m (weights 4 or 1: exact sums)
+    sig = rng.choice([0.5, 1.0], ix.size)
+    w = 1.0 / sig**2
+    weighted = {"w": w * moments["n"], "wz": w * moments["sum"], "wx": w * moments["sx"], "wy": w * moments["sy"],
+                "wxx": w * moments["sxx"], "wyy": w * moments["syy"], "wxy": w * moments["sxy"],
+                "wxz": w * moments["sxz"], "wyz": w * moments["syz"], "var": sig**2 * moments["n"]}  # fmt: skip
     for s in LAYERS[name].stats:
-        if s in moments and "n" in LAYERS[name].stats:
+        if name == "height":
+            out[s] = (
+                sig.copy() if s == "min_sigma" else moments["n"] * scale if s == "n" else weighted[s] * scale
+            )
+        elif s in moments and "n" in LAYERS[name].stats:
             out[s] = moments[s] if s in ("min", "max") else moments[s] * scale  # scale keeps the Gram PSD
         elif s in ("min", "max"):
             out[s] = rng.integers(-50, 50, ix.size).astype(np.float64)

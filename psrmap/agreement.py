@@ -10,21 +10,27 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from protocol.layers import layer_value
+from protocol.layers import map_height
 from psrmap_mapcore import LayerGrid, read_npz
 
 if TYPE_CHECKING:  # the terrain type only: scout_agent.sim is not imported to score a map
     from scout_agent.sim.terrain import Terrain
 
 
+def grid_height(grid: LayerGrid) -> np.ndarray | None:
+    """The map's height per cell (`protocol.layers.map_height`: σ-weighted where the footholds stated their
+    vertical σ, else the elevation layer's value); None without an elevation layer. Needs raw statistics."""
+    if "elevation" not in grid.layers:
+        return None
+    return map_height({k: grid.layers[k] for k in ("elevation", "height") if k in grid.layers})
+
+
 def _elevation_by_cell(path: Path) -> dict[tuple[int, int], float]:
     grid = read_npz(path)
-    elev = grid.layers.get("elevation")
-    if elev is None:
+    values = grid_height(grid)
+    if values is None:
         return {}
-    n = elev["n"]
-    ok = n > 0
-    values = layer_value("elevation", elev)
+    ok = grid.layers["elevation"]["n"] > 0
     ix0, iy0, w = grid.ix0, grid.iy0, grid.w
     idx = np.flatnonzero(ok.ravel() & np.isfinite(values.ravel()))
     return {(ix0 + int(k % w), iy0 + int(k // w)): float(values.ravel()[k]) for k in idx}
@@ -60,13 +66,15 @@ def cross_scout_rms(agreement: dict[str, Any]) -> float | None:
 
 
 def map_elevation_rmse(grid: LayerGrid, terrain: Terrain) -> tuple[float | None, int]:
-    """`map_elevation_rmse_m`: the shared map's elevation (`layer_value`, the plane-fit height at each cell's
-    centre) against the exact terrain height there, RMS over the cells with data; and that cell count.
-    `grid`: a `mapcore.LayerGrid` of the map; `terrain`: the mission's `scout_agent.sim.terrain.Terrain`."""
+    """`map_elevation_rmse_m`: the map's height (`grid_height`: the plane-fit height at each cell's centre,
+    weighted by the footholds' vertical σ where they stated it) against the exact terrain height there, RMS
+    over the cells with data; and that cell count. `grid`: a `mapcore.LayerGrid` of the map with raw
+    statistics (a region reply with `stats=all`, a saved map); `terrain`: the mission's
+    `scout_agent.sim.terrain.Terrain`."""
     elev = grid.layers.get("elevation")
-    if elev is None:
+    values = grid_height(grid)
+    if elev is None or values is None:
         return None, 0
-    values = grid.value("elevation")  # from the raw stats when present, else the reply's value
     ok = (np.nan_to_num(elev["n"]) > 0) & np.isfinite(values)
     if not ok.any():
         return None, 0
@@ -77,4 +85,4 @@ def map_elevation_rmse(grid: LayerGrid, terrain: Terrain) -> tuple[float | None,
     return round(float(np.sqrt(np.mean(err**2))), 4), int(ok.sum())
 
 
-__all__ = ["cross_scout_rms", "elevation_agreement", "map_elevation_rmse"]
+__all__ = ["cross_scout_rms", "elevation_agreement", "grid_height", "map_elevation_rmse"]

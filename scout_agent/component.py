@@ -98,7 +98,7 @@ def run(config: ScoutConfig) -> ScoutSummary:
             source = _shared_map_source(cfg, config, mapping, world)
             try:
                 report = run_scout(cfg, on_tick=mapping.on_tick, progress=config.progress, world=world,
-                                   on_hazard=on_hazard, map_source=source)  # fmt: skip
+                                   on_hazard=on_hazard, map_source=source, on_fix=mapping.on_fix)  # fmt: skip
             finally:
                 if source is not None:
                     source.close()

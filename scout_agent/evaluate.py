@@ -50,7 +50,9 @@ from psrmap_common.defaults import DEFAULT_DELTA_HZ, DEFAULT_RES_M
 from scout_agent.errors import ScoutConfigError
 from scout_agent.estimators import EstimatorPipeline, TickEstimates
 from scout_agent.estimators.elevation import plane_from_moments, slope_deg
-from scout_agent.mapping import Mapper, MapperConfig, default_pipeline_config
+from scout_agent.holding import PoseFix
+from scout_agent.mapping import Mapper, MapperConfig, default_pipeline_config, position_variances
+from scout_agent.onboard.software import OnboardSoftware
 from scout_agent.run import ScoutRunConfig, build_world, run_scout
 from scout_agent.signals import GroundTruth, ProprioSample
 from scout_agent.sim.friction import unholdable
@@ -146,6 +148,11 @@ class Evaluator:
     def on_hazard(self, felt: Any) -> None:
         self.mapper.record_hazard(felt.x, felt.y, felt.reasons)
 
+    def on_fix(self, fix: PoseFix) -> None:
+        """A pose fix the localizer fused: the scout's own map is corrected as the published one is (the
+        exact-state map is not: its poses need none)."""
+        self.mapper.fix(fix)
+
     def on_tick(self, sample: ProprioSample, truth: GroundTruth, robot: object = None) -> TickEstimates:
         self.ticks += 1
         planned = sample.stance_planned
@@ -167,7 +174,8 @@ class Evaluator:
                     self._gt_max[i] = float(d)
         self._prev_planned = planned.copy()
 
-        est = self.mapper.update(sample)
+        var = position_variances(robot) if isinstance(robot, OnboardSoftware) else None
+        est = self.mapper.update(sample, *var) if var is not None else self.mapper.update(sample)
         ex = self.exact.update(replace(sample, base=truth.base))  # evaluation only: never fed back
         self._mark(est.slip.event, "honest")
         self._mark(ex.slip.event, "exact")
@@ -370,7 +378,9 @@ def evaluate_run(cfg: ScoutRunConfig, res: float = DEFAULT_RES_M, progress: bool
         raise ScoutConfigError(f"--res {res}: need a cell size > 0 [m]")
     world = build_world(cfg)
     ev = Evaluator(res=res)
-    summary = run_scout(cfg, on_tick=ev.on_tick, progress=progress, world=world, on_hazard=ev.on_hazard)
+    summary = run_scout(
+        cfg, on_tick=ev.on_tick, progress=progress, world=world, on_hazard=ev.on_hazard, on_fix=ev.on_fix
+    )
     out = {
         "scene": cfg.scene,
         "terrain": summary["terrain"],

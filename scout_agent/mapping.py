@@ -18,6 +18,8 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from protocol.keys import id_arg
 from protocol.layers import HAZARD_REASONS
 from psrmap_common.defaults import DEFAULT_DELTA_HZ, DEFAULT_RES_M
@@ -28,6 +30,7 @@ from scout_agent.control.reflex import Felt
 from scout_agent.errors import ScoutConfigError
 from scout_agent.estimators import EstimatorPipeline, PipelineConfig, TickEstimates, record
 from scout_agent.estimators.feet import PinocchioFeet
+from scout_agent.holding import HeldSamples, HoldConfig, PoseFix
 from scout_agent.onboard.software import OnboardSoftware
 from scout_agent.outbox import default_outbox_path
 from scout_agent.publisher import ScoutPublisher
@@ -37,6 +40,7 @@ __all__ = [
     "Mapper",
     "MapperConfig",
     "MappingSession",
+    "position_variances",
     "LinkConfig",
     "add_mapping_arguments",
     "publish_link",
@@ -52,6 +56,7 @@ class MapperConfig:
     res: float = DEFAULT_RES_M  # cell size [m]
     delta_hz: float = DEFAULT_DELTA_HZ  # deltas per second of scout time
     pipeline: PipelineConfig | None = None  # None: `default_pipeline_config()`
+    hold: HoldConfig = HoldConfig()  # how long samples wait for a pose fix before they leave (holding.py)
 
 
 def default_pipeline_config(feet: PinocchioFeet, **changes: Any) -> PipelineConfig:
@@ -70,7 +75,10 @@ def default_pipeline_config(feet: PinocchioFeet, **changes: Any) -> PipelineConf
 
 
 class Mapper:
-    """Per tick: estimates → cell statistics → (every 1/delta_hz s) a delta to the local map and publisher."""
+    """Per tick: estimates → cell statistics → (every 1/delta_hz s) a delta to the local map and publisher.
+
+    The statistics are held (`holding.HeldSamples`) until a pose fix (`fix`) corrects them or they are
+    `config.hold.hold_m` behind, and leave in the chunks of one delta period they were gathered in."""
 
     def __init__(
         self,
@@ -82,6 +90,7 @@ class Mapper:
         self.feet = feet or PinocchioFeet()
         self.pipeline = EstimatorPipeline(self.feet, config.pipeline or default_pipeline_config(self.feet))
         self.acc = CellAccumulator(config.res)
+        self.held = HeldSamples(self.acc, config.hold)
         self.local = LocalMap(config.res)
         self.publisher = publisher
         self.deltas = 0
@@ -90,26 +99,41 @@ class Mapper:
         self._period = 1.0 / config.delta_hz
         self._next_flush: float | None = None
         self._t = 0.0
+        self._last_seq: int | None = None
 
-    def update(self, sample: ProprioSample, placement_sigma_m: float | None = None) -> TickEstimates:
-        """One tick. `placement_sigma_m`: the scout's horizontal position σ now [m] (the larger axis of its
-        estimate's covariance), recorded with each elevation foothold in the `placement` layer."""
+    def update(
+        self, sample: ProprioSample, var_xy_m2: float | None = None, var_z_m2: float | None = None
+    ) -> TickEstimates:
+        """One tick. `var_xy_m2`, `var_z_m2`: the scout's position variance now [m²] (horizontal: the larger
+        axis of its estimate's covariance; vertical), recorded with each elevation foothold in the
+        `placement` and `height` layers (after any fix's smoothing); None: no σ layers."""
         est = self.pipeline.update(sample)
-        record(est, self.acc)
-        if placement_sigma_m is not None and len(est.footholds):
-            s = float(placement_sigma_m)
-            for fx, fy, _ in est.footholds.tolist():
-                self.acc.append("placement", (fx, fy, 1.0, s * s, s))  # n, var, max
+        pos = sample.base.pos
+        self.held.tick(sample.t, float(pos[0]), float(pos[1]), var_xy_m2, var_z_m2)
+        record(est, self.held)
         self.slip_events += sum(est.slip.event)
         self._t = sample.t
         if self._next_flush is None:
             self._next_flush = sample.t + self._period
         elif sample.t >= self._next_flush:
             self._next_flush += self._period
-            self.flush()
+            self.held.cut()
+            self._send(self.held.chunks() if self.config.hold.hold_m <= 0 else self.held.due())
+            if self.acc.pending:  # hazards leave at once; what a full publisher kept back, now
+                self._flush_at(self._t)
             if self.publisher is not None:
                 self.publisher.poll()
         return est
+
+    def fix(self, fix: PoseFix) -> None:
+        """A pose fix the localizer fused: spread it back over the held samples and send them."""
+        self.held.correct(fix)
+        self._send(self.held.chunks())
+
+    def _send(self, chunks) -> None:
+        """One delta per released chunk, stamped with its newest sample's time."""
+        for t in chunks:
+            self._flush_at(t)
 
     def record_hazard(self, x: float, y: float, reasons: tuple[str, ...]) -> None:
         """One hazard report at (x, y) [m] into the `hazard` layer (leaves with the next delta)."""
@@ -122,21 +146,30 @@ class Mapper:
         self.hazards += 1
 
     def flush(self) -> int | None:
-        """Send what accumulated as one delta; returns its seq (publishing) or None.
+        """Send everything held and accumulated, one delta per held chunk; returns the last seq sent
+        (publishing) or None.
 
         With a publisher whose unacknowledged buffer is full, the statistics keep accumulating and leave
         with a later delta, so nothing is lost and the local map stays equal to what the server merges.
         """
+        self._last_seq = None
+        self._send(self.held.chunks())
+        if self.acc.pending:  # what was kept back while the publisher was full, and hazards
+            self._flush_at(self._t)
+        return self._last_seq
+
+    def _flush_at(self, t: float) -> None:
+        """What the accumulator holds as one delta stamped `t` [s] (kept for a later one while the
+        publisher's unacknowledged buffer is full)."""
         if self.publisher is not None and self.publisher.full:
-            return None
+            return
         layers = self.acc.flush()
         if not layers:
-            return None
+            return
         self.local.merge(layers)
         self.deltas += 1
         if self.publisher is not None:
-            return self.publisher.send(layers, self._t)
-        return None
+            self._last_seq = self.publisher.send(layers, t)
 
     def close(self, ack_timeout_s: float = 10.0) -> dict:
         """Flush the rest, wait for acks (publishing), return a summary."""
@@ -149,6 +182,11 @@ class Mapper:
             "hazard_reports": int(self.hazards),
             "res": self.config.res,
             "cells": {k: len(self.local.cells(k)["ix"]) for k in ("elevation", "slip", "cot")},
+            "hold": {
+                "hold_m": self.config.hold.hold_m,
+                "fixes": self.held.fixes,
+                "footholds_corrected": self.held.corrected,
+            },
         }
         if self.publisher is not None:
             out["all_acked"] = bool(self.publisher.wait_acked(ack_timeout_s))
@@ -182,6 +220,15 @@ def add_mapping_arguments(p: argparse.ArgumentParser) -> None:
     )
 
 
+def position_variances(robot: OnboardSoftware | None) -> tuple[float, float] | None:
+    """(horizontal variance along the larger axis, vertical variance) [m²] of the robot's position estimate;
+    None without a robot or on the exact state."""
+    if robot is None or robot.on_exact_state:
+        return None
+    P = robot.estimator.position_covariance()
+    return float(max(np.linalg.eigvalsh(P[:2, :2])[-1], 0.0)), float(max(P[2, 2], 0.0))
+
+
 class MappingSession:
     """What `open_mapping` returns: a context manager whose `on_tick` feeds `run_scout` (after any other
     callback it chains), and whose exit flushes the last delta, waits for acks, saves the map and closes
@@ -206,16 +253,22 @@ class MappingSession:
         self, sample: ProprioSample, truth: object = None, robot: OnboardSoftware | None = None
     ) -> TickEstimates | None:
         """Feed one tick; returns its estimates (the pilot feels them), None without a map. `robot`: the
-        software that made the sample; its estimator's position σ places the tick's cells (none without it,
-        or on the exact state)."""
+        software that made the sample; its estimator's position variances go with the tick's footholds into
+        the placement and height layers (none without it, or on the exact state)."""
         if self.chained is not None:
             self.chained(sample, truth, robot)
         if self.mapper is None:
             return None
-        est = self.mapper.update(sample, robot.position_sigma_m() if robot is not None else None)
+        var = position_variances(robot)
+        est = self.mapper.update(sample, *var) if var is not None else self.mapper.update(sample)
         if self.on_estimates is not None:
             self.on_estimates(est)
         return est
+
+    def on_fix(self, fix: PoseFix) -> None:
+        """A pose fix the localizer fused (`run.run_scout`'s `on_fix`): the held samples are corrected."""
+        if self.mapper is not None:
+            self.mapper.fix(fix)
 
     def on_hazard(self, felt: Felt) -> None:
         """A hazard the pilot's reflex felt (`control.reflex.Felt`): into the map's `hazard` layer."""

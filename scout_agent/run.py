@@ -25,6 +25,7 @@ from scout_agent.control.reflex import Felt
 from scout_agent.dem_reader import DemWindow, read_dem_grid, read_dem_window
 from scout_agent.errors import ScoutConfigError
 from scout_agent.estimators import TickEstimates
+from scout_agent.holding import PoseFix
 from scout_agent.localization import LOCALIZE_MODES, DemReference, Localizer, LocalizerConfig, height_datum
 from scout_agent.localization.localizer import MapSource
 from scout_agent.loop import SimConfig, SimulatedScout
@@ -58,6 +59,7 @@ OnTick = Callable[
     [ProprioSample, GroundTruth, OnboardSoftware], object
 ]  # may return the tick's TickEstimates
 OnHazard = Callable[[Felt], object]
+OnFix = Callable[[PoseFix], object]
 
 
 STANDSTILL_MODES = ("auto", "on", "off")
@@ -253,12 +255,15 @@ def run_scout(
     on_hazard: OnHazard | None = None,
     datum_sources: Sequence[tuple[str, HeightDatum]] = (),
     map_source: MapSource | None = None,
+    on_fix: OnFix | None = None,
 ) -> dict:
     """Walk the configured path until the goal, a fall, a hazard it cannot go around or the time limit;
     return the JSON summary. `on_tick` may return the tick's `TickEstimates` (the mapping does): the pilot
     feels them; `on_hazard` receives each hazard the reflex felt (the mapping records it in the map);
     `datum_sources` are where the scout may take its launch height datum (state_estimation/launch.py);
-    `map_source`: the shared map around the scout, for localization (`scout_agent.localization`)."""
+    `map_source`: the shared map around the scout, for localization (`scout_agent.localization`); `on_fix`
+    receives each pose fix the localizer fused (`holding.PoseFix`: the mapping spreads it back over what it
+    has not published yet)."""
     world = world or build_world(cfg)
     if cfg.localize not in LOCALIZE_MODES:
         raise ScoutConfigError(f"--localize {cfg.localize!r}: valid: {', '.join(LOCALIZE_MODES)}")
@@ -320,7 +325,10 @@ def run_scout(
         tally.add(scout.t, sample, truth, tally_estimator)  # evaluation only
         # the robot's software reads its own record: pose fixes, then the map estimates, then the hazards felt
         if localizer is not None:  # before the mapper: what it publishes next is placed corrected
-            localizer.on_tick(sample)
+            if on_fix is None:
+                localizer.on_tick(sample)
+            else:
+                _localize_and_report(localizer, robot.estimator, sample, on_fix)
         est = on_tick(sample, truth, robot) if on_tick is not None else None
         felt = pilot.feel(sample, est if isinstance(est, TickEstimates) else None)
         if felt is not None and on_hazard is not None:
@@ -386,6 +394,26 @@ def run_scout(
         if tally.speed_path > 0.05
         else None,
     }
+
+
+def _position_variances(P: np.ndarray) -> np.ndarray:
+    """(x, y, z) variances [m²] of a (3, 3) position covariance, x and y both its larger horizontal axis (the
+    form of `holding.PoseFix`)."""
+    big = float(max(np.linalg.eigvalsh(P[:2, :2])[-1], 0.0))
+    return np.array([big, big, float(max(P[2, 2], 0.0))])
+
+
+def _localize_and_report(
+    localizer: Localizer, estimator: StateEstimator, sample: ProprioSample, on_fix: OnFix
+) -> None:
+    """The localizer's tick; a change of the estimate it made (a fused fix) goes to `on_fix`."""
+    p0, P0 = estimator.ekf.p.copy(), estimator.position_covariance()
+    localizer.on_tick(sample)
+    p1 = estimator.ekf.p
+    if not np.array_equal(p1, p0):
+        on_fix(
+            PoseFix(p1 - p0, _position_variances(P0), _position_variances(estimator.position_covariance()))
+        )
 
 
 def _r4(v: float) -> float:

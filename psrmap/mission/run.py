@@ -40,6 +40,7 @@ from psrmap.secure import secure_init
 from psrmap_common.query import get_status, wait_for_server
 from psrmap_common.session import free_endpoint, zenoh_config
 from psrmap_common.trust import Trust, load_trust
+from psrmap_mapcore import read_npz
 from scout_agent.component import run as run_scout_component
 from scout_agent.run import ScoutRunConfig, build_world
 
@@ -191,7 +192,12 @@ def run_mission(cfg: MissionConfig, run_dir: Path | None = None, progress: bool 
                 sid: {k: s[k] for k in ERROR_KEYS if k in s} for sid, s in scouts.items() if "error" not in s
             }
             summary["status"] = _status_json(_await_totals(session, cfg, scouts, trust))
-            summary["map_elevation_rmse_m"], summary["map_elevation_cells"] = _map_truth(session, cfg)
+            truth = _map_truth(session, cfg, {s.id: run_dir / f"{s.id}_local.npz" for s in cfg.scouts})
+            (
+                summary["map_elevation_rmse_m"],
+                summary["map_elevation_cells"],
+                summary["scout_map_elevation_rmse_m"],
+            ) = truth
             say(
                 f"[mission] scouts done; server merged {summary['status']['merged']} deltas into {summary['status']['cells']} cells"
             )
@@ -259,20 +265,24 @@ ERROR_KEYS = ("sensors", "localization", "pos_error_max_m", "pos_error_final_m",
               "nees_pos_mean", "inside_3sigma_frac", "localization_stats")  # fmt: skip
 
 
-def _map_truth(session: zenoh.Session, cfg: MissionConfig) -> tuple[float | None, int]:
-    """The shared map's elevation RMSE against the terrain's truth over the cells with data (lunar scene)."""
+def _map_truth(
+    session: zenoh.Session, cfg: MissionConfig, local_maps: dict[str, Path]
+) -> tuple[float | None, int, dict[str, float | None]]:
+    """The shared map's elevation RMSE against the terrain's truth over the cells with data (lunar scene), its
+    cell count, and each scout's own map's (`local_maps`: the scouts' saved `.npz`)."""
     if cfg.scene != "lunar":
-        return None, 0
+        return None, 0, {}
     terrain = build_world(ScoutRunConfig(scene="lunar", seed=cfg.seed, field_m=cfg.field_m)).terrain
     xa, ya, xb, yb = terrain.extent
     try:
         grid = query_region(
-            session, cfg.map, (xa, ya, xb, yb), ClientConfig(connect=()), layers=("elevation",)
+            session, cfg.map, (xa, ya, xb, yb), ClientConfig(connect=()), layers=("elevation", "height")
         )
     except PlannerError as exc:
         print(f"warning: no map elevation RMSE ({exc})", file=sys.stderr)
-        return None, 0
-    return map_elevation_rmse(grid, terrain)
+        return None, 0, {}
+    own = {sid: map_elevation_rmse(read_npz(p), terrain)[0] for sid, p in local_maps.items() if p.is_file()}
+    return (*map_elevation_rmse(grid, terrain), own)
 
 
 def _plot(session: zenoh.Session, cfg: MissionConfig, run_dir: Path, summary: dict[str, Any]) -> str | None:

@@ -25,3 +25,19 @@ def test_the_planners_breakdown_shows_how_well_a_route_is_placed() -> None:
         ]
         is None
     )  # a map without the layer: unknown, not zero
+
+
+def test_the_planners_breakdown_shows_how_well_a_routes_heights_are_known() -> None:
+    g = make_grid((4, 10), res=1.0)
+    sig = np.where(np.arange(10)[None, :] < 5, 0.05, 0.4) * np.ones((4, 1))
+    n = np.full((4, 10), 3.0)
+    zero = np.zeros((4, 10))
+    g.layers["height"] = {"n": n, "w": n / sig**2, "wz": zero, "wx": zero, "wy": zero, "wxx": zero,
+                          "wyy": zero, "wxy": zero, "wxz": zero, "wyz": zero, "var": n * sig**2,
+                          "min_sigma": sig}  # fmt: skip
+    b = evaluate_route(g, build_costs(g), [(0.5, 0.5), (9.5, 0.5)]).as_dict()["breakdown"]
+    assert b["max_height_sigma_m"] == pytest.approx(0.4)
+    assert 0.05 < b["mean_height_sigma_m"] < 0.4
+    del g.layers["height"]
+    b = evaluate_route(g, build_costs(g), [(0.5, 0.5), (9.5, 0.5)]).as_dict()["breakdown"]
+    assert b["max_height_sigma_m"] is None and b["mean_height_sigma_m"] is None  # unknown, not zero

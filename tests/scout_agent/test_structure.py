@@ -21,6 +21,7 @@ ROBOT_SOFTWARE = (  # what would run on the Aliengo's own computer
     "scout_agent.localization",
     "scout_agent.mapping",
     "scout_agent.cells",
+    "scout_agent.holding",
     "scout_agent.publisher",
     "scout_agent.delivery",
     "scout_agent.outbox",
