@@ -121,6 +121,8 @@ class HeldSamples:
         self.walked_m = 0.0
         self.fixes = 0  # fixes that found samples to correct
         self.corrected = 0  # footholds moved by a fix before they left
+        # per fix: (its height correction [m], the filter's height σ before and after it [m]), for the summary
+        self.fix_log: list[tuple[float, float, float]] = []
 
     # ------------------------------------------------------------------------------- what record() calls
     def tick(self, t: float, x: float, y: float, var_xy: float | None, var_z: float | None) -> None:
@@ -184,12 +186,19 @@ class HeldSamples:
     # ---------------------------------------------------------------------------------------------- fix
     def correct(self, fix: PoseFix) -> None:
         """Spread `fix` back over the held samples (module docstring); the caller then releases them."""
+        before = np.asarray(fix.var_before, dtype=float)
+        after = np.asarray(fix.var_after, dtype=float)
+        self.fix_log.append(
+            (
+                float(fix.correction[2]),
+                float(np.sqrt(max(before[2], 0.0))),
+                float(np.sqrt(max(after[2], 0.0))),
+            )
+        )
         if not self._ticks:
             return
         self.fixes += 1
         t = np.asarray(self._ticks, dtype=float)  # (k, 3)
-        before = np.asarray(fix.var_before, dtype=float)
-        after = np.asarray(fix.var_after, dtype=float)
         gain = np.zeros((len(t), 3))
         for col, axes in ((1, (0, 1)), (2, (2,))):  # var_xy moves x and y, var_z moves z
             b = before[axes[0]]

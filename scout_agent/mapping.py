@@ -186,6 +186,8 @@ class Mapper:
                 "hold_m": self.config.hold.hold_m,
                 "fixes": self.held.fixes,
                 "footholds_corrected": self.held.corrected,
+                # per fix: height correction, the filter's height σ before and after [m]
+                "fix_dz_sigma_before_after_m": [[round(v, 4) for v in f] for f in self.held.fix_log],
             },
         }
         if self.publisher is not None:
