@@ -1,9 +1,9 @@
 """Resource limits of a map server: every one configurable (`psrmap server --limit-*`), and a message or query
 over one is rejected whole with a reason naming the limit and its value.
 
-Worst-case memory follows from them: a tile holds 64×64 cells of every stat of a layer (≈ 0.9 MiB over all
-layers), so one delta may allocate at most `max_new_tiles_per_delta` × 0.9 MiB, one scout at most
-`max_new_tiles_per_scout_minute` × 0.9 MiB a minute, and the map's tiles in memory at most the tile budget
+Worst-case memory follows from them: a tile holds 64×64 cells of every stat of a layer (≈ 1.5 MiB over all
+layers), so one delta may allocate at most `max_new_tiles_per_delta` × 1.5 MiB, one scout at most
+`max_new_tiles_per_scout_minute` × 1.5 MiB a minute, and the map's tiles in memory at most the tile budget
 (`default_tile_budget_mib`: paging moves the rest to the store; without a store the budget caps `max_tiles`);
 a query reply at most `max_reply_bytes`.
 """
@@ -42,7 +42,7 @@ TILE_BUDGET_MIB_MIN, TILE_BUDGET_MIB_MAX = 64, 256
 
 def default_tile_budget_mib(total_bytes: int | None = None) -> float:
     """The hot-tile budget a server takes when none is given: 1/16 of the machine's physical memory, within
-    [64, 256] MiB (256 MiB ≈ 290 tiles of 64×64 cells, all layers: far more than the scouts' working set)."""
+    [64, 256] MiB (256 MiB ≈ 170 tiles of 64×64 cells, all layers: far more than the scouts' working set)."""
     if total_bytes is None:
         import psutil
 
