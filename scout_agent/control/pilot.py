@@ -16,7 +16,11 @@ Modes:
   estimated trail to the last place it held: the trail point from
   `held_before_s` before the first slip of the episode (or before the trigger) that also lies `clear_m`
   outside the detour's hazard radius, at least `backoff_min_m` and at most `backoff_max_m` back along
-  the trail.
+  the trail. The trail is the way it walked: a back-off cuts it back to where the back-off ends and adds
+  nothing, so after a detour the next back-off retraces the detour and then the way in, never the previous
+  back-off toward the previous hazard (100 m field, seed 33: with the old trail, which kept the back-offs,
+  2.5 m back along it led from the detour back onto the previous back-off's way, next to both hazards, and
+  the scout stopped again there 1.7 s later).
 - then plan a detour (`detour.plan_detour`) from there to the goal around every hazard it has felt (and the
   hazards and slips of a known map, when given) and `walk` it; with no detour, `stopped` with `gave_up` saying
   why. The stop policy scales with the route: it gives up after `max_stops` stops at one place (within
@@ -187,7 +191,8 @@ class Pilot:
         self._t_prev = t
         R = quat_to_matrix(sample.base.quat)
         x, y = float(sample.base.pos[0]), float(sample.base.pos[1])
-        if not self.trail or math.hypot(x - self.trail[-1][1], y - self.trail[-1][2]) >= c.trail_step_m:
+        far = not self.trail or math.hypot(x - self.trail[-1][1], y - self.trail[-1][2]) >= c.trail_step_m
+        if far and self.mode == "walk":  # the way it came: a back-off retraces it, it does not extend it
             self.trail.append((t, x, y))
         grad, _ = self.controller.plane()
         lost = False
@@ -297,9 +302,12 @@ class Pilot:
         hx, hy = self.hazards[-1]
         clear = self._radius(hx, hy) + c.clear_m
         walked = 0.0
-        for p in reversed(self.trail):  # newest first
+        keep = len(self.trail)
+        for k in range(len(self.trail) - 1, -1, -1):  # newest first
+            p = self.trail[k]
             q = (p[1], p[2])
             step = math.hypot(q[0] - back[-1][0], q[1] - back[-1][1])
+            keep = k + 1
             if step < 0.01:
                 continue
             walked += step
@@ -311,6 +319,9 @@ class Pilot:
         if len(back) < 2 or walked < 0.05:
             self._go_around(pos, t)
             return
+        # the trail ends where the back-off will: the detour continues it from there, so a later back-off
+        # retraces the detour and then the way in before this place, not this back-off into the hazard
+        del self.trail[keep:]
         back_cfg = FollowerConfig(
             speed=c.back_speed, goal_tolerance_m=0.1, ki=0.0, max_boost=0.0, max_yaw_rate=c.back_max_yaw_rate
         )

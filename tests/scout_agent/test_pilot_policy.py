@@ -19,8 +19,8 @@ Z3 = np.zeros(3)
 BOUNDS = (-5.0, -5.0, 200.0, 5.0)
 
 
-def _sample(t: float, x: float, planted=(True,) * 4) -> ProprioSample:
-    base = BaseState(np.array([x, 0.0, 0.33]), np.array([1.0, 0.0, 0.0, 0.0]), Z3, Z3)
+def _sample(t: float, x: float, planted=(True,) * 4, y: float = 0.0) -> ProprioSample:
+    base = BaseState(np.array([x, y, 0.33]), np.array([1.0, 0.0, 0.0, 0.0]), Z3, Z3)
     z12, z4 = np.zeros(12), np.zeros(4)
     return ProprioSample(
         t, z12, z12, z12, np.array(planted), z4, 0.0, np.array([0.0, 0.0, 1.62]), Z3, base,
@@ -120,3 +120,32 @@ def test_a_standstills_long_stance_gives_the_reflex_no_slip_and_the_next_stance_
     out = p._standstill_stances(_sample(1.6, 0.0), _est(1.6, event=(0, 1), dp=0.06))
     assert out.slip.event == (True, False, False, False) and out.slip.dp[0] == 0.06
     assert math.isnan(out.slip.dp[1]) and out.slip_xy.tolist() == [[0.0, 0.0]]
+
+
+def test_a_second_back_off_retraces_the_detour_and_the_way_in_not_the_first_back_off():
+    p = _pilot(137.0)
+    t = 0.0
+    for x in np.arange(0.0, 6.0, 0.1):  # walk in along y = 0
+        p.feel(_sample(t, float(x)), None)
+        t += 0.5
+    p._stop(Felt(t, 6.2, 0.0, ("slip",), 3), 5.9, 0.0)
+    p._start_back(np.array([5.9, 0.0]), t)
+    assert p.mode == "back"
+    end = p._back.points[-1]
+    assert 0.4 <= 5.9 - end[0] <= p.config.backoff_max_m + 0.1
+    assert np.allclose(p.trail[-1][1:], end)  # the trail now ends where the back-off does
+    # backing off adds nothing to it
+    n = len(p.trail)
+    p.feel(_sample(t + 1.0, 5.5), None)
+    assert len(p.trail) == n
+    # the detour turns off the way in along +y from the back-off's end; a second stop there
+    p.mode = "walk"
+    for y in np.arange(0.1, 1.5, 0.1):
+        p.feel(_sample(t, float(end[0]), y=float(y)), None)
+        t += 0.5
+    p._stop(Felt(t, float(end[0]), 1.7, ("slip",), 3), float(end[0]), 1.4)
+    p._start_back(np.array([end[0], 1.4]), t)
+    back = p._back.points
+    # back along the detour (y falls) and then the way in (x falls): never toward the first hazard
+    assert np.all(np.diff(back[:, 1]) <= 1e-9) and np.all(np.diff(back[:, 0]) <= 1e-9)
+    assert np.hypot(back[-1][0] - 6.2, back[-1][1]).min() > np.hypot(end[0] - 6.2, 0.0)
