@@ -70,7 +70,53 @@ def walk(job: dict) -> dict:
     if stops and out["patches"]:
         x, y = stops[0]["x"], stops[0]["y"]
         out["first_stop_to_patch_edge_m"] = round(min(_edge_distance(x, y, p) for p in out["patches"]), 3)
+    out["pilot_modes"] = s.get("pilot_modes")
+    if s["fell"] and s["fall_xy"]:
+        out["fall"] = _fall_context(world, s)
     return out
+
+
+def _fall_context(world, s: dict) -> dict:
+    """Where and when the scout fell, against ground truth: the pilot's mode then and since when, the last
+    hazard stop before it, the terrain's slope and μ at the fall point, the nearest patch (inside: negative
+    distance to its edge) and the distance from the planned route."""
+    import numpy as np
+
+    x, y = s["fall_xy"]
+    t = s["sim_seconds"]
+    modes = s.get("pilot_modes") or [[0.0, "walk"]]
+    mode_t, mode = modes[-1]
+    stops = [h for h in s["hazard_stops"] if h["t"] <= t]
+    mu = float(world.friction.at(x, y))
+    slope = float(world.terrain.slope_deg(x, y))
+    patches = [list(p) for p in world.friction.to_dict()["patches"]]
+    edge = [(_edge_distance(x, y, p), p) for p in patches]
+    inside = [(d, p) for d, p in edge if p[0] <= x <= p[2] and p[1] <= y <= p[3]]
+    wp = np.asarray(world.waypoints)[:, :2]
+    route_d = min(_segment_distance(x, y, wp[i], wp[i + 1]) for i in range(len(wp) - 1))
+    near = min(edge, key=lambda e: e[0]) if edge else None
+    return {
+        "t": t,
+        "xy": [round(x, 3), round(y, 3)],
+        "mode": mode,
+        "mode_for_s": round(t - mode_t, 3),
+        "last_stop": stops[-1] if stops else None,
+        "since_last_stop_s": round(t - stops[-1]["t"], 3) if stops else None,
+        "mu": round(mu, 3),
+        "slope_deg": round(slope, 2),
+        "holdable": bool(mu >= math.tan(math.radians(slope))),
+        "in_patch": bool(inside),
+        "patch_edge_m": round(near[0], 3) if near else None,
+        "patch_mu": near[1][4] if near else None,
+        "route_m": round(route_d, 3),
+    }
+
+
+def _segment_distance(x: float, y: float, a, b) -> float:
+    ax, ay, bx, by = float(a[0]), float(a[1]), float(b[0]), float(b[1])
+    dx, dy = bx - ax, by - ay
+    u = max(0.0, min(1.0, ((x - ax) * dx + (y - ay) * dy) / max(dx * dx + dy * dy, 1e-12)))
+    return math.hypot(x - ax - u * dx, y - ay - u * dy)
 
 
 def _edge_distance(x: float, y: float, p: list[float]) -> float:

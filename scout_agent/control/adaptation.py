@@ -6,7 +6,11 @@ last four footholds, `TrotController.plane`). Where m ≥ `margin_full` the gait
 grips, the adaptive control changes nothing and costs nothing); below it the commanded speed scales down
 linearly to `min_speed_scale` at m ≤ 0 and the trunk lowers by up to `max_lower_m` (a lower CoM shortens the
 lever of the inertial forces the feet must hold). The stance QP's cone uses `qp_share` · μ̂ of each foot whose estimate fell below the QP's old
-constant (and the constant elsewhere).
+constant (and the constant elsewhere). With `qp_area` (off by default) every foot's cone uses the area's estimate,
+the smallest of the four, on the idea that the feet stand on the same ground (per foot, the QP asked the
+unslipped feet for ratios up to 0.5 on a μ 0.23 lunar patch as the scout braked; they slid 0.15–0.3 m and it
+fell): it also takes the grip of the rear feet that still stand on good ground, and on a 20° ramp with an
+unholdable patch the back-off then slid down the whole patch and fell in 2 of 2 seeds (0 of 2 without it).
 """
 
 from __future__ import annotations
@@ -25,6 +29,7 @@ class GaitAdaptationConfig:
     max_lower_m: float = 0.03  # trunk lowered by up to this much [m]
     qp_share: float = 0.85  # the stance QP's cone: this share of each foot's estimate
     qp_mu_max: float = 0.6  # ... never above the controller's old constant
+    qp_area: bool = False  # every foot's cone from the area's estimate (the smallest), not its own
 
 
 @dataclass(frozen=True)
@@ -54,9 +59,10 @@ class GaitAdaptation:
         tan_slope = float(np.hypot(plane_grad[0], plane_grad[1]))
         margin = float(np.min(mu)) - tan_slope
         u = min(1.0, max(0.0, margin / c.margin_full))  # 1: full margin, 0: none
+        cone = np.full(4, float(np.min(mu))) if c.qp_area else mu
         return GaitSetting(
             speed_scale=c.min_speed_scale + (1.0 - c.min_speed_scale) * u,
             height_offset_m=-c.max_lower_m * (1.0 - u),
-            qp_mu=np.where(mu >= c.qp_mu_max, c.qp_mu_max, c.qp_share * mu),
+            qp_mu=np.where(cone >= c.qp_mu_max, c.qp_mu_max, c.qp_share * cone),
             margin=margin,
         )

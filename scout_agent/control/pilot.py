@@ -59,6 +59,7 @@ from scout_agent.control.gait import CRAWL, GaitConfig
 from scout_agent.control.reflex import Felt, ReflexConfig, Senses
 from scout_agent.estimators import TickEstimates
 from scout_agent.estimators.pipeline import quat_to_matrix
+from scout_agent.robot import constants as C
 from scout_agent.signals import ProprioSample
 
 __all__ = ["Pilot", "PilotConfig"]
@@ -76,6 +77,11 @@ class PilotConfig:
     senses: ReflexConfig = field(default_factory=ReflexConfig)
     detour: DetourConfig = field(default_factory=DetourConfig)
     stop_s: float = 0.05  # barely: a robot trotting in place on ground it cannot hold slides on
+    # after a hazard stop (modes stop and back) the speed command changes by at most what the ground was felt to
+    # hold: brake_share · g · (μ̂ − tan θ̂) [m/s²], at least brake_min_mps2 (None: no limit). A step from walking
+    # to backing off asked the trunk controller for ≈ 2 m/s², 5× what a μ 0.23 patch holds at lunar g
+    brake_share: float | None = 0.7
+    brake_min_mps2: float = 0.1
     max_accel_mps2: float | None = None  # a rate limit on the speed command [m/s²] (None: none; 0.25 fell
     # more on the ramp matrix, 15 of 50 against 8: it kept the front feet walking onto the patch longer)
     trot: GaitConfig = field(default_factory=GaitConfig)  # the gait where the ground holds
@@ -134,6 +140,7 @@ class Pilot:
         self.stops_here = 0  # stops within same_place_m of the newest (itself included)
         self._standstill_feet = np.zeros(4, dtype=bool)  # feet whose current stance overlapped a standstill
         self._t_mode = 0.0
+        self.mode_log: list[tuple[float, str]] = [(0.0, "walk")]  # (t [s], mode) at each change
         self._back: PathFollower | None = None
         self._back_len = 0.0
         self._left_of_route = 0.0
@@ -151,12 +158,26 @@ class Pilot:
         """(forward speed, yaw rate) for the controller; with `max_accel_mps2` set, the speed changes by at most
         that (the trunk controller turns a step in the command into a braking force of kd·Δv·m, ≈ 0.9 g for a
         stop from 0.2 m/s)."""
+        c = self.config
         v, w = self._command(s, dt)
-        if self.config.max_accel_mps2 is None or not (self.config.adaptive or self.config.reflex):
+        if not (c.adaptive or c.reflex):
             return v, w
-        a = self.config.max_accel_mps2 * dt
+        limits = [] if c.max_accel_mps2 is None else [c.max_accel_mps2]
+        if c.brake_share is not None and self.mode in ("stop", "back"):
+            limits.append(self.brake_mps2())
+        if not limits:
+            self._v = v
+            return v, w
+        a = min(limits) * dt
         self._v = self._v + min(a, max(-a, v - self._v))
         return self._v, w
+
+    def brake_mps2(self) -> float:
+        """The most the speed command may change per second after a hazard stop [m/s²]: a share of what the
+        ground's felt margin holds against gravity along the slope."""
+        c = self.config
+        margin = self.setting.margin if self.setting is not None else math.inf
+        return max(c.brake_min_mps2, c.brake_share * C.LUNAR_G * margin) if c.brake_share else math.inf
 
     def _command(self, s: RobotState, dt: float) -> tuple[float, float]:
         yaw = float(np.arctan2(s.R[1, 0], s.R[0, 0]))
@@ -294,7 +315,7 @@ class Pilot:
         t0 = self.senses.first_slip_t() if "slip" in felt.reasons else None
         self._t_held = (t0 if t0 is not None else felt.t) - self.config.held_before_s
         self.senses.reset()
-        self.mode, self._t_mode = "stop", felt.t
+        self._set_mode("stop", felt.t)
 
     def _start_back(self, pos: np.ndarray, t: float) -> None:
         c = self.config
@@ -326,7 +347,7 @@ class Pilot:
             speed=c.back_speed, goal_tolerance_m=0.1, ki=0.0, max_boost=0.0, max_yaw_rate=c.back_max_yaw_rate
         )
         self._back = PathFollower(np.array(back), back_cfg, reverse=True)
-        self.mode, self._t_mode = "back", t
+        self._set_mode("back", t)
 
     def _go_around(self, pos: np.ndarray, t: float) -> None:
         c = self.config
@@ -353,7 +374,7 @@ class Pilot:
             return
         self.detour_m += self._back_len + _length(way) - self._left_of_route
         self.follower = PathFollower(way, c.follower)
-        self.mode, self._t_mode = "walk", t
+        self._set_mode("walk", t)
 
     def _stops_near(self, x: float, y: float) -> int:
         d = self.config.same_place_m
@@ -365,7 +386,11 @@ class Pilot:
 
     def _give_up(self, why: str, t: float) -> None:
         self.gave_up = why
-        self.mode, self._t_mode = "stopped", t
+        self._set_mode("stopped", t)
+
+    def _set_mode(self, mode: str, t: float) -> None:
+        self.mode, self._t_mode = mode, t
+        self.mode_log.append((round(t, 3), mode))
 
     def summary(self) -> dict:
         return {
@@ -373,4 +398,5 @@ class Pilot:
             "detour_m": round(self.detour_m, 3),
             "gave_up": self.gave_up,
             "friction_estimate": [round(float(m), 3) for m in self.friction.mu],
+            "pilot_modes": [[t, m] for t, m in self.mode_log],
         }

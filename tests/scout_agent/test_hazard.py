@@ -107,6 +107,11 @@ def test_friction_estimate_feeds_the_gait_only_where_the_margin_is_small():
     assert low.margin == pytest.approx(0.3 - np.tan(np.radians(17.0)))
     assert low.speed_scale == pytest.approx(a.config.min_speed_scale) and low.height_offset_m < 0
     assert low.qp_mu[0] == pytest.approx(0.85 * 0.3) and low.qp_mu[1] == 0.6
+    # with qp_area every foot's cone from the area's estimate (the smallest of the four)
+    area = GaitAdaptation(replace(a.config, qp_area=True)).setting(
+        np.array([0.3, 0.6, 0.6, 0.6]), np.array([0.0, np.tan(np.radians(17.0))])
+    )
+    assert np.allclose(area.qp_mu, 0.85 * 0.3)
 
 
 def test_detour_goes_around_hazards_or_says_there_is_none():
@@ -164,16 +169,23 @@ def test_friction_estimate_tells_creep_from_a_lost_hold():
     assert not _tick(est, (0.2, 0.1, 0.1, 0.1), slipped=(0,), dp=(2 * lost_dp, 0.0, 0.0, 0.0))
 
 
+def _line_pilot(cfg: PilotConfig) -> Pilot:
+    """A pilot for a 5 m straight route along x (unit tests: no robot behind it)."""
+    return Pilot(np.array([[0.0, 0.0], [5.0, 0.0]]), TrotController(), (-1.0, -2.0, 6.0, 2.0), cfg)
+
+
+def _standing_state(t: float) -> RobotState:
+    """The state estimate of a trunk standing still at the origin."""
+    z3 = np.zeros(3)
+    return RobotState(
+        t, np.array([0.0, 0.0, 0.33]), np.eye(3), z3, z3, np.zeros(12), np.zeros(12), np.ones(4, bool)
+    )
+
+
 def test_pilot_changes_the_speed_command_no_faster_than_its_limit():
     cfg = PilotConfig(max_accel_mps2=0.25)
-    pilot = Pilot(np.array([[0.0, 0.0], [5.0, 0.0]]), TrotController(), (-1.0, -2.0, 6.0, 2.0), cfg)
-    z3 = np.zeros(3)
-
-    def state(t: float) -> RobotState:
-        return RobotState(
-            t, np.array([0.0, 0.0, 0.33]), np.eye(3), z3, z3, np.zeros(12), np.zeros(12), np.ones(4, bool)
-        )
-
+    pilot = _line_pilot(cfg)
+    state = _standing_state
     dt = 0.01
     vs = [pilot.command(state(k * dt), dt)[0] for k in range(200)]
     assert vs[0] == pytest.approx(cfg.max_accel_mps2 * dt)  # from standstill: one step of the limit
@@ -185,3 +197,28 @@ def test_pilot_changes_the_speed_command_no_faster_than_its_limit():
     pilot.trail = [(0.0, -1.0, 0.0), (1.0, 0.0, 0.0)]
     vs2 = [pilot.command(state(2.0 + k * dt), dt)[0] for k in range(150)]
     assert np.all(np.abs(np.diff([vs[-1], *vs2])) <= cfg.max_accel_mps2 * dt + 1e-12) and min(vs2) < 0
+
+
+def test_pilot_brakes_after_a_stop_no_harder_than_the_felt_ground_holds():
+    # after a hazard stop the speed command turns from walking to backing off at most at
+    # brake_share · g · (μ̂ − tan θ̂), and never slower than brake_min_mps2
+    cfg = PilotConfig()
+    assert cfg.brake_share is not None
+    pilot = _line_pilot(cfg)
+    state = _standing_state
+    dt = 0.01
+    walking = [pilot.command(state(k * dt), dt)[0] for k in range(50)]
+    assert walking[0] >= cfg.follower.speed  # walking: no limit (the step from standstill is the trot's own)
+    for margin, brake in ((0.2, cfg.brake_share * 1.62 * 0.2), (0.01, cfg.brake_min_mps2)):
+        pilot.setting = GaitAdaptation().setting(np.full(4, 0.6), np.array([0.6 - margin, 0.0]))
+        assert pilot.brake_mps2() == pytest.approx(brake)
+        pilot.mode = "walk"
+        pilot._v = walking[-1]
+        pilot._stop(Felt(2.0, 0.5, 0.0, ("slip",), 3), 0.3, 0.0)
+        pilot.trail = [(0.0, -1.0, 0.0), (1.0, 0.0, 0.0)]
+        vs = []
+        while pilot.mode in ("stop", "back") and len(vs) < 3.0 / (brake * dt):
+            vs.append(pilot.command(state(2.0 + len(vs) * dt), dt)[0])
+        steps = np.abs(np.diff([walking[-1], *vs]))
+        assert np.all(steps <= brake * dt + 1e-12) and steps.max() == pytest.approx(brake * dt)
+        assert vs[-1] == pytest.approx(-cfg.back_speed)  # it gets there
