@@ -80,8 +80,13 @@ class PilotConfig:
     # after a hazard stop (modes stop and back) the speed command changes by at most what the ground was felt to
     # hold: brake_share · g · (μ̂ − tan θ̂) [m/s²], at least brake_min_mps2 (None: no limit). A step from walking
     # to backing off asked the trunk controller for ≈ 2 m/s², 5× what a μ 0.23 patch holds at lunar g
-    brake_share: float | None = 0.7
+    brake_share: float | None = None  # e.g. 0.7 (off: see docs/results.md, issue 24)
     brake_min_mps2: float = 0.1
+    # the stance QP's cone from where the ground was felt, not from which leg felt it: a foot standing within
+    # this of a place where a foot lost its hold gets qp_share × the μ̂ felt there, any other foot the
+    # controller's constant (None: each leg's own μ̂, which moves with the leg — onto the patch at the prior,
+    # and the QP then loads the unslipped feet standing on the same patch the more)
+    cone_radius_m: float | None = None  # e.g. 0.35 (off: see docs/results.md, issue 24)
     max_accel_mps2: float | None = None  # a rate limit on the speed command [m/s²] (None: none; 0.25 fell
     # more on the ramp matrix, 15 of 50 against 8: it kept the front feet walking onto the patch longer)
     trot: GaitConfig = field(default_factory=GaitConfig)  # the gait where the ground holds
@@ -148,6 +153,7 @@ class Pilot:
         self._v = 0.0  # the last speed command [m/s]
         self._normal_key: tuple[float, float] | None = None
         self._normal = np.array([0.0, 0.0, 1.0])
+        self.lost_spots: list[tuple[float, float, float]] = []  # x, y [m], μ̂ where a foot lost its hold
 
     @property
     def done(self) -> bool:
@@ -221,6 +227,7 @@ class Pilot:
             est = self._standstill_stances(sample, est)
         if c.adaptive and est is not None:
             sl = est.slip
+            mu_before = self.friction.mu.copy()
             lost = self.friction.update(
                 sample.q,
                 sample.tau,
@@ -234,11 +241,18 @@ class Pilot:
                 dt,
                 est.foot_force_w,
             )
+            if lost:
+                f = self.controller.footholds
+                for i in np.flatnonzero(self.friction.mu < mu_before):
+                    self.lost_spots.append((float(f[i, 0]), float(f[i, 1]), float(self.friction.mu[i])))
             setting = self.adaptation.setting(self.friction.mu, grad)
             if setting is not self.setting:
                 self.setting = setting
-                self.controller.set_friction(setting.qp_mu)
+                if c.cone_radius_m is None:
+                    self.controller.set_friction(setting.qp_mu)
                 self.controller.height_offset = setting.height_offset_m
+            if c.cone_radius_m is not None and self.lost_spots:
+                self.controller.set_friction(self._cone())
         if not c.reflex or self.mode != "walk" or self.reached:
             return None
         self.controller.set_gait(c.crawl if self._near_hazard(x, y) else c.trot, t)
@@ -274,6 +288,15 @@ class Pilot:
         if self.controller.hold:
             held |= planted
         return out._replace(slip=masked)
+
+    def _cone(self) -> np.ndarray:
+        """(4,) each foot's friction for the stance QP from the holds lost within `cone_radius_m` of its foothold."""
+        c, g = self.config, self.config.gait
+        spots = np.asarray(self.lost_spots)
+        f = self.controller.footholds
+        d = np.hypot(f[:, 0, None] - spots[None, :, 0], f[:, 1, None] - spots[None, :, 1])  # (4, n)
+        near = np.where(d <= c.cone_radius_m, spots[None, :, 2], np.inf).min(axis=1)
+        return np.minimum(g.qp_mu_max, np.where(np.isfinite(near), g.qp_share * near, g.qp_mu_max))
 
     def _plane_normal(self, grad: np.ndarray) -> np.ndarray:
         """Unit upward normal of the foothold plane z = g·(x, y) + c (kept while the plane does not change:
