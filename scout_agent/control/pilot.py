@@ -77,6 +77,16 @@ class PilotConfig:
     senses: ReflexConfig = field(default_factory=ReflexConfig)
     detour: DetourConfig = field(default_factory=DetourConfig)
     stop_s: float = 0.05  # barely: a robot trotting in place on ground it cannot hold slides on
+    stop_stand: bool = (
+        True  # stand on four planted feet (the standstill's frozen gait) for `stand_s` instead of
+    )
+    # trotting in place for stop_s: the trunk's momentum spent on four feet before the back-off turns it round
+    stand_s: float = 1.0
+    stand_max_slope_deg: float = (
+        15.0  # ... only where the foothold plane is at most this steep: on a 20° ramp
+    )
+    # with an unholdable μ 0.26 patch a 1 s stand let the front feet slide on and it fell (1 of 2 seeds), and the
+    # felt margin there read +0.075 (μ̂ 0.44): the estimate cannot tell, the slope can
     # after a hazard stop (modes stop and back) the speed command changes by at most what the ground was felt to
     # hold: brake_share · g · (μ̂ − tan θ̂) [m/s²], at least brake_min_mps2 (None: no limit). A step from walking
     # to backing off asked the trunk controller for ≈ 2 m/s², 5× what a μ 0.23 patch holds at lunar g
@@ -153,6 +163,7 @@ class Pilot:
         self._v = 0.0  # the last speed command [m/s]
         self._normal_key: tuple[float, float] | None = None
         self._normal = np.array([0.0, 0.0, 1.0])
+        self._stand_stop = False  # this stop stands on four feet (`stop_stand`)
         self.lost_spots: list[tuple[float, float, float]] = []  # x, y [m], μ̂ where a foot lost its hold
 
     @property
@@ -188,9 +199,14 @@ class Pilot:
     def _command(self, s: RobotState, dt: float) -> tuple[float, float]:
         yaw = float(np.arctan2(s.R[1, 0], s.R[0, 0]))
         stand = self.mode == "walk" and self.hold is not None and not self.reached and self.hold(s.t)
+        stand = stand or (self.mode == "stop" and self._stand_stop)
         self.controller.hold = (
             stand  # on four feet, gait frozen: a standstill (state_estimation/standstill.py)
         )
+        if stand and self.mode == "stop" and s.t - self._t_mode >= self.config.stand_s:
+            self.controller.hold = False
+            self._start_back(s.pos[:2], s.t)
+            return 0.0, 0.0
         if stand:
             return 0.0, 0.0
         if self.mode == "walk":
@@ -338,6 +354,10 @@ class Pilot:
         t0 = self.senses.first_slip_t() if "slip" in felt.reasons else None
         self._t_held = (t0 if t0 is not None else felt.t) - self.config.held_before_s
         self.senses.reset()
+        c = self.config
+        grad, _ = self.controller.plane()
+        steep = math.degrees(math.atan(math.hypot(float(grad[0]), float(grad[1]))))
+        self._stand_stop = c.stop_stand and steep <= c.stand_max_slope_deg
         self._set_mode("stop", felt.t)
 
     def _start_back(self, pos: np.ndarray, t: float) -> None:

@@ -202,14 +202,14 @@ def test_pilot_changes_the_speed_command_no_faster_than_its_limit():
 def test_pilot_brakes_after_a_stop_no_harder_than_the_felt_ground_holds():
     # after a hazard stop the speed command turns from walking to backing off at most at
     # brake_share · g · (μ̂ − tan θ̂), and never slower than brake_min_mps2
-    cfg = PilotConfig()
-    assert cfg.brake_share is not None
+    share = 0.7
+    cfg = PilotConfig(brake_share=share)  # (off by default: docs/results.md, issue 24)
     pilot = _line_pilot(cfg)
     state = _standing_state
     dt = 0.01
     walking = [pilot.command(state(k * dt), dt)[0] for k in range(50)]
     assert walking[0] >= cfg.follower.speed  # walking: no limit (the step from standstill is the trot's own)
-    for margin, brake in ((0.2, cfg.brake_share * 1.62 * 0.2), (0.01, cfg.brake_min_mps2)):
+    for margin, brake in ((0.2, share * 1.62 * 0.2), (0.01, cfg.brake_min_mps2)):
         pilot.setting = GaitAdaptation().setting(np.full(4, 0.6), np.array([0.6 - margin, 0.0]))
         assert pilot.brake_mps2() == pytest.approx(brake)
         pilot.mode = "walk"
@@ -222,3 +222,19 @@ def test_pilot_brakes_after_a_stop_no_harder_than_the_felt_ground_holds():
         steps = np.abs(np.diff([walking[-1], *vs]))
         assert np.all(steps <= brake * dt + 1e-12) and steps.max() == pytest.approx(brake * dt)
         assert vs[-1] == pytest.approx(-cfg.back_speed)  # it gets there
+
+
+def test_place_based_cone_gives_the_felt_friction_to_the_feet_standing_where_a_hold_was_lost():
+    cfg = PilotConfig(cone_radius_m=0.35)
+    pilot = _line_pilot(cfg)
+    pilot.controller.reset(_standing_state(0.0))
+    f = pilot.controller.footholds  # FL, FR, RL, RR around the origin
+    pilot.lost_spots = [(float(f[0, 0]) + 0.1, float(f[0, 1]), 0.2), (float(f[0, 0]), float(f[0, 1]), 0.3)]
+    g = cfg.gait
+    cone = pilot._cone()
+    # FL stands within reach of both: the lower; FR (0.27 m beside FL, 0.29 m from the first spot) too; the
+    # hind feet (0.48 m behind) keep the controller's constant
+    assert cone[0] == pytest.approx(g.qp_share * 0.2) and cone[1] == pytest.approx(g.qp_share * 0.2)
+    assert cone[2] == g.qp_mu_max and cone[3] == g.qp_mu_max
+    # the pilot hands it to the controller only with cone_radius_m set (default: each leg's own estimate)
+    assert PilotConfig().cone_radius_m is None
