@@ -11,7 +11,10 @@ Modes:
   stance QP's cone and the adaptive gait (`adaptation`) scales the speed and lowers the trunk.
 - a standstill, asked for by `hold` (the state estimator's planner): stand on four feet, gait frozen, until it
   says walk on (the gyro's zero-rate updates, `state_estimation/standstill.py`).
-- `stop` (`stop_s`): the reflex (`reflex.Senses`) fired — stand still, report the hazard.
+- `stop`: the reflex (`reflex.Senses`) fired — report the hazard; where the foothold plane is at most
+  `stand_max_slope_deg` steep, stand on four planted feet for `stand_s` (the controller's frozen gait, as in a
+  standstill) so the trunk's momentum is spent on four feet before the back-off turns it round; elsewhere trot
+  in place for `stop_s` only. `pilot_modes` in the summary lists each mode change (t, mode).
 - `back`: trot backwards (`back_speed`, turning at most `back_max_yaw_rate`, no velocity loop) along its own
   estimated trail to the last place it held: the trail point from
   `held_before_s` before the first slip of the episode (or before the trigger) that also lies `clear_m`

@@ -170,8 +170,11 @@ def test_friction_estimate_tells_creep_from_a_lost_hold():
 
 
 def _line_pilot(cfg: PilotConfig) -> Pilot:
-    """A pilot for a 5 m straight route along x (unit tests: no robot behind it)."""
-    return Pilot(np.array([[0.0, 0.0], [5.0, 0.0]]), TrotController(), (-1.0, -2.0, 6.0, 2.0), cfg)
+    """A pilot for a 5 m straight route along x, its controller standing at the origin (unit tests: no robot
+    behind it)."""
+    controller = TrotController()
+    controller.reset(_standing_state(0.0))
+    return Pilot(np.array([[0.0, 0.0], [5.0, 0.0]]), controller, (-1.0, -2.0, 6.0, 2.0), cfg)
 
 
 def _standing_state(t: float) -> RobotState:
@@ -227,7 +230,6 @@ def test_pilot_brakes_after_a_stop_no_harder_than_the_felt_ground_holds():
 def test_place_based_cone_gives_the_felt_friction_to_the_feet_standing_where_a_hold_was_lost():
     cfg = PilotConfig(cone_radius_m=0.35)
     pilot = _line_pilot(cfg)
-    pilot.controller.reset(_standing_state(0.0))
     f = pilot.controller.footholds  # FL, FR, RL, RR around the origin
     pilot.lost_spots = [(float(f[0, 0]) + 0.1, float(f[0, 1]), 0.2), (float(f[0, 0]), float(f[0, 1]), 0.3)]
     g = cfg.gait
@@ -238,3 +240,42 @@ def test_place_based_cone_gives_the_felt_friction_to_the_feet_standing_where_a_h
     assert cone[2] == g.qp_mu_max and cone[3] == g.qp_mu_max
     # the pilot hands it to the controller only with cone_radius_m set (default: each leg's own estimate)
     assert PilotConfig().cone_radius_m is None
+
+
+def test_a_stop_on_gentle_ground_stands_on_four_feet_before_backing_off():
+    # a 10° ramp with a patch below tan 10° (0.126 < 0.176): the slip reflex stops the scout; on ground this
+    # gentle it stands on four planted feet for stand_s (the trunk's momentum spent) and then backs off
+    cfg = ScoutRunConfig(scene="ramps", slope_deg=10.0, ramp=SHORT, slippery_mu=0.126, sim_seconds=40.0)
+    world = build_world(cfg)
+    assert unholdable(world.friction.patches[0].mu, 10.0)
+    ticks: list[tuple[float, int, float]] = []
+    with open_mapping(cfg.scout_id, 0.4, 5.0) as mapping:
+
+        def on_tick(sample, gt, sim):
+            ticks.append((gt.t, int(gt.contact.sum()), float(np.hypot(*gt.base.vel[:2]))))
+            return mapping.on_tick(sample, gt, sim)
+
+        s = run_scout(cfg, on_tick=on_tick, progress=False, world=world, on_hazard=mapping.on_hazard)
+    assert not s["fell"] and s["hazard_stops"] and "slip" in s["hazard_stops"][0]["reason"]
+    modes = s["pilot_modes"]
+    i = next(k for k, (_, m) in enumerate(modes) if m == "stop")
+    t_stop, (t_back, after) = modes[i][0], modes[i + 1]
+    assert after == "back" and t_back - t_stop == pytest.approx(PilotConfig().stand_s, abs=0.02)
+    # truth: in the stand's second half all four feet bear the trunk and it has come to rest
+    half = [(n, v) for t, n, v in ticks if t_stop + 0.5 * (t_back - t_stop) <= t <= t_back]
+    assert np.mean([n == 4 for n, _ in half]) > 0.9 and max(v for _, v in half) < 0.05
+    assert s["final_xy"][0] < 3.925  # and it backed off the patch
+
+
+def test_a_stop_stands_only_where_the_foothold_plane_is_gentle():
+    for slope_deg, stands in ((8.0, True), (20.0, False)):
+        pilot = _line_pilot(PilotConfig())
+        f = pilot.controller.footholds
+        f[:, 2] = np.tan(np.radians(slope_deg)) * f[:, 0]  # a plane rising along x
+        pilot._stop(Felt(2.0, 0.5, 0.0, ("slip",), 3), 0.3, 0.0)
+        pilot.trail = [(0.0, -1.0, 0.0), (1.0, 0.0, 0.0)]
+        v, _ = pilot.command(_standing_state(2.01), 0.01)
+        assert pilot.controller.hold is stands and pilot.mode == "stop"
+        assert v == 0.0
+        pilot.command(_standing_state(2.0 + (PilotConfig().stand_s if stands else 0.06)), 0.01)
+        assert pilot.mode == "back" and not pilot.controller.hold
