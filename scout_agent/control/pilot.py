@@ -11,8 +11,8 @@ Modes:
   stance QP's cone and the adaptive gait (`adaptation`) scales the speed and lowers the trunk.
 - a standstill, asked for by `hold` (the state estimator's planner): stand on four feet, gait frozen, until it
   says walk on (the gyro's zero-rate updates, `state_estimation/standstill.py`).
-- `stop`: the reflex (`reflex.Senses`) fired — report the hazard; where the foothold plane is at most
-  `stand_max_slope_deg` steep, stand on four planted feet for `stand_s` (the controller's frozen gait, as in a
+- `stop`: the reflex (`reflex.Senses`) fired — report the hazard; with `stop_stand` (off by default) and where the
+  foothold plane is at most `stand_max_slope_deg` steep, stand on four planted feet for `stand_s` (the controller's frozen gait, as in a
   standstill) so the trunk's momentum is spent on four feet before the back-off turns it round; elsewhere trot
   in place for `stop_s` only. `pilot_modes` in the summary lists each mode change (t, mode).
 - `back`: trot backwards (`back_speed`, turning at most `back_max_yaw_rate`, no velocity loop) along its own
@@ -80,16 +80,14 @@ class PilotConfig:
     senses: ReflexConfig = field(default_factory=ReflexConfig)
     detour: DetourConfig = field(default_factory=DetourConfig)
     stop_s: float = 0.05  # barely: a robot trotting in place on ground it cannot hold slides on
-    stop_stand: bool = (
-        True  # stand on four planted feet (the standstill's frozen gait) for `stand_s` instead of
-    )
-    # trotting in place for stop_s: the trunk's momentum spent on four feet before the back-off turns it round
+    # stand on four planted feet (the standstill's frozen gait) for `stand_s` at a stop, instead of trotting in
+    # place for stop_s, where the foothold plane is at most `stand_max_slope_deg` steep: the trunk's momentum
+    # spent on four feet before the back-off turns it round. Off: lunar matrix 8 falls of 30 with it, 7
+    # without; the short 10° ramp with a μ 0.126 patch fell with it (seed 0), the 20° one with μ 0.26 in 1 of 2
+    # seeds without the slope limit (felt margin +0.075 there: the estimate cannot tell) (docs/results.md)
+    stop_stand: bool = False
     stand_s: float = 1.0
-    stand_max_slope_deg: float = (
-        15.0  # ... only where the foothold plane is at most this steep: on a 20° ramp
-    )
-    # with an unholdable μ 0.26 patch a 1 s stand let the front feet slide on and it fell (1 of 2 seeds), and the
-    # felt margin there read +0.075 (μ̂ 0.44): the estimate cannot tell, the slope can
+    stand_max_slope_deg: float = 15.0
     # after a hazard stop (modes stop and back) the speed command changes by at most what the ground was felt to
     # hold: brake_share · g · (μ̂ − tan θ̂) [m/s²], at least brake_min_mps2 (None: no limit). A step from walking
     # to backing off asked the trunk controller for ≈ 2 m/s², 5× what a μ 0.23 patch holds at lunar g

@@ -242,34 +242,9 @@ def test_place_based_cone_gives_the_felt_friction_to_the_feet_standing_where_a_h
     assert PilotConfig().cone_radius_m is None
 
 
-def test_a_stop_on_gentle_ground_stands_on_four_feet_before_backing_off():
-    # a 10° ramp with a patch below tan 10° (0.126 < 0.176): the slip reflex stops the scout; on ground this
-    # gentle it stands on four planted feet for stand_s (the trunk's momentum spent) and then backs off
-    cfg = ScoutRunConfig(scene="ramps", slope_deg=10.0, ramp=SHORT, slippery_mu=0.126, sim_seconds=40.0)
-    world = build_world(cfg)
-    assert unholdable(world.friction.patches[0].mu, 10.0)
-    ticks: list[tuple[float, int, float]] = []
-    with open_mapping(cfg.scout_id, 0.4, 5.0) as mapping:
-
-        def on_tick(sample, gt, sim):
-            ticks.append((gt.t, int(gt.contact.sum()), float(np.hypot(*gt.base.vel[:2]))))
-            return mapping.on_tick(sample, gt, sim)
-
-        s = run_scout(cfg, on_tick=on_tick, progress=False, world=world, on_hazard=mapping.on_hazard)
-    assert not s["fell"] and s["hazard_stops"] and "slip" in s["hazard_stops"][0]["reason"]
-    modes = s["pilot_modes"]
-    i = next(k for k, (_, m) in enumerate(modes) if m == "stop")
-    t_stop, (t_back, after) = modes[i][0], modes[i + 1]
-    assert after == "back" and t_back - t_stop == pytest.approx(PilotConfig().stand_s, abs=0.02)
-    # truth: in the stand's second half all four feet bear the trunk and it has come to rest
-    half = [(n, v) for t, n, v in ticks if t_stop + 0.5 * (t_back - t_stop) <= t <= t_back]
-    assert np.mean([n == 4 for n, _ in half]) > 0.9 and max(v for _, v in half) < 0.05
-    assert s["final_xy"][0] < 3.925  # and it backed off the patch
-
-
 def test_a_stop_stands_only_where_the_foothold_plane_is_gentle():
     for slope_deg, stands in ((8.0, True), (20.0, False)):
-        pilot = _line_pilot(PilotConfig())
+        pilot = _line_pilot(PilotConfig(stop_stand=True))  # (off by default: docs/results.md, issue 24)
         f = pilot.controller.footholds
         f[:, 2] = np.tan(np.radians(slope_deg)) * f[:, 0]  # a plane rising along x
         pilot._stop(Felt(2.0, 0.5, 0.0, ("slip",), 3), 0.3, 0.0)
