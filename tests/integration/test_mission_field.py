@@ -58,6 +58,10 @@ def test_map_figures() -> None:
     cx = (np.arange(5) + 0.5) * 0.4
     z = np.tile(0.1 * cx, (5, 1))
     z[2, 3] += 0.3
-    g = LayerGrid("m", 0.4, 0, 0, 5, 5, {"elevation": {"n": n, "value": np.where(n > 0, z, np.nan)}})
+    # raw statistics, as a map holds them: every cell's footholds at its centre (the plane fit's mean height)
+    zeros = np.zeros_like(n)
+    moments = {k: zeros for k in ("sx", "sy", "sxx", "syy", "sxy", "sxz", "syz")}
+    elevation = {"n": n, "sum": n * z, "sumsq": n * z * z, **moments}
+    g = LayerGrid("m", 0.4, 0, 0, 5, 5, {"elevation": elevation})
     rmse, cells = map_elevation_rmse(g, t)
     assert cells == 6 and rmse == pytest.approx(math.sqrt(0.3**2 / 6), abs=1e-3)
