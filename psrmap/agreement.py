@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from protocol.layers import map_height
+from protocol.layers import LAYERS, map_height
 from psrmap_mapcore import LayerGrid, read_npz
 
 if TYPE_CHECKING:  # the terrain type only: scout_agent.sim is not imported to score a map
@@ -19,10 +19,21 @@ if TYPE_CHECKING:  # the terrain type only: scout_agent.sim is not imported to s
 
 def grid_height(grid: LayerGrid) -> np.ndarray | None:
     """The map's height per cell (`protocol.layers.map_height`: σ-weighted where the footholds stated their
-    vertical σ, else the elevation layer's value); None without an elevation layer. Needs raw statistics."""
+    vertical σ, else the elevation layer's value); None without an elevation layer. From raw statistics where
+    the grid has them, else the elevation layer's `value`."""
     if "elevation" not in grid.layers:
         return None
-    return map_height({k: grid.layers[k] for k in ("elevation", "height") if k in grid.layers})
+    raw = {k: grid.layers[k] for k in ("elevation", "height") if _has_raw(grid, k)}
+    if "elevation" not in raw:  # a reply with values only: the elevation layer's value
+        return grid.value("elevation")
+    return map_height(raw)
+
+
+def _has_raw(grid: LayerGrid, layer: str) -> bool:
+    """The grid holds the statistics the layer's height fit reads (its sums; extremes and σ sums aside)."""
+    stats = grid.layers.get(layer)
+    need = [s for s in LAYERS[layer].stats if s not in ("min", "max", "min_sigma", "var")]
+    return stats is not None and all(s in stats for s in need)
 
 
 def _elevation_by_cell(path: Path) -> dict[tuple[int, int], float]:

@@ -97,3 +97,18 @@ def test_bad_height_statistics_are_rejected_whole_with_their_reason(change, reas
     samples = [(delta_key(MAP, SCOUT), payload), (delta_key(MAP, SCOUT), _delta_with(lambda c: None))]
     out = DeltaDecoder(res=RES).decode(samples, views=True).results
     assert [o.reason if isinstance(o, ProtocolError) else "ok" for o in out] == [reason, "ok"]
+
+
+def test_the_missions_height_reader_takes_raw_or_value_only_grids() -> None:
+    from psrmap.agreement import grid_height
+    from psrmap_mapcore import LayerGrid
+
+    local = LocalMap(RES)
+    local.merge(_scout_delta(0.0, 0.05))
+    local.merge(_scout_delta(0.5, 0.5))
+    region = local.region(2, 2, 2, 2)
+    raw = LayerGrid("m", RES, 2, 2, 1, 1, {k: region[k] for k in ("elevation", "height")})
+    assert grid_height(raw)[0, 0] == pytest.approx(0.5 * 4 / 404, abs=1e-9)  # the weighted fit
+    values = LayerGrid("m", RES, 2, 2, 1, 1, {"elevation": {"n": region["elevation"]["n"],
+                                                            "value": region["elevation"]["value"]}})  # fmt: skip
+    assert grid_height(values)[0, 0] == pytest.approx(0.25, abs=1e-9)  # a reply with values only
