@@ -125,6 +125,12 @@ class Mapper:
                 self.publisher.poll()
         return est
 
+    def use_accumulator(self, acc: CellAccumulator) -> None:
+        """Accumulate into `acc` from now on (e.g. one that also records every sample): the held samples
+        leave into it too."""
+        self.acc = acc
+        self.held.acc = acc
+
     def fix(self, fix: PoseFix) -> None:
         """A pose fix the localizer fused: spread it back over the held samples and send them."""
         self.held.correct(fix)

@@ -135,7 +135,10 @@ class RecordingAccumulator(CellAccumulator):
 
     def append(self, layer: str, row: tuple[float, ...]) -> None:
         super().append(layer, row)
-        self.log.setdefault(layer, []).append(row)
+        if layer == "elevation":  # a held foothold released as its row (x, y, n, z, ...): keep the foothold
+            self.footholds.append((row[0], row[1], row[3]))
+        elif layer != "height":  # the height layer's moments are relative to this size's cell centres
+            self.log.setdefault(layer, []).append(row)
 
     def add_elevation(self, x: float, y: float, z: float) -> None:
         super().add_elevation(x, y, z)
@@ -246,7 +249,7 @@ def run_spec(spec: RunSpec) -> dict[str, Any]:
     cfg = replace(cfg, seed=spec.noise_seed)  # the walk's noise from the noise seed
     ev = Evaluator(res=spec.res)
     acc = recording_accumulator(spec.res)
-    ev.mapper.acc = acc
+    ev.mapper.use_accumulator(acc)
     track: list[tuple[float, float, float, float]] = []
 
     def on_tick(sample, truth, sim) -> None:
