@@ -5,6 +5,7 @@ short keeps what it measured); `--summary` reads OUT and prints the table.
 
     python3 benchmarks/falls.py ramps --out runs/falls.jsonl [--workers 2] [--before] [--seeds 0,1]
     python3 benchmarks/falls.py lunar --out runs/falls.jsonl [--seeds 0-9] [--before]
+    python3 benchmarks/falls.py lunar --out runs/fwd.jsonl --only after --pilot back_forward=true
     python3 benchmarks/falls.py --summary runs/falls.jsonl
 
 Ramps: α ∈ {5, 10, 15, 20, 25}°, patch μ = tan α + {−0.1, −0.05, 0, +0.05, +0.1} (at least 0.02) over the middle
@@ -21,6 +22,7 @@ import math
 import multiprocessing as mp
 import sys
 import time
+from dataclasses import fields, replace
 from pathlib import Path
 
 ANGLES = (5.0, 10.0, 15.0, 20.0, 25.0)
@@ -59,6 +61,8 @@ def walk(job: dict) -> dict:
     else:
         cfg = ScoutRunConfig(scene="lunar", seed=job["seed"], route=job["route"], slippery_patches=4,
                              hazard_control=job["on"])  # fmt: skip
+    if job.get("pilot"):
+        cfg = replace(cfg, pilot=replace(cfg.pilot, **job["pilot"]))
     world = build_world(cfg)
     ev = Evaluator(res=0.4)
     t0 = time.time()
@@ -199,6 +203,31 @@ def _patch_unholdable(r: dict) -> bool:
     return r["kind"] == "ramps" and r["mu"] < math.tan(math.radians(r["slope"]))
 
 
+def _pilot_options(p: argparse.ArgumentParser, items: list[str]) -> dict:
+    """{field: value} from FIELD=VALUE items naming scalar PilotConfig fields."""
+    from scout_agent.control.pilot import PilotConfig
+
+    scalar = {
+        f.name
+        for f in fields(PilotConfig)
+        if not hasattr(getattr(PilotConfig(), f.name), "__dataclass_fields__")
+    }
+    out: dict = {}
+    for item in items:
+        name, eq, text = item.partition("=")
+        if not eq or name not in scalar:
+            p.error(f"--pilot {item!r}: give FIELD=VALUE with FIELD one of {', '.join(sorted(scalar))}")
+        low = text.strip().lower()
+        if low in ("true", "false", "none"):
+            out[name] = {"true": True, "false": False, "none": None}[low]
+            continue
+        try:
+            out[name] = int(text) if low.lstrip("-").isdigit() else float(text)
+        except ValueError:
+            p.error(f"--pilot {item!r}: VALUE must be true, false, none or a number")
+    return out
+
+
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("kind", nargs="?", choices=("ramps", "lunar"))
@@ -213,6 +242,13 @@ def main() -> int:
     p.add_argument(
         "--offsets", default=",".join(f"{d:g}" for d in OFFSETS), help="ramps: μ − tan α, in order"
     )
+    p.add_argument(
+        "--pilot",
+        action="append",
+        default=[],
+        metavar="FIELD=VALUE",
+        help="a PilotConfig field for the walks with the hazard control (bool, int, float or none), repeatable",
+    )
     p.add_argument("--summary", type=Path, nargs="+")
     a = p.parse_args()
     if a.summary:
@@ -225,12 +261,16 @@ def main() -> int:
         seeds = list(range(lo, hi + 1))
     else:
         seeds = [int(v) for v in a.seeds.split(",")]
+    pilot = _pilot_options(p, a.pilot)
     done = _done(a.out)
     angles = tuple(float(v) for v in a.angles.split(","))
     offsets = tuple(float(v) for v in a.offsets.split(","))
     jobs = [j for j in _jobs(a.kind, seeds, a.before or a.only == "before", angles, offsets)
             if a.only is None or j["on"] == (a.only == "after")
             if _key(j) not in done]  # fmt: skip
+    for j in jobs:
+        if pilot and j["on"]:
+            j["pilot"] = pilot
     a.out.parent.mkdir(parents=True, exist_ok=True)
     with mp.get_context("spawn").Pool(a.workers, maxtasksperchild=4) as pool, a.out.open("a") as f:
         for r in pool.imap_unordered(walk, jobs):

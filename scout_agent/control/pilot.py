@@ -15,7 +15,8 @@ Modes:
   foothold plane is at most `stand_max_slope_deg` steep, stand on four planted feet for `stand_s` (the controller's frozen gait, as in a
   standstill) so the trunk's momentum is spent on four feet before the back-off turns it round; elsewhere trot
   in place for `stop_s` only. `pilot_modes` in the summary lists each mode change (t, mode).
-- `back`: trot backwards (`back_speed`, turning at most `back_max_yaw_rate`, no velocity loop) along its own
+- `back`: trot backwards (`back_speed`, turning at most `back_max_yaw_rate`, no velocity loop) — or with
+  `back_forward` (off by default) stand as `stop_stand` does, turn round in place and trot forwards — along its own
   estimated trail to the last place it held: the trail point from
   `held_before_s` before the first slip of the episode (or before the trigger) that also lies `clear_m`
   outside the detour's hazard radius, at least `backoff_min_m` and at most `backoff_max_m` back along
@@ -88,6 +89,12 @@ class PilotConfig:
     stop_stand: bool = False
     stand_s: float = 1.0
     stand_max_slope_deg: float = 15.0
+    # back off facing forward: stand at the stop as `stop_stand` does (where the plane is gentle), then turn in
+    # place (the follower's speed falls to 0 while the heading error exceeds 90°, turning at most
+    # back_max_yaw_rate) and walk the back-off path forward, as the trot is built to, instead of reversing the
+    # trot with the trunk still moving toward the hazard: every lunar-matrix fall of the build before came
+    # while trotting backwards after a stop (docs/results.md, issue 24)
+    back_forward: bool = False
     # after a hazard stop (modes stop and back) the speed command changes by at most what the ground was felt to
     # hold: brake_share · g · (μ̂ − tan θ̂) [m/s²], at least brake_min_mps2 (None: no limit). A step from walking
     # to backing off asked the trunk controller for ≈ 2 m/s², 5× what a μ 0.23 patch holds at lunar g
@@ -358,7 +365,7 @@ class Pilot:
         c = self.config
         grad, _ = self.controller.plane()
         steep = math.degrees(math.atan(math.hypot(float(grad[0]), float(grad[1]))))
-        self._stand_stop = c.stop_stand and steep <= c.stand_max_slope_deg
+        self._stand_stop = (c.stop_stand or c.back_forward) and steep <= c.stand_max_slope_deg
         self._set_mode("stop", felt.t)
 
     def _start_back(self, pos: np.ndarray, t: float) -> None:
@@ -390,7 +397,7 @@ class Pilot:
         back_cfg = FollowerConfig(
             speed=c.back_speed, goal_tolerance_m=0.1, ki=0.0, max_boost=0.0, max_yaw_rate=c.back_max_yaw_rate
         )
-        self._back = PathFollower(np.array(back), back_cfg, reverse=True)
+        self._back = PathFollower(np.array(back), back_cfg, reverse=not c.back_forward)
         self._set_mode("back", t)
 
     def _go_around(self, pos: np.ndarray, t: float) -> None:

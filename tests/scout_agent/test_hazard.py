@@ -254,3 +254,37 @@ def test_a_stop_stands_only_where_the_foothold_plane_is_gentle():
         assert v == 0.0
         pilot.command(_standing_state(2.0 + (PilotConfig().stand_s if stands else 0.06)), 0.01)
         assert pilot.mode == "back" and not pilot.controller.hold
+
+
+def test_back_forward_stands_then_turns_round_in_place_and_walks_the_trail_facing_it():
+    # back_forward (off by default: docs/results.md, issue 24): stand at the stop, then turn in place toward the
+    # trail (no speed while the heading error exceeds 90°) and walk it forwards, not trotting backwards
+    cfg = PilotConfig(back_forward=True)
+    pilot = _line_pilot(cfg)
+    pilot._stop(Felt(2.0, 0.5, 0.0, ("slip",), 3), 0.3, 0.0)
+    pilot.trail = [(0.0, -1.0, 0.0), (1.0, 0.0, 0.0)]
+    v, w = pilot.command(_standing_state(2.01), 0.01)
+    assert pilot.controller.hold and pilot.mode == "stop" and (v, w) == (0.0, 0.0)
+    pilot.command(_standing_state(2.0 + cfg.stand_s), 0.01)
+    assert pilot.mode == "back" and not pilot.controller.hold and not pilot._back.reverse
+    # facing +x with the trail behind (−x): a turn in place at the back-off's yaw-rate limit, no speed
+    v, w = pilot.command(_standing_state(2.02 + cfg.stand_s), 0.01)
+    assert v == 0.0 and abs(w) == pytest.approx(cfg.back_max_yaw_rate)
+    # facing the trail (yaw π): forwards along it
+    z3 = np.zeros(3)
+    turned = RobotState(
+        3.0 + cfg.stand_s, np.array([0.0, 0.0, 0.33]), np.diag([-1.0, -1.0, 1.0]), z3, z3,
+        np.zeros(12), np.zeros(12), np.ones(4, bool),
+    )  # fmt: skip
+    v, w = pilot.command(turned, 0.01)
+    assert v == pytest.approx(cfg.back_speed) and abs(w) < 0.05
+    # the default still trots backwards at once
+    default = _line_pilot(PilotConfig())
+    default._stop(Felt(2.0, 0.5, 0.0, ("slip",), 3), 0.3, 0.0)
+    default.trail = [(0.0, -1.0, 0.0), (1.0, 0.0, 0.0)]
+    default.command(_standing_state(2.1), 0.01)
+    assert (
+        default.mode == "back"
+        and default._back.reverse
+        and default.command(_standing_state(2.11), 0.01)[0] < 0
+    )
