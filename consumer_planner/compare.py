@@ -29,7 +29,8 @@ from protocol.layers import LAYERS, layer_derived
 from psrmap_common.pathsearch import Method, PathSearchError, nearest_passable, plan_path, step_lengths
 from psrmap_mapcore import LayerGrid
 
-__all__ = ["Breakdown", "Route", "breakdown", "cell_weights", "evaluate_route", "plan_route", "route_cells"]
+__all__ = ["Breakdown", "Route", "blocked_message", "breakdown", "cell_weights", "evaluate_route", "plan_route",
+           "route_cells", "why_impassable"]  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -158,6 +159,48 @@ def _cell(grid: LayerGrid, xy: Sequence[float], what: str) -> tuple[int, int]:
     return cell
 
 
+SUGGEST_RADIUS_M = 5.0  # a blocked endpoint's message names the nearest passable cell within this distance
+
+
+def why_impassable(costs: CostMap, cell: tuple[int, int]) -> str:
+    """Why the cell (row, col) is impassable, in the words of `costs`' rules ("" when it is passable)."""
+    if np.isfinite(costs.cost[cell]):
+        return ""
+    m = {k: float(v[cell]) for k, v in costs.metrics.items()}
+    lim, cfg = costs.config.limits, costs.config
+    reasons = [
+        f"{text} ({value:.3g} {op} limit {limit:g})"
+        for text, value, op, limit, over in (
+            ("slope", m["slope_deg"], ">", lim.max_slope_deg, m["slope_deg"] > lim.max_slope_deg),
+            ("GIIM", m["giim"], "<", lim.min_giim_rad, m["giim"] < lim.min_giim_rad),
+            ("GIAM", m["giam"], "<", lim.min_giam, m["giam"] < lim.min_giam),
+            ("slip rate", m["slip_rate"], ">", lim.max_slip_rate, m["slip_rate"] > lim.max_slip_rate),
+        )
+        if over
+    ]
+    if not costs.known[cell] and not costs.inferred[cell] and not reasons:
+        reasons.append(f"no map data (unknown policy {cfg.unknown!r})")
+    if not reasons and cfg.hazard == "forbid":
+        reasons.append(f"a scout's hazard report within {cfg.hazard_spread_m:g} m (hazard policy 'forbid')")
+    return "; ".join(reasons) or "impassable"
+
+
+def blocked_message(
+    grid: LayerGrid, costs: CostMap, what: str, cell: tuple[int, int], xy: Sequence[float]
+) -> str:
+    """The planner's error for an impassable start or goal: why, and the nearest cell that would be valid."""
+    near = nearest_passable(costs.cost, cell, SUGGEST_RADIUS_M / grid.res)
+    if near is None:
+        valid = f"no passable cell within {SUGGEST_RADIUS_M:g} m"
+    else:
+        x, y = grid.centers(np.array([near]))[0]
+        valid = f"nearest passable cell: ({x:.2f}, {y:.2f}) m, {math.dist(near, cell) * grid.res:.2f} m away"
+    return (
+        f"{what} ({xy[0]:g}, {xy[1]:g}) m, cell (row {cell[0]}, col {cell[1]}), is impassable: "
+        f"{why_impassable(costs, cell)}; {valid}"
+    )
+
+
 def route_cells(grid: LayerGrid, waypoints: Sequence[Sequence[float]]) -> np.ndarray:
     """The 8-connected cells (k, 2) visited by straight segments between map-frame waypoints [m]."""
     if len(waypoints) < 1:
@@ -193,6 +236,9 @@ def plan_route(
     s, g = _cell(grid, start, "start"), _cell(grid, goal, "goal")
     if goal_tolerance_m > 0:
         g = nearest_passable(costs.cost, g, goal_tolerance_m / grid.res) or g
+    for what, cell, xy in (("start", s, start), ("goal", g, goal)):
+        if not np.isfinite(costs.cost[cell]):
+            raise PlannerError(blocked_message(grid, costs, what, cell, xy))
     try:
         found = plan_path(costs.cost, s, g, grid.res, method)
     except PathSearchError as exc:

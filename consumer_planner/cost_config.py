@@ -117,7 +117,8 @@ def parse_weights(text: str, base: Weights | None = None) -> Weights:
 class CostMap:
     """Everything a route breakdown needs, all (h, w): `cost` [1/m] (+inf impassable), the weighted
     `terms` (summing to `cost` on passable cells; `unknown` = the penalty, `hazard` its penalty), the `metrics` the terms read
-    (filled where inferred), and the masks `known`, `inferred`, `impassable`."""
+    (filled where inferred), and the masks `known`, `inferred`, `impassable` and `datum_clash` (cells whose
+    footholds' datums clash: their slope is unknown, `costs`; None = not computed)."""
 
     cost: np.ndarray
     terms: dict[str, np.ndarray]
@@ -126,3 +127,4 @@ class CostMap:
     inferred: np.ndarray
     impassable: np.ndarray
     config: CostConfig
+    datum_clash: np.ndarray | None = None

@@ -11,8 +11,15 @@ Terms (all dimensionless per metre, >= 0; a metric with no estimate at a cell co
 | slip | `slip` events / n | expected slip events per metre = rate * `stances_per_m` |
 | giim | `giim` mean [rad] | max(0, (giim_ref - giim) / giim_ref): less margin, more cost |
 | giam | `giam` mean [m/s^2] | max(0, (giam_ref - giam) / giam_ref) |
-| slope | `elevation` plane fit | slope_deg / slope_ref_deg |
+| slope | map slope (`protocol.layers.map_slope_deg`) | slope_deg / slope_ref_deg |
 | confidence | counts `n` | n_ref / (n_ref + n), n = most samples of any layer in the cell |
+
+The slope is the map's (`map_slope_deg`: the σ-weighted plane of the `height` layer where the cell has
+one, else the `elevation` layer's). Where the cell's footholds clash (`protocol.layers.datum_clash`: they
+scatter about their plane far beyond the vertical σ they state, two scouts' datums disagreeing) its plane is
+a compromise between datums, not terrain: the slope there is *unknown* (NaN) — it never trips
+`max_slope_deg` by itself, and is filled from the neighbours like any gap (below); `CostMap.datum_clash`
+marks those cells. The cell's other layers (slip, CoT, margins) are measurements and stay.
 
 A cell is *known* when any layer holds samples there. Gaps inside known cells (e.g. CoT undefined
 below 5 cm of travel) are filled like inferred cells, below. Unknown cells by `unknown` policy:
@@ -88,8 +95,11 @@ __all__ = [
 ]
 
 
-def read_metrics(grid: LayerGrid) -> tuple[dict[str, np.ndarray], np.ndarray]:
-    """(metrics {name: (h, w), NaN = no estimate}, count (h, w) = most samples of any layer).
+def read_metrics(
+    grid: LayerGrid, clash: np.ndarray | None = None
+) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """(metrics {name: (h, w), NaN = no estimate}, count (h, w) = most samples of any layer); the slope is NaN
+    on `clash` cells (default `grid.datum_clash()`).
 
     The arrays may be the grid's own (never write to them)."""
     metrics = {
@@ -99,6 +109,9 @@ def read_metrics(grid: LayerGrid) -> tuple[dict[str, np.ndarray], np.ndarray]:
         "giam": grid.value("giam"),
         "slope_deg": grid.slope_deg(),
     }
+    clash = grid.datum_clash() if clash is None else clash
+    if clash.any():  # a compromise between datums is not terrain: the slope there is unknown
+        metrics["slope_deg"] = np.where(clash, np.nan, metrics["slope_deg"])
     # = max over layers of grid.count(layer) (nan_to_num'd n: NaN -> 0, +inf -> the largest float),
     # without a copy per layer: fmax skips NaN, the clip maps +inf; count >= 0 so -inf never wins.
     count = np.zeros(grid.shape)
@@ -204,7 +217,8 @@ _BLOCK_CELLS = 1 << 16
 def build_costs(grid: LayerGrid, config: CostConfig | None = None) -> CostMap:
     """The cost grid of `grid` under `config` (see the module docstring for every rule)."""
     config = config or CostConfig()
-    raw, count = read_metrics(grid)
+    clash = grid.datum_clash()
+    raw, count = read_metrics(grid, clash)
     known = count > 0
     with _executor(grid.h * grid.w) as pool:
         spread: Future | None = None
@@ -246,7 +260,7 @@ def build_costs(grid: LayerGrid, config: CostConfig | None = None) -> CostMap:
         ]:
             f.result()
     terms = out.terms | {"hazard": _hazard_rule(grid, config, out.cost, out.impassable)}
-    return CostMap(out.cost, terms, metrics, known, inferred, out.impassable, config)
+    return CostMap(out.cost, terms, metrics, known, inferred, out.impassable, config, clash)
 
 
 def _hazard_rule(grid: LayerGrid, config: CostConfig, cost: np.ndarray, impassable: np.ndarray) -> np.ndarray:

@@ -21,6 +21,7 @@ __all__ = [
     "MIN_COT_DIST_M",
     "MIN_PLANE_SPREAD_M",
     "Layer",
+    "DATUM_CLASH_SIGMAS",
     "cell_center",
     "cell_index",
     "pack_pair",
@@ -33,7 +34,10 @@ __all__ = [
     "get_layer",
     "layer_derived",
     "layer_value",
+    "datum_clash",
     "map_height",
+    "map_slope_deg",
+    "plane_residual_rms",
     "merge_op",
 ]
 
@@ -41,6 +45,8 @@ MergeOp = Literal["add", "min", "max"]
 
 MIN_COT_DIST_M = 0.05  # cot is NaN where less distance than this was walked in the cell [m]
 MIN_PLANE_SPREAD_M = 0.03  # plane fit along a direction needs footholds spread (std) at least this much [m]
+# a cell's footholds clash (two datums) when they scatter about their plane as two groups this many σ apart would
+DATUM_CLASH_SIGMAS = 3.0
 
 
 @dataclass(frozen=True)
@@ -226,9 +232,27 @@ def plane_fit(
 def elevation_slope_deg(stats: Stats) -> np.ndarray:
     """Terrain slope [deg] from the plane fit of elevation stats: along the footholds' spread where they span
     one direction only (a lower bound), NaN where they span none (see `plane_fit`)."""
-    _, gx, gy, rank = plane_fit(stats)
+    return _slope_deg(*plane_fit(stats)[1:])
+
+
+def _slope_deg(gx: np.ndarray, gy: np.ndarray, rank: np.ndarray) -> np.ndarray:
     with np.errstate(invalid="ignore"):
         return np.where(rank >= 1, np.degrees(np.arctan(np.hypot(gx, gy))), np.nan)
+
+
+def plane_residual_rms(stats: Stats) -> np.ndarray:
+    """RMS [m] of the footholds' heights about the elevation layer's plane fit (`plane_fit`), from the summed
+    moments (rss / n = var(z) - g·cov(xy, z) holds for the truncated fit too); NaN where n == 0."""
+    n = _f(stats, "n")
+    nn = np.where(n > 0, n, 1.0)
+    mx, my, mz = _f(stats, "sx") / nn, _f(stats, "sy") / nn, _f(stats, "sum") / nn
+    _, gx, gy, _ = plane_fit(stats)
+    rss = (
+        (_f(stats, "sumsq") / nn - mz * mz)
+        - gx * (_f(stats, "sxz") / nn - mx * mz)
+        - gy * (_f(stats, "syz") / nn - my * mz)
+    )
+    return np.sqrt(np.maximum(rss, 0.0))
 
 
 def _mean(stats: Stats) -> np.ndarray:
@@ -252,11 +276,17 @@ _WEIGHTED = {"n": "w", "sum": "wz", "sx": "wx", "sy": "wy", "sxx": "wxx", "syy":
              "sxz": "wxz", "syz": "wyz"}  # fmt: skip
 
 
-def _weighted_height(stats: Stats) -> np.ndarray:
+def _weighted_fit(stats: Stats) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """`plane_fit` of the height layer's 1/σ²-weighted moments; NaN where it has no footholds or no weight."""
     n = _f(stats, "n")
     moments = {k: _f(stats, w) for k, w in _WEIGHTED.items()}
-    z0 = plane_fit(moments, count=n)[0]
-    return np.where((n > 0) & (moments["n"] > 0), z0, np.nan)
+    nan = np.where((n > 0) & (moments["n"] > 0), 0.0, np.nan)
+    z0, gx, gy, rank = plane_fit(moments, count=n)
+    return z0 + nan, gx + nan, gy + nan, rank + nan
+
+
+def _weighted_height(stats: Stats) -> np.ndarray:
+    return _weighted_fit(stats)[0]
 
 
 def map_height(layers: Mapping[str, Stats]) -> np.ndarray:
@@ -269,6 +299,36 @@ def map_height(layers: Mapping[str, Stats]) -> np.ndarray:
         return value
     weighted = layer_value("height", layers["height"])
     return np.where(np.isfinite(weighted), weighted, value)
+
+
+def map_slope_deg(layers: Mapping[str, Stats]) -> np.ndarray:
+    """The map's terrain slope [deg] per cell, the same fit as `map_height`: the gradient of the height layer's
+    inverse-variance weighted plane where the cell's footholds stated their vertical σ (and span a direction,
+    see `plane_fit`), else the elevation layer's (`elevation_slope_deg`); NaN where neither fits a slope.
+    `layers` must hold `elevation` (and may hold `height`) with their raw statistics."""
+    value = elevation_slope_deg(layers["elevation"])
+    if "height" not in layers:
+        return value
+    weighted = _slope_deg(*_weighted_fit(layers["height"])[1:])
+    return np.where(np.isfinite(weighted), weighted, value)
+
+
+def datum_clash(layers: Mapping[str, Stats], sigmas: float = DATUM_CLASH_SIGMAS) -> np.ndarray:
+    """Cells whose footholds disagree by far more than their stated vertical σ: bool per cell.
+
+    Within one scout's datum the footholds of a cell lie on its plane to centimetres; the σ they state (the
+    height layer's RMS σ) is their datum's uncertainty. Two scouts whose datums differ by d leave the footholds
+    scattered about the cell's best plane by about d / 2 (RMS; less where the plane can tilt to absorb it).
+    A cell clashes when that scatter `plane_residual_rms` implies two groups more than `sigmas` standard
+    deviations of a difference apart: 2 · rms > sigmas · √2 · σ. Its plane (height and slope) is then not the
+    terrain but a compromise between datums. False everywhere without the height layer (no σ stated)."""
+    shape = np.shape(layers["elevation"]["n"])
+    if "height" not in layers:
+        return np.zeros(shape, dtype=bool)
+    sigma = layer_derived("height", "sigma", layers["height"])
+    rms = plane_residual_rms(layers["elevation"])
+    with np.errstate(invalid="ignore"):
+        return np.asarray(2.0 * rms > sigmas * np.sqrt(2.0) * sigma)
 
 
 def _worst(stats: Stats) -> np.ndarray:

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from protocol.errors import MAX_CLIENT_CELLS
-from protocol.layers import LAYERS, cell_index, elevation_slope_deg, empty_value, layer_value
+from protocol.layers import LAYERS, cell_index, datum_clash, empty_value, layer_value, map_slope_deg
 from protocol.messages import MapRegion
 from psrmap_mapcore.errors import MapCoreError
 
@@ -22,6 +22,18 @@ __all__ = ["MAX_CLIENT_CELLS", "LayerGrid", "Layers", "check_replies", "stitch"]
 
 
 Layers = dict[str, dict[str, np.ndarray]]
+
+_PLANE_STATS = (
+    "n",
+    "sum",
+    "sx",
+    "sy",
+    "sxx",
+    "syy",
+    "sxy",
+    "sxz",
+    "syz",
+)  # what an elevation plane fit reads
 
 
 @dataclass(frozen=True, eq=False)
@@ -112,14 +124,29 @@ class LayerGrid:
         return self.value("slip")
 
     def slope_deg(self) -> np.ndarray:
-        """Terrain slope [deg] from the per-cell elevation plane fit; NaN where the fit is ill
-        conditioned or the plane-fit stats are absent."""
+        """Terrain slope [deg] per cell, `protocol.layers.map_slope_deg`: the σ-weighted plane fit of the height
+        layer where the cell has one, else the elevation layer's plane fit (or a reply's `slope_deg`); NaN where
+        the fit is ill conditioned or the plane-fit stats are absent."""
+        layers = self._raw(_PLANE_STATS)
+        if "elevation" in layers:
+            return map_slope_deg(layers)
         stats = self.layers.get("elevation", {})
-        if "slope_deg" in stats:
-            return stats["slope_deg"]
-        if all(s in stats for s in ("n", "sum", "sx", "sy", "sxx", "syy", "sxy", "sxz", "syz")):
-            return elevation_slope_deg(stats)
-        return np.full(self.shape, np.nan)
+        return stats["slope_deg"] if "slope_deg" in stats else np.full(self.shape, np.nan)
+
+    def datum_clash(self) -> np.ndarray:
+        """Cells whose footholds disagree by far more than their stated vertical σ (`protocol.layers.datum_clash`:
+        scouts' datums clash there; its plane is not terrain); all False without both layers' raw stats."""
+        layers = self._raw((*_PLANE_STATS, "sumsq"))
+        if "elevation" not in layers:
+            return np.zeros(self.shape, dtype=bool)
+        return datum_clash(layers)
+
+    def _raw(self, elevation: tuple[str, ...]) -> dict[str, dict[str, np.ndarray]]:
+        """`elevation` when it holds the stats `elevation` names, and `height` when it holds all its raw stats."""
+        need = {"elevation": elevation, "height": LAYERS["height"].stats}
+        return {
+            k: self.layers[k] for k, stats in need.items() if all(s in self.layers.get(k, {}) for s in stats)
+        }
 
 
 def check_replies(
