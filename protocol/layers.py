@@ -309,7 +309,7 @@ def map_slope_deg(layers: Mapping[str, Stats]) -> np.ndarray:
     value = elevation_slope_deg(layers["elevation"])
     if "height" not in layers:
         return value
-    weighted = _slope_deg(*_weighted_fit(layers["height"])[1:])
+    weighted = layer_derived("height", "slope_deg", layers["height"])
     return np.where(np.isfinite(weighted), weighted, value)
 
 
@@ -377,6 +377,7 @@ _DERIVED = {
     "height": {
         "sigma": lambda s: np.sqrt(_ratio(_f(s, "var"), _f(s, "n"), _f(s, "n") > 0)),
         "best": lambda s: np.where(_f(s, "n") > 0, _f(s, "min_sigma"), np.nan),
+        "slope_deg": lambda s: _slope_deg(*_weighted_fit(s)[1:]),
     },
 }
 

@@ -11,6 +11,7 @@ from protocol.layers import (
     LAYERS,
     datum_clash,
     elevation_slope_deg,
+    layer_derived,
     map_height,
     map_slope_deg,
     plane_residual_rms,
@@ -73,6 +74,9 @@ def test_the_weighted_slope_follows_the_surer_scout() -> None:
     plain = elevation_slope_deg(layers["elevation"])[0]
     weighted = map_slope_deg(layers)[0]
     assert weighted == pytest.approx(10.0, abs=0.5)
+    assert (
+        layer_derived("height", "slope_deg", layers["height"])[0] == weighted
+    )  # what a query asks the map for
     assert abs(plain - 10.0) > 5.0  # the unweighted fit is pulled by the poorly datumed scout
     assert not datum_clash(layers)[0]  # their disagreement is within what they stated
     assert map_height(layers)[0] == pytest.approx(0.0, abs=0.01)  # the same fit gives the height
