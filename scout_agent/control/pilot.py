@@ -17,7 +17,7 @@ Modes:
   in place for `stop_s` only. `pilot_modes` in the summary lists each mode change (t, mode).
 - `back`: trot backwards (`back_speed`, turning at most `back_max_yaw_rate`, no velocity loop) — or with
   `back_forward` (off by default) stand as `stop_stand` does, turn round in place and trot forwards — along its own
-  estimated trail to the last place it held: the trail point from
+  estimated trail (with `back_off` False: no back-off; stand, then plan the detour from where it stands) to the last place it held: the trail point from
   `held_before_s` before the first slip of the episode (or before the trigger) that also lies `clear_m`
   outside the detour's hazard radius, at least `backoff_min_m` and at most `backoff_max_m` back along
   the trail. The trail is the way it walked: a back-off cuts it back to where the back-off ends and adds
@@ -95,6 +95,10 @@ class PilotConfig:
     # trot with the trunk still moving toward the hazard: every lunar-matrix fall of the build before came
     # while trotting backwards after a stop (docs/results.md, issue 24)
     back_forward: bool = False
+    # False: no back-off — stand at the stop as `stop_stand` does (where the plane is gentle), then plan the
+    # detour from where it stands (the detour keeps out of the felt hazard, shrunk to just short of the scout
+    # when it stands inside the hazard's radius: it may walk out, never further in)
+    back_off: bool = True
     # after a hazard stop (modes stop and back) the speed command changes by at most what the ground was felt to
     # hold: brake_share · g · (μ̂ − tan θ̂) [m/s²], at least brake_min_mps2 (None: no limit). A step from walking
     # to backing off asked the trunk controller for ≈ 2 m/s², 5× what a μ 0.23 patch holds at lunar g
@@ -365,11 +369,16 @@ class Pilot:
         c = self.config
         grad, _ = self.controller.plane()
         steep = math.degrees(math.atan(math.hypot(float(grad[0]), float(grad[1]))))
-        self._stand_stop = (c.stop_stand or c.back_forward) and steep <= c.stand_max_slope_deg
+        stand = c.stop_stand or c.back_forward or not c.back_off
+        self._stand_stop = stand and steep <= c.stand_max_slope_deg
         self._set_mode("stop", felt.t)
 
     def _start_back(self, pos: np.ndarray, t: float) -> None:
         c = self.config
+        if not c.back_off:
+            self._back_len = 0.0
+            self._go_around(pos, t)
+            return
         back = [(float(pos[0]), float(pos[1]))]
         hx, hy = self.hazards[-1]
         clear = self._radius(hx, hy) + c.clear_m

@@ -288,3 +288,22 @@ def test_back_forward_stands_then_turns_round_in_place_and_walks_the_trail_facin
         and default._back.reverse
         and default.command(_standing_state(2.11), 0.01)[0] < 0
     )
+
+
+def test_without_back_off_the_scout_stands_and_plans_its_detour_from_where_it_stands():
+    # back_off False (off by default: docs/results.md, issue 24): stand at the stop, then walk a detour from
+    # there that goes round the hazard felt ahead, never back along the trail first
+    cfg = PilotConfig(back_off=False)
+    pilot = _line_pilot(cfg)
+    pilot._stop(Felt(0.0, 1.5, 0.0, ("slip",), 3), 0.0, 0.0)
+    pilot.trail = [(0.0, -1.0, 0.0), (1.0, 0.0, 0.0)]
+    pilot.command(_standing_state(0.01), 0.01)
+    assert pilot.controller.hold and pilot.mode == "stop"
+    pilot.command(_standing_state(cfg.stand_s), 0.01)
+    assert pilot.mode == "walk" and pilot._back is None and not pilot.controller.hold
+    way = pilot.follower.points
+    assert np.allclose(way[0], (0.0, 0.0)) and np.allclose(way[-1], (5.0, 0.0), atol=0.2)
+    # round the hazard: every point of the way (densely) keeps the detour's radius, shrunk to the scout's start
+    dense = np.concatenate([np.linspace(a, b, 50) for a, b in zip(way[:-1], way[1:], strict=True)])
+    r = min(cfg.detour.hazard_radius_m, 1.5 - cfg.detour.res)
+    assert np.hypot(dense[:, 0] - 1.5, dense[:, 1]).min() >= r - cfg.detour.res
