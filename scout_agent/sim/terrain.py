@@ -369,6 +369,10 @@ class LunarConfig:
     large_min_radius_m: float = 2.5
     large_max_field_frac: float = 0.1
     degraded_depth_ratio: tuple[float, float] = (0.04, 0.1)
+    # where a large crater's bowl or rim reaches a corridor, it is made shallower (if need be) so that its
+    # steepest wall (π·d/D for the cosine bowl) on the broad slope under it (the relief and earlier large
+    # craters, smoothed at 1 m) stays within this: the corridor cap less room for the small craters on it
+    crossable_large_max_slope_deg: float = 20.0
     rim_ratio: float = 0.15  # rim height / depth
     rock_clusters_per_m2: float = 0.03
     rocks_per_cluster: float = 6.0
@@ -469,7 +473,7 @@ def make_lunar(cfg: LunarConfig = LunarConfig()) -> Terrain:
             rim = cfg.rim_ratio * depth * np.exp(-(((rho - 1.0) / 0.35) ** 2))
             z[i0:i1, j0:j1] += bowl + rim
 
-    craters.extend(_large_craters(cfg, z, X, Y, routes_arr))
+    craters.extend(_large_craters(cfg, z, X, Y, routes_arr, route_dist))
 
     # rocks: Thomas cluster process of smooth bumps (σ ≥ 1.6·height keeps shoulders ≤ ~21°)
     rocks = []
@@ -490,20 +494,28 @@ def make_lunar(cfg: LunarConfig = LunarConfig()) -> Terrain:
             d2 = (X[i0:i1, j0:j1] - cx) ** 2 + (Y[i0:i1, j0:j1] - cy) ** 2
             z[i0:i1, j0:j1] += h * np.exp(-d2 / (2 * sigma**2))
 
-    # flat spawn/goal patches: blend to the local mean height (on a window around each end)
+    # flat spawn/goal patches: blend to the local mean height (on a window around each end); at mission scale
+    # over a wider ring, as a patch levelled on a hillside would otherwise end in a step
+    blend_m = 0.6 if not fractal else 2.5
     for rt in routes_arr:
         for ex, ey in (rt[0], rt[-1]):
-            rad = cfg.spawn_radius_m + 0.6
+            rad = cfg.spawn_radius_m + blend_m
             i0, i1 = int(max(0, (ey - rad) / cfg.res - 1)), int(min(n, (ey + rad) / cfg.res + 2))
             j0, j1 = int(max(0, (ex - rad) / cfg.res - 1)), int(min(n, (ex + rad) / cfg.res + 2))
             d = np.hypot(X[i0:i1, j0:j1] - ex, Y[i0:i1, j0:j1] - ey)
             inner = d <= cfg.spawn_radius_m
-            w = np.clip((rad - d) / 0.6, 0.0, 1.0)
+            w = np.clip((rad - d) / blend_m, 0.0, 1.0)
             w = w * w * (3 - 2 * w)
             zw = z[i0:i1, j0:j1]
             z[i0:i1, j0:j1] = zw * (1 - w) + float(zw[inner].mean()) * w
 
-    z = _cap_corridor_slopes(z, route_dist <= cfg.corridor_m, cfg.res, cfg.corridor_max_slope_deg)
+    z = _cap_corridor_slopes(
+        z,
+        route_dist <= cfg.corridor_m,
+        cfg.res,
+        cfg.corridor_max_slope_deg,
+        blend=fractal and cfg.base is None,
+    )
 
     direct = named["direct"]
     yaw = float(np.arctan2(direct[1][1] - direct[0][1], direct[1][0] - direct[0][0]))
@@ -542,11 +554,15 @@ def large_crater_classes(cfg: LunarConfig) -> list[tuple[float, float, float]]:
     return out
 
 
-def _large_craters(cfg: LunarConfig, z: np.ndarray, X: np.ndarray, Y: np.ndarray, routes_arr) -> list[dict]:
+def _large_craters(
+    cfg: LunarConfig, z: np.ndarray, X: np.ndarray, Y: np.ndarray, routes_arr, route_dist: np.ndarray
+) -> list[dict]:
     """Carve `large_crater_classes` into z (in place), with their own random stream (the paper's classes and
-    rocks draw the same numbers at every field size); they keep clear of the route ends' flat patches."""
+    rocks draw the same numbers at every field size); they keep clear of the route ends' flat patches, and
+    where one reaches a corridor it is no steeper than `crossable_large_max_slope_deg` allows there."""
     rng = np.random.default_rng([cfg.seed, 1])
     n = z.shape[0]
+    target = np.tan(np.radians(cfg.crossable_large_max_slope_deg))
     out = []
     for rmin, rmax, density in large_crater_classes(cfg):
         for _ in range(rng.poisson(density * cfg.size_m**2)):
@@ -558,14 +574,26 @@ def _large_craters(cfg: LunarConfig, z: np.ndarray, X: np.ndarray, Y: np.ndarray
             ends = min(np.hypot(cx - e[0], cy - e[1]) for rt in routes_arr for e in (rt[0], rt[-1]))
             if ends < r * 1.3 + cfg.spawn_radius_m + 0.5:
                 continue
-            depth = ratio * 2 * r
-            out.append(
-                {"x": float(cx), "y": float(cy), "r": float(r), "depth": float(depth), "hazard": False}
-            )
             win = r * 2.0
             i0, i1 = int(max(0, (cy - win) / cfg.res)), int(min(n, (cy + win) / cfg.res + 2))
             j0, j1 = int(max(0, (cx - win) / cfg.res)), int(min(n, (cx + win) / cfg.res + 2))
             rho = np.hypot(X[i0:i1, j0:j1] - cx, Y[i0:i1, j0:j1] - cy) / r
+            crossed = (rho < 1.6) & (route_dist[i0:i1, j0:j1] <= cfg.corridor_m + 0.5)
+            if crossed.any():
+                broad = gaussian_filter(z[i0:i1, j0:j1], 1.0 / cfg.res, mode="nearest")
+                under = float(np.hypot(*np.gradient(broad, cfg.res))[crossed].max())
+                ratio = min(ratio, max(0.005, (target - under) / np.pi))
+            depth = ratio * 2 * r
+            out.append(
+                {
+                    "x": float(cx),
+                    "y": float(cy),
+                    "r": float(r),
+                    "depth": float(depth),
+                    "hazard": False,
+                    "crossable": bool(crossed.any()),
+                }
+            )
             bowl = np.where(rho < 1.0, -depth * 0.5 * (1.0 + np.cos(np.pi * np.minimum(rho, 1.0))), 0.0)
             rim = cfg.rim_ratio * depth * np.exp(-(((rho - 1.0) / 0.35) ** 2))
             z[i0:i1, j0:j1] += bowl + rim
@@ -603,11 +631,16 @@ def _steep_cells(z: np.ndarray, corridor_cells: np.ndarray, res: float, cap: flo
     return (np.maximum(g1, g2) / res > cap) & corridor_cells
 
 
-def _cap_corridor_slopes(z: np.ndarray, corridor: np.ndarray, res: float, cap_deg: float) -> np.ndarray:
+def _cap_corridor_slopes(
+    z: np.ndarray, corridor: np.ndarray, res: float, cap_deg: float, blend: bool = False
+) -> np.ndarray:
     """Smooth, locally and repeatedly, wherever the slope inside `corridor` exceeds `cap_deg`. Each cluster of
     steep cells is smoothed in its own window: a pass changes heights within 5 cells of a steep cell and reads
     6 further (the filter), so clusters more than 24 cells apart do not interact and a 200 m field costs what
-    its steep spots do, not 80 passes over 16 M heights."""
+    its steep spots do, not 80 passes over 16 M heights. The paper's field replaces the heights there outright
+    (its digest pins that); with `blend` (fields at mission scale) the smoothed heights are blended in with a
+    weight that falls off over `_BLEND_SIGMA` cells and is 0 at the window's edges, so the accumulated change
+    leaves no step (seam) at the rim of the smoothed region or window."""
     from scipy.ndimage import binary_dilation, find_objects, label
 
     z = z.copy()
@@ -616,14 +649,17 @@ def _cap_corridor_slopes(z: np.ndarray, corridor: np.ndarray, res: float, cap_de
     steep = _steep_cells(z, corridor_cells, res, cap)
     if not steep.any():
         return z
-    clusters, _ = label(binary_dilation(steep, iterations=_CLUSTER_GAP))
+    gap = _CLUSTER_GAP + (3 * _BLEND_SIGMA if blend else 0)
+    clusters, _ = label(binary_dilation(steep, iterations=gap))
     for sl in find_objects(clusters):
-        # the cluster's window (cells) with a 12-cell margin, as heights (one more row/column)
-        r0, r1 = max(0, sl[0].start - _CLUSTER_GAP), min(corridor_cells.shape[0], sl[0].stop + _CLUSTER_GAP)
-        c0, c1 = max(0, sl[1].start - _CLUSTER_GAP), min(corridor_cells.shape[1], sl[1].stop + _CLUSTER_GAP)
+        # the cluster's window (cells) with a margin, as heights (one more row/column)
+        r0, r1 = max(0, sl[0].start - gap), min(corridor_cells.shape[0], sl[0].stop + gap)
+        c0, c1 = max(0, sl[1].start - gap), min(corridor_cells.shape[1], sl[1].stop + gap)
         sub = z[r0 : r1 + 1, c0 : c1 + 1]  # a view: smoothing writes into z
         cells = corridor_cells[r0:r1, c0:c1]
-        for _ in range(80):
+        inner = (r0 > 0, r1 < corridor_cells.shape[0], c0 > 0, c1 < corridor_cells.shape[1])
+        taper = _edge_taper(sub.shape, _BLEND_SIGMA, inner) if blend else None
+        for _ in range(80 if not blend else 160):
             bad_cells = _steep_cells(sub, cells, res, cap)
             if not bad_cells.any():
                 break
@@ -631,8 +667,30 @@ def _cap_corridor_slopes(z: np.ndarray, corridor: np.ndarray, res: float, cap_de
             bad[:-1, :-1] |= bad_cells
             bad[1:, 1:] |= bad_cells
             region = binary_dilation(bad, iterations=4)
-            sub[region] = gaussian_filter(sub, 1.5)[region]
+            if taper is None:
+                sub[region] = gaussian_filter(sub, 1.5)[region]
+            else:
+                w = np.clip(2.0 * gaussian_filter(region.astype(float), _BLEND_SIGMA), 0.0, 1.0) * taper
+                sub += (gaussian_filter(sub, 1.5, mode="nearest") - sub) * w
     return z
+
+
+_BLEND_SIGMA = 10  # cells over which a blended cap pass's weight falls off
+
+
+def _edge_taper(shape: tuple[int, int], width: int, sides: tuple[bool, bool, bool, bool]) -> np.ndarray:
+    """A (rows, cols) weight 0 on the chosen borders (low row, high row, low column, high column: a window's
+    sides inside the field; the field's own edge has no neighbour to make a seam with) rising smoothly
+    (smoothstep) to 1 at `2·width` cells inside them."""
+    out = np.ones(shape)
+    for axis, m in enumerate(shape):
+        lo, hi = sides[2 * axis], sides[2 * axis + 1]
+        i = np.arange(m, dtype=float)
+        dist = np.minimum(i if lo else np.inf, (m - 1 - i) if hi else np.inf)
+        t = np.clip(dist / (2.0 * width), 0.0, 1.0)
+        t = t * t * (3 - 2 * t)
+        out *= t.reshape((-1, 1) if axis == 0 else (1, -1))
+    return out
 
 
 def route_slope_stats(terrain: Terrain, half_width: float = 0.5) -> dict[str, dict[str, float]]:
