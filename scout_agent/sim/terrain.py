@@ -509,13 +509,8 @@ def make_lunar(cfg: LunarConfig = LunarConfig()) -> Terrain:
             zw = z[i0:i1, j0:j1]
             z[i0:i1, j0:j1] = zw * (1 - w) + float(zw[inner].mean()) * w
 
-    z = _cap_corridor_slopes(
-        z,
-        route_dist <= cfg.corridor_m,
-        cfg.res,
-        cfg.corridor_max_slope_deg,
-        blend=fractal and cfg.base is None,
-    )
+    cap = cfg.corridor_max_slope_deg
+    z = _cap_corridor_slopes(z, route_dist <= cfg.corridor_m, cfg.res, cap, blend=fractal)
 
     direct = named["direct"]
     yaw = float(np.arctan2(direct[1][1] - direct[0][1], direct[1][0] - direct[0][0]))
