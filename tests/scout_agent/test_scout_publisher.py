@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from protocol.keys import alive_key
-from protocol.layers import LAYERS
+from protocol.layers import LAYERS, merge_op
 from scout_agent.loop import SimulatedScout
 from scout_agent.mapping import Mapper, MapperConfig
 from scout_agent.publisher import ScoutPublisher
@@ -130,9 +130,16 @@ def test_scout_command_publishes_while_walking(server, router, tmp_path, capsys)
             layers=list(LAYERS),
             stats=["all"],
         )
+    # exactly once: counts, minima and maxima equal bit for bit; sums equal to rounding, because the server
+    # may add a burst of deltas (the held samples leave together when the walk ends) in another order
     for name, layer in LAYERS.items():
         for s in layer.stats:
-            np.testing.assert_array_equal(theirs[name][s], layers[name][s], err_msg=f"{name}/{s}")
+            if s == "n" or merge_op(s) != "add":
+                np.testing.assert_array_equal(theirs[name][s], layers[name][s], err_msg=f"{name}/{s}")
+            else:
+                np.testing.assert_allclose(
+                    theirs[name][s], layers[name][s], rtol=1e-12, atol=1e-12, err_msg=f"{name}/{s}"
+                )
 
 
 def test_mapping_options_are_checked():
