@@ -212,16 +212,7 @@ def match_track(
     ok = np.isfinite(h1)
     r = h1[ok] - pts[ok, 2] - dz
     var_dz = float(np.mean(r**2)) * inflation / max(int(ok.sum()), 1)
-    cov = np.zeros((4, 4))
-    cov[:2, :2] = C[:2, :2]
-    cov[2, 2] = var_dz
-    if yh:
-        cov[3, 3] = C[2, 2]
-        cov[:2, 3] = cov[3, :2] = C[:2, 2]
-    else:
-        cov[3, 3] = np.inf
-    return MatchResult(True, "ok", dx=float(off[0]), dy=float(off[1]), dz=dz, dyaw=float(off[2]), cov=cov,
-                       sigma_max_m=sig_xy, separation_chi2=sep, points=n, inflation=inflation, pivot=pv)  # fmt: skip
+    return _accepted(off, dz, var_dz, C, bool(yh), sig_xy, sep, n, inflation, pv)
 
 
 def _moments(
@@ -268,16 +259,26 @@ def _moments(
     off[: len(mean)] = mean
     _, DZ, _ = _scores(pts, ref, off[None, :], piv, cfg.huber_k)
     dz = float(DZ[0])
+    var_dz = float(w @ (DZS - dz) ** 2) + 1e-6  # the datum's spread over the places the likelihood allows
+    return _accepted(off, dz, var_dz, C, yawed, sig_xy, sep, n, inflation, pv)
+
+
+def _accepted(
+    off: np.ndarray, dz: float, var_dz: float, C: np.ndarray, yawed: bool, sig_xy: float, sep: float, n: int,
+    inflation: float, pivot: tuple[float, float],
+) -> MatchResult:  # fmt: skip
+    """An accepted match: offset (dx, dy, dyaw) with its covariance C (x, y[, yaw]), the datum dz and its
+    variance; the heading row is unbounded (inf) where the search held the heading fixed."""
     cov = np.zeros((4, 4))
     cov[:2, :2] = C[:2, :2]
-    cov[2, 2] = float(w @ (DZS - dz) ** 2) + 1e-6  # the datum's spread over the places the likelihood allows
+    cov[2, 2] = var_dz
     if yawed:
         cov[3, 3] = C[2, 2]
         cov[:2, 3] = cov[3, :2] = C[:2, 2]
     else:
         cov[3, 3] = np.inf
     return MatchResult(True, "ok", dx=float(off[0]), dy=float(off[1]), dz=dz, dyaw=float(off[2]), cov=cov,
-                       sigma_max_m=sig_xy, separation_chi2=sep, points=n, inflation=inflation, pivot=pv)  # fmt: skip
+                       sigma_max_m=sig_xy, separation_chi2=sep, points=n, inflation=inflation, pivot=pivot)  # fmt: skip
 
 
 @dataclass(frozen=True)
