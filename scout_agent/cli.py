@@ -80,6 +80,13 @@ def add_scout_arguments(p: argparse.ArgumentParser) -> None:
         default=DEFAULT_SEED,
         help=f"lunar terrain and sensor-noise seed (default {DEFAULT_SEED})",
     )
+    p.add_argument(
+        "--sensor-seed",
+        type=non_negative_int,
+        default=None,
+        help="seed of this robot's own errors (sensor noise and biases, the launch survey); default: --seed. "
+        "A mission gives each scout after the first its own",
+    )
     p.add_argument("--route", choices=tuple(LUNAR_ROUTES), help="lunar: a named corner-to-corner route")
     p.add_argument(
         "--field",
@@ -267,6 +274,7 @@ def config_from_args(args: argparse.Namespace) -> ScoutRunConfig:
         slope_deg=args.slope,
         ramp=ramp,
         seed=args.seed,
+        sensor_seed=args.sensor_seed,
         route=args.route,
         field_m=args.field,
         start=args.start,

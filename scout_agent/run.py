@@ -71,6 +71,10 @@ class ScoutRunConfig:
     slope_deg: float = 15.0  # ramps: α [deg]
     ramp: RampConfig = field(default_factory=RampConfig)  # ramps: lengths (slope_deg overrides its α)
     seed: int = DEFAULT_SEED  # lunar terrain (and noise) seed
+    # the seed of this robot's own errors (sensor noise and biases, the lander's survey of its start); None:
+    # `seed`. A mission gives each scout its own (`psrmap.mission.components.scout_sensor_seed`): robots
+    # built and surveyed one by one do not share their error draws
+    sensor_seed: int | None = None
     route: str | None = None  # lunar: a named route of lunar_routes(field_m) (start, via, goal)
     field_m: float = PAPER_FIELD_M  # lunar: the field's side [m]; the named routes scale with it
     start: tuple[float, ...] | None = None  # x, y [m][, yaw [rad]]; default: the scene's spawn; yaw
@@ -247,6 +251,13 @@ class RunTally:
         self.speed_path += math.hypot(vx, vy) * self.control_dt
 
 
+def scout_sim_config(cfg: ScoutRunConfig) -> SimConfig:
+    """The simulated robot's configuration for `cfg`: its sensors' (and launch survey's) error draws seeded
+    by `cfg.sensor_seed`, else by the terrain seed."""
+    seed = cfg.seed if cfg.sensor_seed is None else cfg.sensor_seed
+    return replace(cfg.sim, sensors=replace(cfg.sim.sensors, seed=seed))
+
+
 def run_scout(
     cfg: ScoutRunConfig,
     on_tick: OnTick | None = None,
@@ -269,7 +280,7 @@ def run_scout(
         raise ScoutConfigError(f"--localize {cfg.localize!r}: valid: {', '.join(LOCALIZE_MODES)}")
     if cfg.standstills not in STANDSTILL_MODES:
         raise ScoutConfigError(f"--standstill {cfg.standstills!r}: valid: {', '.join(STANDSTILL_MODES)}")
-    sim_cfg = replace(cfg.sim, sensors=replace(cfg.sim.sensors, seed=cfg.seed))
+    sim_cfg = scout_sim_config(cfg)
     # the height datum of an honest start: the shared map where others have mapped, else the orbital DEM
     dem = dem_reference(cfg, world) if sim_cfg.state_source == "estimate" else None
     sources = list(datum_sources)

@@ -9,6 +9,8 @@ from multiprocessing.context import SpawnContext
 from pathlib import Path
 from typing import Any, cast
 
+import numpy as np
+
 from consumer_planner.component import CompareConfig, MapSource, PlanConfig, compare, plan
 from consumer_planner.costs import CostConfig, parse_weights
 from psrmap.mission.config import MissionConfig, ScoutPlan
@@ -17,7 +19,17 @@ from scout_agent.component import ScoutConfig
 from scout_agent.mapping import LinkConfig
 from scout_agent.run import ScoutRunConfig
 
-__all__ = ["plan_and_compare", "scout_config"]
+__all__ = ["plan_and_compare", "scout_config", "scout_sensor_seed"]
+
+
+def scout_sensor_seed(seed: int, index: int) -> int | None:
+    """The seed of the `index`-th scout's own errors (sensors, launch survey) in a mission of terrain `seed`:
+    None for the first scout (the terrain seed, as a single `psrmap evaluate` walk of that seed), for every
+    other one an independent stream derived from (seed, index) — scouts built and surveyed one by one share
+    no error (`psrmap scout --sensor-seed` reproduces one by hand)."""
+    if index == 0:
+        return None
+    return int(np.random.SeedSequence([seed, index, 0x5EED]).generate_state(1)[0])
 
 
 def scout_config(
@@ -29,6 +41,7 @@ def scout_config(
         scene=cfg.scene,
         slope_deg=15.0 if lunar else cfg.slope,
         seed=cfg.seed if lunar else 0,
+        sensor_seed=scout_sensor_seed(cfg.seed if lunar else 0, [p.id for p in cfg.scouts].index(s.id)),
         field_m=cfg.field_m if lunar else 20.0,
         start=tuple(s.start) if lunar else None,
         goal=tuple(s.goal) if lunar else None,  # type: ignore[arg-type]

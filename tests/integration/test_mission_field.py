@@ -5,6 +5,7 @@ walking-time limit that follows the routes, and the planner's ends on the field;
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -65,3 +66,29 @@ def test_map_figures() -> None:
     g = LayerGrid("m", 0.4, 0, 0, 5, 5, {"elevation": elevation})
     rmse, cells = map_elevation_rmse(g, t)
     assert cells == 6 and rmse == pytest.approx(math.sqrt(0.3**2 / 6), abs=1e-3)
+
+
+def test_each_scout_of_a_mission_draws_its_own_sensor_and_survey_errors() -> None:
+    """Robots built and surveyed one by one share no error draw: the mission gives each scout its own sensor
+    seed (the first keeps the terrain seed, as a single walk of that seed), so their launch surveys differ,
+    and rebuilding the same scout draws the same error again."""
+    from psrmap.mission.components import scout_config
+    from scout_agent.loop import SimulatedScout
+    from scout_agent.run import scout_sim_config
+    from scout_agent.sim.terrain import RampConfig, make_ramps
+
+    cfg = load_config()
+    runs = [scout_config(cfg, s, "tcp/127.0.0.1:7447", Path("/nonexistent"), None).run for s in cfg.scouts]
+    assert runs[0].sensor_seed is None and scout_sim_config(runs[0]).sensors.seed == cfg.seed
+    seeds = [scout_sim_config(r).sensors.seed for r in runs]
+    assert len(set(seeds)) == len(seeds) == 3
+    ramps = make_ramps(RampConfig(slope_deg=0.0))
+
+    def launch_error(run) -> tuple[float, float, float]:
+        scout = SimulatedScout(ramps, config=scout_sim_config(run))
+        sx, sy, syaw = scout.hardware.start
+        return (scout.launch.x - sx, scout.launch.y - sy, scout.launch.yaw - syaw)
+
+    errors = [launch_error(r) for r in runs]
+    assert len({tuple(np.round(e, 9)) for e in errors}) == 3  # three different surveys
+    assert launch_error(runs[1]) == errors[1]  # the same scout, the same draw
