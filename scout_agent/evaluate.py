@@ -40,7 +40,6 @@ from __future__ import annotations
 
 import math
 from collections import defaultdict
-from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -176,7 +175,7 @@ class Evaluator:
 
         var = position_variances(robot) if isinstance(robot, OnboardSoftware) else None
         est = self.mapper.update(sample, *var) if var is not None else self.mapper.update(sample)
-        ex = self.exact.update(replace(sample, base=truth.base))  # evaluation only: never fed back
+        ex = self.exact.update(sample._replace(base=truth.base))  # evaluation only: never fed back
         self._mark(est.slip.event, "honest")
         self._mark(ex.slip.event, "exact")
         if est.slip_paper is not None:
