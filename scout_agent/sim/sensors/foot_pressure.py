@@ -44,11 +44,15 @@ class FootContactSensors:
 
     def reading(self, normal_force_n: np.ndarray, dt: float = 0.0) -> np.ndarray:
         """Readings [N] for the true normal forces; `dt` [s] since the last reading drives the offset drift."""
+        return _readings(*self.reading_args(normal_force_n, dt))
+
+    def reading_args(self, normal_force_n: np.ndarray, dt: float = 0.0) -> tuple:
+        """`reading`'s draws and state as `_readings`' arguments (the suite's one compiled call a tick)."""
         c = self.config
         walk = c.offset_walk_n * math.sqrt(dt) if c.offset_walk_n and dt > 0 else 0.0
         # one draw for both: the offset walk's four normals, then the noise's (the order of two draws)
         z = self.rng.standard_normal(8 if walk else 4)
-        return _readings(
+        return (
             np.asarray(normal_force_n, dtype=float),
             self.gain,
             self.offset,

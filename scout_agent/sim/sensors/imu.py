@@ -204,6 +204,12 @@ class ImuModel:
         return math.floor(temp / e.temp_lsb_k + 0.5) * e.temp_lsb_k if e.temp_lsb_k > 0 else temp
 
     def sample(self, acc_true: np.ndarray, gyro_true: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        return _imu_block(*self.block_args(acc_true, gyro_true, dt))
+
+    def block_args(self, acc_true: np.ndarray, gyro_true: np.ndarray, dt: float) -> tuple:
+        """`sample`'s random draws and state, as `_imu_block`'s arguments (the suite hands them to its one
+        compiled call a tick, `suite._sensor_tick`): draws the tick's normals (and lost samples) and advances
+        the IMU's clock."""
         c, k = self.config, len(acc_true)
         sq = math.sqrt(dt)  # a Python float: numpy scalar arithmetic costs ~1 µs here
         n = self.rng.standard_normal((4, k, 3))
@@ -217,7 +223,7 @@ class ImuModel:
             # (a tick with every sample lost keeps its last one, p ≈ 3e-14: `_imu_block`)
             kept = self.rng.random(k) >= e.sample_drop if e.sample_drop > 0 else np.ones(k, bool)
         self.t += k * dt
-        return _imu_block(
+        return (
             np.asarray(acc_true, dtype=float),
             np.asarray(gyro_true, dtype=float),
             n,

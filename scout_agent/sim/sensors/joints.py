@@ -56,11 +56,17 @@ class JointSensors:
     def sample(
         self, q_true: np.ndarray, tau_true: np.ndarray, dt: float
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+        args = self.block_args(q_true, tau_true, dt)
+        energy = _joint_block(*args)
+        return args[-3], args[-2], args[-1], energy
+
+    def block_args(self, q_true: np.ndarray, tau_true: np.ndarray, dt: float) -> tuple:
+        """`sample`'s draws, state and fresh (k, 12) outputs q, dq, tau (the last three), as `_joint_block`'s
+        arguments (the suite's one compiled call a tick, `suite._sensor_tick`)."""
         c, k = self.config, len(q_true)
         alpha = 1.0 - math.exp(-2 * math.pi * c.velocity_cutoff_hz * dt)
         noise = self.rng.normal(0.0, c.torque_noise_nm, (k, 12))
-        q, dq, tau = np.empty((k, 12)), np.empty((k, 12)), np.empty((k, 12))
-        energy = _joint_block(
+        return (
             np.asarray(q_true, dtype=float),
             np.asarray(tau_true, dtype=float),
             self.zero_offset,
@@ -71,11 +77,10 @@ class JointSensors:
             noise,
             self._q_prev,
             self._dq,
-            q,
-            dq,
-            tau,
+            np.empty((k, 12)),
+            np.empty((k, 12)),
+            np.empty((k, 12)),
         )
-        return q, dq, tau, energy
 
 
 @njit(cache=True, nogil=True)

@@ -35,9 +35,9 @@ from numba import njit
 from scout_agent.errors import ScoutConfigError
 from scout_agent.lowlevel import LowState
 
-from .foot_pressure import ContactConfig, FootContactSensors
-from .imu import ImuConfig, ImuErrors, ImuModel
-from .joints import JointSensorConfig, JointSensors
+from .foot_pressure import ContactConfig, FootContactSensors, _readings
+from .imu import ImuConfig, ImuErrors, ImuModel, _imu_block
+from .joints import JointSensorConfig, JointSensors, _joint_block
 
 SENSOR_PROFILES = ("realistic", "ideal")
 GO1_IMU_OFFSET_M = (-0.01592, -0.06659, -0.00617)  # MuJoCo Menagerie unitree_go1: imu site [m], trunk frame
@@ -136,9 +136,12 @@ class SensorSuite:
         cfg = self.config
         k = len(block.q)
         self.t += k * block.dt
-        acc, gyro = self.imu.sample(block.acc, block.gyro, block.dt)
-        q, dq, tau, energy = self.joints.sample(block.q, block.tau, block.dt)
-        pressure = self.feet.reading(block.foot_normal_n, k * block.dt)
+        # the three models' draws in their order, then their arithmetic in one compiled call
+        imu_args = self.imu.block_args(block.acc, block.gyro, block.dt)
+        joint_args = self.joints.block_args(block.q, block.tau, block.dt)
+        feet_args = self.feet.reading_args(block.foot_normal_n, k * block.dt)
+        acc, gyro, energy, pressure = _sensor_tick(imu_args, joint_args, feet_args)
+        q, dq, tau = joint_args[-3], joint_args[-2], joint_args[-1]
         tm = cfg.timing
         if tm.packet_drop and self._last is not None and self._link_rng.random() < tm.packet_drop:
             self.dropped += 1
@@ -146,8 +149,8 @@ class SensorSuite:
             return self._last._replace(joint_energy_j=0.0, fresh=False)
         stamp = self.t + (self._link_rng.normal(0.0, tm.jitter_s) if tm.jitter_s else 0.0)
         tick = LowState(
-            _mean_rows(acc),
-            _mean_rows(gyro),
+            acc,
+            gyro,
             q[-1],
             dq[-1],
             tau[-1],
@@ -160,6 +163,16 @@ class SensorSuite:
         self._energy_pending = 0.0
         self._last = tick
         return tick
+
+
+@njit(cache=True, nogil=True)
+def _sensor_tick(imu: tuple, joints: tuple, feet: tuple) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
+    """The tick's sensor arithmetic in one compiled call (one dispatch instead of six): the IMU block's tick
+    means (accelerometer, gyroscope), the joints' block (its q, dq, tau land in the last three arrays of
+    `joints`) and energy [J], the foot pressure readings; each model's own kernel on its `*_args` tuple."""
+    acc, gyro = _imu_block(*imu)
+    energy = _joint_block(*joints)
+    return _mean_rows(acc), _mean_rows(gyro), energy, _readings(*feet)
 
 
 @njit(cache=True, nogil=True)
