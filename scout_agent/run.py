@@ -360,6 +360,7 @@ def run_scout(
     wall = time.perf_counter() - wall0
     walked = scout.t - (tally.walk_t0 or scout.t)
     pos = scout.hardware.data.qpos[0:3]
+    errors = tally.errors.summary()
     return {
         "scene": cfg.scene,
         "terrain": world.terrain.name,
@@ -397,7 +398,12 @@ def run_scout(
             "error_yaw_deg": _r4(math.degrees(scout.launch.yaw - world.start[2])),
         },
         **drift(sample, truth, tally.distance),
-        **tally.errors.summary(),
+        **errors,
+        # the error the walk added after the start (consistency.py), as a share of the distance: drift_xy_pct
+        # less the launch survey's error (issue 23's figure stays drift_xy_pct)
+        "drift_after_start_xy_pct": _r4(100.0 * growth / tally.distance)
+        if (growth := errors.get("pos_error_growth_final_m")) is not None and tally.distance > 0.05
+        else None,
         "energy_truth_j": round(scout.hardware.energy_true_j, 3),
         "cot_whole_run_truth": _r4(
             scout.hardware.energy_true_j / (C.TOTAL_MASS * C.LUNAR_G * tally.speed_path)

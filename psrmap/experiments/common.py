@@ -393,6 +393,9 @@ def estimation_summary(runs: list[dict]) -> dict[str, Any]:
         "falls": sum(bool(r["summary"]["fell"]) for r in runs),
         "drift_xy_pct_mean": fmean(xy),
         "drift_xy_pct_max": max(xy) if xy else None,
+        # the same less the launch survey's start error (consistency.py: the error's growth after t = 0)
+        "drift_after_start_xy_pct_mean": fmean(vals(lambda r: r["summary"].get("drift_after_start_xy_pct"))),
+        "pos_error_start_m_mean": fmean(vals(lambda r: r["summary"].get("pos_error_start_m"))),
         "drift_z_m_mean_abs": fmean(
             abs(v) for v in vals(lambda r: r["summary"].get("drift_z_m")) if v is not None
         ),

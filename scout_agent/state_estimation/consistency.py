@@ -4,6 +4,9 @@
 `summary()` gives, over every tick of the run:
 - `pos_error_max_m`, `pos_error_final_m`: horizontal distance between the true and estimated base position
   (the maximum, not only the end: end-point error flatters loops);
+- `pos_error_start_m`: the horizontal error at the first tick (the launch survey's), and
+  `pos_error_growth_max_m`, `pos_error_growth_final_m`: how far the error vector moved from it, the largest over
+  the run and at the end, |e(t) − e(0)| (what the walk added to the start's error: the start and the drift apart);
 - `yaw_error_max_deg`: the largest heading error;
 - `nees_pos_mean`: mean normalised estimation error squared of the horizontal position, eᵀ P⁻¹ e with P the
   filter's 2×2 horizontal position covariance; a consistent filter averages 2 (two degrees of freedom);
@@ -31,9 +34,22 @@ def yaw_of_quat(quat: np.ndarray) -> float:
 
 
 # the tracker's running figures, one float each, updated in place by the compiled tick
-_N, _ERR_MAX, _ERR_FINAL, _YAW_MAX, _NEES_SUM, _NEES_N, _INSIDE, _NEES_YAW_SUM, _NEES_YAW_N, _YAW_INSIDE = (
-    range(10)
-)
+(
+    _N,
+    _ERR_MAX,
+    _ERR_FINAL,
+    _YAW_MAX,
+    _NEES_SUM,
+    _NEES_N,
+    _INSIDE,
+    _NEES_YAW_SUM,
+    _NEES_YAW_N,
+    _YAW_INSIDE,
+    _EX0,
+    _EY0,
+    _GROWTH_MAX,
+    _GROWTH_FINAL,
+) = range(14)
 
 
 @njit(cache=True, nogil=True)
@@ -58,6 +74,11 @@ def _add(
     ex, ey = truth_pos[0] - est_pos[0], truth_pos[1] - est_pos[1]
     err = math.hypot(ex, ey)
     acc[_N] += 1.0
+    if acc[_N] == 1.0:
+        acc[_EX0], acc[_EY0] = ex, ey
+    growth = math.hypot(ex - acc[_EX0], ey - acc[_EY0])
+    acc[_GROWTH_FINAL] = growth
+    acc[_GROWTH_MAX] = max(acc[_GROWTH_MAX], growth)
     acc[_ERR_FINAL] = err
     acc[_ERR_MAX] = max(acc[_ERR_MAX], err)
     dyaw = (_yaw(est_quat) - _yaw(truth_quat) + math.pi) % (2 * math.pi) - math.pi
@@ -97,7 +118,7 @@ def _add_filter(
 
 class ConsistencyTracker:
     def __init__(self) -> None:
-        self._acc = np.zeros(10)
+        self._acc = np.zeros(14)
         self._acc[_ERR_FINAL] = math.nan
 
     def add(
@@ -146,6 +167,9 @@ class ConsistencyTracker:
         return {
             "pos_error_max_m": r(acc[_ERR_MAX]) if n else None,
             "pos_error_final_m": r(acc[_ERR_FINAL]) if n else None,
+            "pos_error_start_m": r(math.hypot(acc[_EX0], acc[_EY0])) if n else None,
+            "pos_error_growth_max_m": r(acc[_GROWTH_MAX]) if n else None,
+            "pos_error_growth_final_m": r(acc[_GROWTH_FINAL]) if n else None,
             "yaw_error_max_deg": r(math.degrees(acc[_YAW_MAX]), 3) if n else None,
             "nees_pos_mean": r(acc[_NEES_SUM] / nees_n, 3) if nees_n else None,
             "inside_3sigma_frac": r(acc[_INSIDE] / nees_n) if nees_n else None,

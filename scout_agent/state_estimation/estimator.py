@@ -42,6 +42,16 @@ gain's row for the rotation about world z is zeroed, the Joseph form keeps the c
 the standstills (through the bias) and the localizer's pose updates move heading (cf. the observability-constrained
 EKF, Hesch et al. 2014; Bloesch et al. 2013 for legged robots).
 
+Timing: the leg odometry joins the gyro's ω with the encoders' angles and velocities at one instant. The
+tick's IMU reading is the mean of its samples over the tick (the 5 samples of 10 ms, each latched a servo
+step after it was sensed), so on average `gyro_age_s` (6 ms) older than the encoder angle, the tick's last
+sample. In a trot the trunk pitches with the stance phase, and the odometry uses each foot in the same part of
+its stance every step, so the stale rate does not average out: with ideal sensors ω × r ran ahead of the true
+base velocity by 1.0 % along track, the whole of the 1.1 % the estimate ran ahead (10° ramp, exact start,
+simulator truth; issue 23). The odometry takes the reading carried forward to the encoders' instant along its
+change since the previous reading, ω̄ₖ + (ω̄ₖ − ω̄ₖ₋₁)·age/Δt (Δt the stamped interval); the propagation keeps
+the mean, which is what integrates over the tick.
+
 IMU lever arm: the IMU sits off the trunk origin (`imu_offset_m`, a CAD value; sensors/suite.py); the
 accelerometer there reads ω̇ × r + ω × (ω × r) more than at the origin (≈ 0.2 m/s² in a trot's roll at 7 cm,
 an eighth of lunar g), which the estimator subtracts, with ω̇ from the difference of consecutive ticks' rates.
@@ -113,6 +123,10 @@ class EstimatorConfig:
     gyro_scale_std: float = 0.014  # heading error per radian of net turn: scale ⊕ cross-axis (1 % each)
     gyro_g_sens_std: float = float(np.radians(0.1) / 9.80665)  # BMI088 0.1 °/s/g per element [rad/s per m/s²]
     odometry_scale_std: float = 0.01  # leg odometry's along-track error per metre walked (1–2 % class)
+    # how much older the tick's IMU reading is than its encoder angles [s] ("Timing" in the module docstring):
+    # the driver reports the mean of the tick's 5 IMU samples (10 ms), each latched one servo step (2 ms) after
+    # it was sensed, against the encoders' last sample: (5 + 1) / 2 × 2 ms. 0: the gyro as read
+    gyro_age_s: float = 0.006
     slip_pos_std_m: float = 0.005  # horizontal position σ added per foot update the gate rejected [m]
     # leg odometry measures the base-frame velocity, which says nothing of heading; its updates leave heading
     # alone (a Schmidt update; "Heading" in the module docstring). False: the plain EKF update
@@ -233,6 +247,7 @@ class StateEstimator:
         self._r_imu = np.asarray(c.imu_offset_m, dtype=float)
         self._lever = bool(np.any(self._r_imu))
         self._w_prev = np.zeros(3)
+        self._gyro_fresh: np.ndarray | None = None  # the last fresh gyro reading [rad/s] (timing, docstring)
         self._stamp_prev = 0.0
         self._held_s = 0.0  # time propagated on lost packets since the last fresh reading [s]
         self._temp0 = math.nan  # IMU temperature at the first reading (the power-on calibration's) [°C]
@@ -274,6 +289,15 @@ class StateEstimator:
         if not self._lever:
             return tick.imu_acc
         return kernels.imu_to_base(tick.imu_acc, tick.imu_gyro, self.ekf.bg, self._w_prev, self._r_imu, dt)
+
+    def _gyro_at_encoders(self, gyro: np.ndarray, since_s: float) -> np.ndarray:
+        """The angular rate at the encoders' instant (module docstring, "Timing"): the tick's mean reading
+        carried forward by `gyro_age_s` along its change since the last fresh reading, `since_s` ago [s]."""
+        prev, self._gyro_fresh = self._gyro_fresh, gyro.copy()
+        age = self.config.gyro_age_s
+        if prev is None or age <= 0.0 or since_s <= 0.0:
+            return gyro
+        return gyro + (gyro - prev) * (age / since_s)
 
     def _inflate(self, tick: SensorTick, dt: float, n_rejected: int) -> None:
         """Process noise the 15-state model has no state for (module docstring, "Consistency")."""
@@ -382,6 +406,7 @@ class StateEstimator:
         if tick.stamp_s == tick.stamp_s:  # integrate over the stamped interval (less what was held)
             dt = min(max(tick.stamp_s - self._stamp_prev - self._held_s, 0.2 * dt), 3.0 * dt)
             self._stamp_prev = tick.stamp_s
+        gyro_now = self._gyro_at_encoders(tick.imu_gyro, dt + self._held_s)
         self._held_s = 0.0
         f_base = self._specific_force(tick, dt)
         e.propagate(tick.imu_gyro, f_base, dt)
@@ -406,7 +431,7 @@ class StateEstimator:
         if n_use:
             feet = (fb, fv, self.feet.foot_omega)
             n_b = e.R.T @ self._normal_w
-            residual, H = odometry_rows(use, e.R, e.v, e.bg, feet, tick.imu_gyro, n_b, c.foot_radius_m)
+            residual, H = odometry_rows(use, e.R, e.v, e.bg, feet, gyro_now, n_b, c.foot_radius_m)
             keep = e.update(
                 residual,
                 H,
@@ -423,8 +448,14 @@ class StateEstimator:
             # settled feet stand on the launch ground: the one height the mission knows (its survey)
             feet_z = float(np.mean((fb[settled] @ e.R.T)[:, 2]))
             z_meas = self.launch.ground_z + c.foot_radius_m - feet_z
-            var = c.anchor_std_m**2 + self.launch.sigma_z_m**2  # the datum's own σ (launch.py)
-            e.update(np.array([z_meas - e.p[2]]), e.position_z_rows(), np.array([var]))
+            # the start height and this measurement share the datum's error (both are ground_z plus a leg height,
+            # launch.py): the update corrects what the power-on guess added (the drop onto the ground, the feet
+            # sinking in) and the height keeps the datum's σ. Taken as independent, as before, the update met the
+            # prior halfway and left half the 1 cm drop, 5 mm low, in every height the scout mapped
+            datum_var = self.launch.sigma_z_m**2
+            e.P[8, 8] -= datum_var
+            e.update(np.array([z_meas - e.p[2]]), e.position_z_rows(), np.array([c.anchor_std_m**2]))
+            e.P[8, 8] += datum_var
             self.anchored = True
         self._standstill(t, stand, tick, f_base, fb if any_contact or stand else None, dt)
         if any_contact and _update_footholds(contact, self._was_contact, fb, e.R, e.p, self._footholds):

@@ -31,3 +31,19 @@ def test_heading_nees_and_containment_follow_the_errors_and_the_variance() -> No
     bare = ConsistencyTracker()
     bare.add(np.zeros(3), _quat(0.0), np.zeros(3), _quat(0.1), None)
     assert bare.summary()["nees_yaw_mean"] is None and bare.summary()["yaw_inside_3sigma_frac"] is None
+
+
+def test_the_start_error_and_the_growth_after_it_are_apart() -> None:
+    """A launch 0.3 m off in x, then a walk that adds 0.4 m in y: the error is 0.5 m, of which the walk added
+    0.4 m (its largest growth, 0.4 m, at the end) — the survey's error and the drift reported apart."""
+    tr = ConsistencyTracker()
+    q = _quat(0.0)
+    for k in range(5):
+        truth = np.array([float(k), 0.0, 0.0])
+        est = truth + np.array([0.3, 0.1 * k, 0.0])
+        tr.add(truth, q, est, q, np.eye(2))
+    s = tr.summary()
+    assert s["pos_error_start_m"] == pytest.approx(0.3)
+    assert s["pos_error_final_m"] == pytest.approx(0.5)
+    assert s["pos_error_growth_final_m"] == pytest.approx(0.4)
+    assert s["pos_error_growth_max_m"] == pytest.approx(0.4)
