@@ -295,10 +295,13 @@ class Pilot:
         """`est` without the slip observations of feet whose current stance overlapped a standstill (their ΔP
         holds the base velocity's error integrated over it), until that stance ends."""
         held = self._standstill_feet
+        # (the common case first, in Python: numpy's any and | cost ~1 µs each on 4 flags, every tick)
+        if not self.controller.hold and True not in held.tolist():
+            return est
         planted = np.asarray(sample.stance_planned, dtype=bool) | np.asarray(sample.contact, dtype=bool)
         if self.controller.hold:
             held |= planted
-        if not held.any():
+        if True not in held.tolist():
             return est
         sl = est.slip
         out = est

@@ -41,7 +41,7 @@ from scout_agent.signals import ProprioSample
 from .cot import CotConfig, CotMeter
 from .elevation import terrain_normal
 from .slip import SlipConfig, SlipDetector, SlipTick
-from .stability import margins_fast, order_ccw_xy
+from .stability import _EPS_N, _face_margins, margins_fast, order_ccw_xy
 
 __all__ = ["EstimatorPipeline", "Kinematics", "PipelineConfig", "TickEstimates", "quat_to_matrix", "record"]
 
@@ -164,16 +164,17 @@ class EstimatorPipeline:
         self.slip = SlipDetector(c.slip)
         self.slip_paper = SlipDetector(dataclasses.replace(c.slip, form="paper")) if c.paper_slip else None
         self.cot = CotMeter(dataclasses.replace(c.cot, mass_kg=c.mass_kg, gravity_mps2=c.gravity_mps2))
-        self._com_b = tuple(float(v) for v in c.com_offset_base)
-        self._normal = (0.0, 0.0, 1.0)
-        self._last_foot: list[list[float] | None] = [None] * 4  # each foot's current or last stance point [m]
-        self._known: list[int] = []  # feet with a foothold, leg order
-        self._order: list[int] = []  # the same, CCW about their centroid
+        self._com_b = np.array([float(v) for v in c.com_offset_base])
+        self._normal = np.array([0.0, 0.0, 1.0])  # ground normal of the latest footholds, world
+        self._last_foot = np.zeros((4, 3))  # each foot's current or last stance point [m] (where `_known`)
+        self._known = np.zeros(4, bool)  # feet with a foothold
+        self._order = np.zeros(5, np.int64)  # the known feet CCW about their centroid, their count last
         self._reorder = False
         self._td_xy = [(0.0, 0.0)] * 4  # foothold of the current stance at touchdown [m]
-        self._fh_sum = [[0.0, 0.0, 0.0] for _ in range(4)]  # sum of settled contact points this stance [m]
-        self._fh_n = [0] * 4
-        self._f_ext = [0.0, 0.0, 0.0]
+        self._fh_sum = np.zeros((4, 3))  # sum of settled contact points this stance [m]
+        self._fh_n = np.zeros(4, np.int64)
+        self._f_ext = np.zeros(3)
+        self._core = np.empty(10)  # `_tick_core`'s figures: CoM (3), GIIM, GIAM, |f_ext|, CoM + r·n̂ (3), 0
         self._t_prev: float | None = None
         self._t0: float | None = None
         self._combined = getattr(kinematics, "feet_base_and_vel", None)
@@ -206,68 +207,52 @@ class EstimatorPipeline:
 
         # foot sphere centres (4, 3), world [m]; ground forces on the feet from their joint torques (4, 3),
         # world [N], zero off contact
-        fw_a, f_w = _world_feet_and_forces(
+        fw, f_w = _world_feet_and_forces(
             feet_b, rot, s.base.pos, self._jacobians(s.q), s.tau, _ZERO12, s.contact
         )
-        fw = fw_a.tolist()
-        R = rot.tolist()
-        bx, by, bz = s.base.pos.tolist()
-        c0, c1, c2 = self._com_b
-        com = (
-            bx + R[0][0] * c0 + R[0][1] * c1 + R[0][2] * c2,
-            by + R[1][0] * c0 + R[1][1] * c1 + R[1][2] * c2,
-            bz + R[2][0] * c0 + R[2][1] * c1 + R[2][2] * c2,
-        )
-        r = c.foot_radius_m
-        contact = s.contact.tolist()
-        lf: list[Any] = self._last_foot  # entries known in self._known are never None
+        r, m = c.foot_radius_m, c.mass_kg
 
         # footholds: slip layer n at touchdown, events at the same foothold, elevation at the end of the stance
         stance_xy = slip_xy = _EMPTY2
         footholds = _EMPTY3
         if True in st.touchdown or True in st.event or True in st.stance_end:
             footholds, stance_xy, slip_xy = self._stance_changes(st, fw)
-        for i in range(4):
-            if st.settled[i]:
-                f, acc = fw[i], self._fh_sum[i]
-                acc[0] += f[0]
-                acc[1] += f[1]
-                acc[2] += f[2]
-                self._fh_n[i] += 1
-            if contact[i]:
-                if lf[i] is None:
-                    self._known = [k for k in range(4) if lf[k] is not None or k == i]
-                    self._reorder = True
-                lf[i] = fw[i]
-        if self._reorder:
-            self._reorder = False
-            pts = [lf[i] for i in self._known]
-            self._order = [self._known[j] for j in order_ccw_xy(pts)] if len(pts) > 2 else list(self._known)
 
         # CoT
         work, dist = self.cot.update(s.t, s.joint_energy_j, s.base.vel)
 
-        # GIA (world) from the torque-estimated foot forces and from the IMU
-        (f0, f1, f2, f3) = f_w.tolist()
-        m = c.mass_kg
-        gia_f = (
-            -(f0[0] + f1[0] + f2[0] + f3[0]) / m,
-            -(f0[1] + f1[1] + f2[1] + f3[1]) / m,
-            -(f0[2] + f1[2] + f2[2] + f3[2]) / m,
+        # settled sums, latest footholds and their CCW order, CoM, GIA (torque-estimated foot forces and IMU),
+        # margins over the four most recent footholds and the non-foot force's low-pass: one compiled call.
+        # The support points are the ground points (sphere centres − r·n̂); shifting the CoM by +r·n̂ instead
+        # is the same geometry and copies nothing.
+        alpha = dt / (c.nonfoot_tau_s + dt) if dt > 0 else 1.0
+        core = self._core
+        self._reorder = _tick_core(
+            fw,
+            f_w,
+            rot,
+            s.base.pos,
+            self._com_b,
+            s.imu_acc,
+            s.contact,
+            st.settled,
+            self._normal,
+            self._last_foot,
+            self._known,
+            self._order,
+            self._fh_sum,
+            self._fh_n,
+            self._f_ext,
+            self._reorder,
+            r,
+            m,
+            alpha,
+            c.gia_source == "forces",
+            _EPS_N,
+            core,
         )
-        ax, ay, az = s.imu_acc.tolist()
-        gia_i = (
-            -(R[0][0] * ax + R[0][1] * ay + R[0][2] * az),
-            -(R[1][0] * ax + R[1][1] * ay + R[1][2] * az),
-            -(R[2][0] * ax + R[2][1] * ay + R[2][2] * az),
-        )
-        gia = gia_f if c.gia_source == "forces" else gia_i
-
-        # margins over the four most recent footholds, CCW. The support points are the ground points
-        # (sphere centres − r·n̂); shifting the CoM by +r·n̂ instead is the same geometry and copies nothing.
-        nx, ny, nz = self._normal
-        g_c = (com[0] + r * nx, com[1] + r * ny, com[2] + r * nz)
-        giim, giam = margins_fast([lf[i] for i in self._order], g_c, gia)  # type: ignore[misc]
+        com_x, com_y, _, giim, giam, f_ext, gcx, gcy, gcz, _ = core.tolist()
+        contact = s.contact.tolist()
         guarded = (
             (st.slipped[0] and contact[0])
             or (st.slipped[1] and contact[1])
@@ -275,31 +260,27 @@ class EstimatorPipeline:
             or (st.slipped[3] and contact[3])
         )
         extra: dict[str, Any] = {}
-        if c.paper_margins:
-            extra["giim_paper"], extra["giam_paper"] = margins_fast(
-                [lf[i] for i in self._known],
-                g_c,
-                gia,
-                absolute=True,  # type: ignore[misc]
-            )
-        if c.stance_margins:
-            pts = [fw[i] for i in range(4) if contact[i]]
-            if len(pts) > 2:
-                pts = [pts[j] for j in order_ccw_xy(pts)]
-            extra["giim_stance"], extra["giam_stance"] = margins_fast(pts, g_c, gia)
+        if c.paper_margins or c.stance_margins:
+            gia = tuple(self._gia(s, rot, f_w))
+            g_c = (gcx, gcy, gcz)
+            if c.paper_margins:
+                extra["giim_paper"], extra["giam_paper"] = margins_fast(
+                    self._last_foot[self._known].tolist(),
+                    g_c,
+                    gia,
+                    absolute=True,  # type: ignore[misc]
+                )
+            if c.stance_margins:
+                pts = fw[s.contact].tolist()
+                if len(pts) > 2:
+                    pts = [pts[j] for j in order_ccw_xy(pts)]
+                extra["giim_stance"], extra["giam_stance"] = margins_fast(pts, g_c, gia)
         if stp is not None:
             extra["slip_paper"] = stp
 
-        # non-foot contacts: external force the feet do not explain, low-pass filtered
-        alpha = dt / (c.nonfoot_tau_s + dt) if dt > 0 else 1.0
-        fe = self._f_ext
-        for k in range(3):
-            fe[k] += alpha * (m * (gia_f[k] - gia_i[k]) - fe[k])
-        f_ext = math.sqrt(fe[0] * fe[0] + fe[1] * fe[1] + fe[2] * fe[2])
-
         return TickEstimates(
             t=s.t,
-            com_xy=(com[0], com[1]),
+            com_xy=(com_x, com_y),
             work_m=work,
             dist_m=dist,
             giim=giim,
@@ -315,39 +296,151 @@ class EstimatorPipeline:
             **extra,
         )
 
-    def _stance_changes(
-        self, st: SlipTick, fw: list[list[float]]
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _gia(self, s: ProprioSample, rot: np.ndarray, f_w: np.ndarray) -> list[float]:
+        """The GIA the margins used (world), for the evaluation's extra margin variants: `_tick_core`'s."""
+        out = np.empty(3)
+        _gia_of(rot, s.imu_acc, f_w, self.config.mass_kg, self.config.gia_source == "forces", out)
+        return out.tolist()  # type: ignore[no-any-return]
+
+    def _stance_changes(self, st: SlipTick, fw_a: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Touchdowns, slip events and stance ends of this tick → (footholds (m, 3), stance_xy, slip_xy)."""
         r = self.config.foot_radius_m
-        nx, ny, nz = self._normal
+        nx, ny, _ = self._normal.tolist()
+        fw = fw_a.tolist()
         stances, slips, done = [], [], []
         for i in range(4):
             if st.touchdown[i]:
                 f = fw[i]
                 self._td_xy[i] = (f[0] - r * nx, f[1] - r * ny)
-                self._fh_sum[i] = [0.0, 0.0, 0.0]
+                self._fh_sum[i] = 0.0
                 self._fh_n[i] = 0
                 stances.append(self._td_xy[i])
                 self._reorder = True
             if st.event[i]:
                 slips.append(self._td_xy[i])
             if st.stance_end[i]:
-                if not st.slipped[i] and self._fh_n[i] > 0:
-                    n = self._fh_n[i]
-                    done.append([v / n for v in self._fh_sum[i]])
+                n = int(self._fh_n[i])
+                if not st.slipped[i] and n > 0:
+                    done.append([v / n for v in self._fh_sum[i].tolist()])
                 self._fh_n[i] = 0
         footholds = _EMPTY3
         if done:
-            known = [f for f in self._last_foot if f is not None]
-            if len(known) >= 3:
-                self._normal = tuple(terrain_normal(np.array(known)).tolist())
-            footholds = np.array(done) - r * np.array(self._normal)
+            if np.count_nonzero(self._known) >= 3:
+                self._normal = terrain_normal(self._last_foot[self._known])
+            footholds = np.array(done) - r * self._normal
         return (
             footholds,
             np.array(stances) if stances else _EMPTY2,
             np.array(slips) if slips else _EMPTY2,
         )
+
+
+@njit(cache=True, nogil=True)
+def _gia_of(
+    rot: np.ndarray, imu_acc: np.ndarray, f_w: np.ndarray, mass: float, from_forces: bool, out: np.ndarray
+) -> None:
+    """The GIA (world) into `out`: −Σf/m from the torque-estimated foot forces, or −R·f_imu."""
+    for k in range(3):
+        if from_forces:
+            out[k] = -(f_w[0, k] + f_w[1, k] + f_w[2, k] + f_w[3, k]) / mass
+        else:
+            out[k] = -(rot[k, 0] * imu_acc[0] + rot[k, 1] * imu_acc[1] + rot[k, 2] * imu_acc[2])
+
+
+@njit(cache=True, nogil=True)
+def _tick_core(
+    fw: np.ndarray,
+    f_w: np.ndarray,
+    rot: np.ndarray,
+    pos: np.ndarray,
+    com_b: np.ndarray,
+    imu_acc: np.ndarray,
+    contact: np.ndarray,
+    settled: tuple,
+    normal: np.ndarray,
+    last_foot: np.ndarray,
+    known: np.ndarray,
+    order: np.ndarray,
+    fh_sum: np.ndarray,
+    fh_n: np.ndarray,
+    f_ext: np.ndarray,
+    reorder: bool,
+    r: float,
+    mass: float,
+    alpha: float,
+    gia_from_forces: bool,
+    eps: float,
+    out: np.ndarray,
+) -> bool:
+    """The pipeline's per-tick arithmetic after the slip detector, compiled (the same operations in the same
+    order as the Python it replaced): settled contact points summed per stance (`fh_sum`, `fh_n`), each
+    foot's latest stance point (`last_foot`, `known`) and, when a foot became known or touched down
+    (`reorder`), their CCW order about their centroid (`order`: indices, count last; stable on ties, as
+    Python's sort); the CoM; the GIA from the foot forces and from the IMU; the margins over the ordered
+    footholds about CoM + r·n̂; the non-foot force's low-pass (`f_ext`, in place). `out`: CoM (3), GIIM, GIAM,
+    |f_ext|, CoM + r·n̂ (3), 0. Returns False (the order is current)."""
+    for i in range(4):
+        if settled[i]:
+            fh_sum[i, 0] += fw[i, 0]
+            fh_sum[i, 1] += fw[i, 1]
+            fh_sum[i, 2] += fw[i, 2]
+            fh_n[i] += 1
+        if contact[i]:
+            if not known[i]:
+                known[i] = True
+                reorder = True
+            last_foot[i, 0], last_foot[i, 1], last_foot[i, 2] = fw[i, 0], fw[i, 1], fw[i, 2]
+    if reorder:
+        n = 0
+        for i in range(4):
+            if known[i]:
+                order[n] = i
+                n += 1
+        order[4] = n
+        if n > 2:
+            cx, cy = 0.0, 0.0
+            for j in range(n):
+                cx += last_foot[order[j], 0]
+                cy += last_foot[order[j], 1]
+            cx, cy = cx / n, cy / n
+            key = np.empty(n)
+            for j in range(n):
+                key[j] = math.atan2(last_foot[order[j], 1] - cy, last_foot[order[j], 0] - cx)
+            for j in range(1, n):  # insertion sort by key: stable
+                kj, oj = key[j], order[j]
+                m = j - 1
+                while m >= 0 and key[m] > kj:
+                    key[m + 1], order[m + 1] = key[m], order[m]
+                    m -= 1
+                key[m + 1], order[m + 1] = kj, oj
+    c0, c1, c2 = com_b[0], com_b[1], com_b[2]
+    com_x = pos[0] + rot[0, 0] * c0 + rot[0, 1] * c1 + rot[0, 2] * c2
+    com_y = pos[1] + rot[1, 0] * c0 + rot[1, 1] * c1 + rot[1, 2] * c2
+    com_z = pos[2] + rot[2, 0] * c0 + rot[2, 1] * c1 + rot[2, 2] * c2
+    gia_f = np.empty(3)
+    gia_i = np.empty(3)
+    _gia_of(rot, imu_acc, f_w, mass, True, gia_f)
+    _gia_of(rot, imu_acc, f_w, mass, False, gia_i)
+    gia = gia_f if gia_from_forces else gia_i
+    gx, gy, gz = com_x + r * normal[0], com_y + r * normal[1], com_z + r * normal[2]
+    giim, giam = math.nan, math.nan
+    k = order[4]
+    if k >= 2:
+        pts = np.empty((k, 3))
+        for j in range(k):
+            pts[j, 0], pts[j, 1], pts[j, 2] = (
+                last_foot[order[j], 0],
+                last_foot[order[j], 1],
+                last_foot[order[j], 2],
+            )
+        giim, giam = _face_margins(pts, gx, gy, gz, gia[0], gia[1], gia[2], eps)
+    for j in range(3):
+        f_ext[j] += alpha * (mass * (gia_f[j] - gia_i[j]) - f_ext[j])
+    out[0], out[1], out[2] = com_x, com_y, com_z
+    out[3], out[4] = giim, giam
+    out[5] = math.sqrt(f_ext[0] * f_ext[0] + f_ext[1] * f_ext[1] + f_ext[2] * f_ext[2])
+    out[6], out[7], out[8], out[9] = gx, gy, gz, 0.0
+    return False
 
 
 def record(est: TickEstimates, acc: Any) -> None:

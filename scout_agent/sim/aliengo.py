@@ -49,12 +49,13 @@ class HardwareConfig:
     fall_min_height_m: float = 0.12  # trunk origin above the terrain below which it counts as a fall
 
 
-def _ids_slice(ids: np.ndarray) -> slice:
-    """The slice of consecutive ids (the model's actuators are declared in blocks of 12)."""
+def _ids_slice(ids: np.ndarray, step: int = 1) -> slice:
+    """The slice of evenly spaced ids (the model's actuators are declared in blocks of 12, its legs' geoms in
+    blocks of the same length)."""
     lo = int(ids[0])
-    if not np.array_equal(ids, np.arange(lo, lo + len(ids))):
-        raise ValueError(f"actuator ids {ids.tolist()} are not consecutive")
-    return slice(lo, lo + len(ids))
+    if not np.array_equal(ids, np.arange(lo, lo + step * len(ids), step)):
+        raise ValueError(f"ids {ids.tolist()} are not evenly spaced by {step}")
+    return slice(lo, lo + step * (len(ids) - 1) + 1, step)
 
 
 class SimulatedAliengo:
@@ -84,6 +85,9 @@ class SimulatedAliengo:
         self._trunk_geom = m.geom("trunk").id
         self._leg_of_geom = np.full(m.ngeom, -1)
         self._leg_of_geom[self._foot_geoms] = np.arange(4)
+        # the feet's friction in MuJoCo's geom table, a view set every tick (a view: not a fancy-index write)
+        foot_step = int(self._foot_geoms[1] - self._foot_geoms[0])
+        self._v_foot_mu = m.geom_friction[_ids_slice(self._foot_geoms, foot_step), 0]
         # the simulated robot as built, not as designed (sensors/suite.py): IMU where it is mounted, and
         # thigh/calf lengths off the nominal ones the robot's software uses
         m.site_pos[m.site(C.IMU_SITE).id] = config.sensors.imu_offset_m
@@ -155,7 +159,7 @@ class SimulatedAliengo:
 
     def _apply_friction(self) -> None:
         self.friction.under_bodies(self.data.xpos, self._foot_bodies, self._mu_feet)
-        self.model.geom_friction[self._foot_geoms, 0] = self._mu_feet
+        self._v_foot_mu[:] = self._mu_feet
 
     # ------------------------------------------------------------------------------ the robot's interface
     def write(self, cmd: LowCmd) -> None:
