@@ -368,6 +368,28 @@ def _joint_commands(
             q_des[3 * i : 3 * i + 3] = q_ik[3 * i : 3 * i + 3]
 
 
+@njit(cache=True, nogil=True)
+def _pending_correction(
+    pos: np.ndarray,
+    vel: np.ndarray,
+    last_pos: np.ndarray,
+    last_vel: np.ndarray,
+    pending: np.ndarray,
+    leak: float,
+    dt: float,
+) -> float:
+    """`TrotController._follow_correction`'s arithmetic, compiled (nine numpy operations on 3-vectors every
+    tick, the same operations in the same order): the position change the velocity does not explain,
+    (p − p₋) − ½(v + v₋)·dt, added to the leaky `pending` sum (in place); `last_pos`, `last_vel` take p, v.
+    Returns |pending|² (BLAS's dot, as numpy's `@`)."""
+    for j in range(3):
+        step = pos[j] - last_pos[j] - 0.5 * (vel[j] + last_vel[j]) * dt
+        pending[j] = leak * pending[j] + step
+        last_pos[j] = pos[j]
+        last_vel[j] = vel[j]
+    return np.dot(pending, pending)
+
+
 class TrotController:
     def __init__(self, config: ControllerConfig = ControllerConfig()) -> None:
         self.config = config
@@ -474,13 +496,18 @@ class TrotController:
         feet off a crater wall (the 100 m walks' falls, docs/results.md issue 23). The correction is the part
         of the position change its velocity does not explain; below `CORRECTION_FOLLOW_M` it is left alone
         (ordinary walking)."""
-        step = np.asarray(s.pos, dtype=float) - self._last_pos - 0.5 * (s.vel + self._last_vel) * dt
-        self._last_pos = np.array(s.pos, dtype=float)
-        self._last_vel = np.array(s.vel, dtype=float)
         # a correction spread over a few ticks counts as one (leaky sum, ≈ 0.1 s memory)
-        self._pending = CORRECTION_LEAK * self._pending + step
+        moved2 = _pending_correction(
+            np.asarray(s.pos, dtype=float),
+            np.asarray(s.vel, dtype=float),
+            self._last_pos,
+            self._last_vel,
+            self._pending,
+            CORRECTION_LEAK,
+            dt,
+        )
         jump = self._pending
-        if float(jump @ jump) > CORRECTION_FOLLOW_M**2:
+        if moved2 > CORRECTION_FOLLOW_M**2:
             self._pending = np.zeros(3)
             self.footholds += jump
             self.liftoff += jump

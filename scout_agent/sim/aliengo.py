@@ -225,10 +225,10 @@ class SimulatedAliengo:
             raise RuntimeError("no ground truth before the first write")
         disp = np.empty(4)
         stance_displacement(stance_planned, tt.contact, tt.contact_point, self._cp0, self._swung, disp)
-        qpos = d.qpos.copy()
+        qpos, qvel = d.qpos.copy(), d.qvel.copy()  # fresh copies; the record's fields are views of them
         return GroundTruth(
             t=self.t,
-            base=BaseState(qpos[0:3], qpos[3:7], d.qvel[0:3].copy(), d.qvel[3:6].copy()),
+            base=BaseState(qpos[0:3], qpos[3:7], qvel[0:3], qvel[3:6]),
             foot_pos_world=tt.feet,
             contact_point_world=tt.contact_point,
             stance_disp=disp,
@@ -239,7 +239,7 @@ class SimulatedAliengo:
             foot_force_world=tt.foot_force,
             joint_energy_j=self._energy_tick_j,
             q=qpos[7:],
-            dq=d.qvel[6:].copy(),
+            dq=qvel[6:],
         )
 
     def _check_fall(self, tt: TickTruth) -> None:
