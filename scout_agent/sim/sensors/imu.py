@@ -213,15 +213,16 @@ class ImuModel:
         c, k = self.config, len(acc_true)
         sq = math.sqrt(dt)  # a Python float: numpy scalar arithmetic costs ~1 µs here
         n = self.rng.standard_normal((4, k, 3))
-        e = self.errors
-        if self._ideal:
-            dtemp, kept = _NO_TEMP, np.ones(k, bool)
-        else:
-            dtemp = e.temperature.delta_k_steps(self.t, dt, k)
+        e, tc = self.errors, self.errors.temperature
+        # the samples lost: those whose uniform draw u falls below `drop`
+        u, drop = (_ALL_KEPT if k <= len(_ALL_KEPT) else np.ones(k)), 0.0
+        if not self._ideal:
             if self._f_cal is None:
                 self._f_cal = np.array(acc_true[0], dtype=float)
             # (a tick with every sample lost keeps its last one, p ≈ 3e-14: `_imu_block`)
-            kept = self.rng.random(k) >= e.sample_drop if e.sample_drop > 0 else np.ones(k, bool)
+            if e.sample_drop > 0:
+                u, drop = self.rng.random(k), e.sample_drop
+        t0 = self.t
         self.t += k * dt
         return (
             np.asarray(acc_true, dtype=float),
@@ -238,12 +239,17 @@ class ImuModel:
             self.gyro_M,
             self.acc_tc,
             self.gyro_tc,
-            dtemp,
+            t0,
+            dt,
+            tc.warmup_k,
+            tc.warmup_tau_s,
+            tc.rate_k_per_h,
             self.gyro_G if self.gyro_G is not None else _NO_G,
             self._f_cal if self._f_cal is not None else _NO_F,
             e.acc_lsb,
             e.gyro_lsb,
-            kept,
+            u,
+            drop,
         )
 
 
@@ -259,7 +265,7 @@ def _temperature_steps(
     return out
 
 
-_NO_TEMP = np.zeros(0)
+_ALL_KEPT = np.ones(64)  # uniform draws ≥ 0: no sample lost (up to 64 physics steps a tick)
 _NO_G = np.zeros((3, 3))
 _NO_F = np.zeros(3)
 
@@ -280,25 +286,33 @@ def _imu_block(
     gyro_M: np.ndarray,
     acc_tc: np.ndarray,
     gyro_tc: np.ndarray,
-    dtemp: np.ndarray,
+    t0: float,
+    dt: float,
+    warmup_k: float,
+    warmup_tau_s: float,
+    rate_k_per_h: float,
     gyro_G: np.ndarray,
     f_cal: np.ndarray,
     acc_lsb: float,
     gyro_lsb: float,
-    kept: np.ndarray,
+    u: np.ndarray,
+    drop: float,
 ) -> tuple[np.ndarray, np.ndarray]:
     """`ImuModel.sample`'s arithmetic, compiled (the scout calls it every control tick): `n` (4, k, 3) the
-        standard normal draws (bias walks, white noise), `kept` (k,) the samples that arrived (none: the last one,
-    set in place); the biases walk in
-        place. Ideal: truth + bias + noise; otherwise through the gain/misalignment matrices, temperature offsets
-        (`dtemp` (k,) [K]), g-sensitivity and quantisation (module docstring)."""
+    standard normal draws (bias walks, white noise); the samples that arrived are those with u ≥ `drop` (none:
+    the last one); the biases walk in place. Ideal: truth + bias + noise; otherwise through the
+    gain/misalignment matrices, temperature offsets (`ImuTemperature.delta_k` at t0 + dt, …, t0 + k·dt, its
+    warm-up and rate), g-sensitivity and quantisation (module docstring)."""
     k = acc_true.shape[0]
+    kept = np.empty(k, np.bool_)
     m = 0
     for s in range(k):
+        kept[s] = u[s] >= drop
         m += kept[s]
     if m == 0:  # every sample of the tick lost: keep its last one
         kept[k - 1] = True
         m = 1
+    dtemp = _temperature_steps(t0, dt, k, warmup_k, warmup_tau_s, rate_k_per_h)  # (unused when ideal)
     acc = np.empty((m, 3))
     gyro = np.empty((m, 3))
     walk_a = np.zeros(3)
