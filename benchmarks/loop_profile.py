@@ -28,7 +28,7 @@ PARTS = (  # (module, attribute path, part)
     ("scout_agent.sim.sensors.suite", "SensorSuite.read", "sensor models"),
     ("scout_agent.onboard.drivers", "ContactDetector.read", "drivers (contact flags)"),
     ("scout_agent.state_estimation.estimator", "StateEstimator.update", "state estimator"),
-    ("scout_agent.sim.aliengo", "tick_truth", "ground truth (contacts, feet, terrain)"),
+    ("scout_agent.sim.aliengo", "tick_truth_into", "ground truth (contacts, feet, terrain)"),
     ("scout_agent.sim.aliengo", "SimulatedAliengo._apply_friction", "friction lookup"),
     ("scout_agent.sim.aliengo", "SimulatedAliengo.truth", "ground truth records (evaluation channel)"),
     ("scout_agent.sim.aliengo", "SimulatedAliengo.write", "per-step copies, controls (hardware)"),

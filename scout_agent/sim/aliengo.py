@@ -34,7 +34,7 @@ from scout_agent.sim.scene import TERRAIN_GEOM, PhysicsConfig, build_scene
 from scout_agent.sim.sensors import SensorConfig, SensorSuite
 from scout_agent.sim.sensors.suite import TrueBlock, link_length_errors
 from scout_agent.sim.terrain import Terrain
-from scout_agent.sim.truth import TickTruth, stance_displacement, tick_truth
+from scout_agent.sim.truth import TickTruth, stance_displacement, tick_truth_into
 
 
 @dataclass(frozen=True)
@@ -98,6 +98,7 @@ class SimulatedAliengo:
         acc_adr = m.sensor_adr[m.sensor("imu_acc").id]
         gyro_adr = m.sensor_adr[m.sensor("imu_gyro").id]
         self._touching = np.zeros(m.ngeom, bool)  # non-foot geoms on the ground (truth.foot_contacts)
+        self._normal_force, self._R = np.empty(4), np.empty((3, 3))  # the tick's truth, used within it
         # per control tick: the physics steps' readings land in these blocks (one row per step), copied from
         # views of MjData/MjModel taken once (MuJoCo keeps their memory for the model's/data's lifetime)
         k = config.decimation
@@ -192,7 +193,7 @@ class SimulatedAliengo:
         self.t += self.control_dt
         self._apply_friction()
         con, tz = d.contact, self.terrain
-        self._tt = tt = tick_truth(
+        self._tt = tt = tick_truth_into(
             (con.geom, con.efc_address, con.frame, con.pos, d.efc_force),
             self._leg_of_geom,
             self._terrain_geom,
@@ -203,6 +204,8 @@ class SimulatedAliengo:
             tz.y0,
             tz.res,
             cfg.contact_threshold_n,
+            self._normal_force,
+            self._R,
         )
         self._low_state = self.sensors.read(
             TrueBlock(self.dt, self._blk_acc, self._blk_gyro, self._blk_q, self._blk_tau, tt.normal_force)

@@ -143,27 +143,73 @@ def tick_truth(
     y0: float,
     res: float,
     contact_threshold_n: float,
-) -> TickTruth:
+    forces: np.ndarray,
+    contact_point: np.ndarray,
+    fn: np.ndarray,
+    contact: np.ndarray,
+    R: np.ndarray,
+    feet: np.ndarray,
+    ground: np.ndarray,
+) -> int:
     """All of a tick's ground truth in one compiled pass: `foot_contacts` (MuJoCo's contact arrays `contacts`:
     geom, efc_address, frame, pos, and efc_force; the `touching` flags), `pose_and_feet` (qpos), and the terrain
-    (grid z, x0, y0, res) under the feet and the trunk."""
-    forces, points, fn = np.empty((4, 3)), np.empty((4, 3)), np.empty(4)
+    (grid z, x0, y0, res) under the feet and the trunk, into the `TickTruth` fields given (`tick_truth_into`
+    allocates them). Returns the number of non-foot geoms touching the terrain."""
+    points = np.empty((4, 3))
     geom, efc_address, frame, pos, efc_force = contacts
     n_nonfoot = foot_contacts(
         geom, efc_address, frame, pos, efc_force, leg_of_geom, terrain_geom, forces, points, fn, touching
     )
-    contact = np.empty(4, np.bool_)
     for i in range(4):
         contact[i] = fn[i] > contact_threshold_n
-    R, feet = np.empty((3, 3)), np.empty((4, 3))
     pose_and_feet(qpos, R, feet)
     x, y = np.empty(5), np.empty(5)
     x[:4], y[:4] = feet[:, 0], feet[:, 1]
     x[4], y[4] = qpos[0], qpos[1]
-    ground = np.empty(5)
     heights_at(z, x0, y0, res, x, y, ground)
-    contact_point = points.copy()
+    contact_point[:] = points
     for i in range(4):
         if not contact[i]:
             contact_point[i] = np.nan
-    return TickTruth(forces, contact_point, fn, contact, n_nonfoot, R, feet, ground)
+    return n_nonfoot
+
+
+def tick_truth_into(
+    contacts: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+    leg_of_geom: np.ndarray,
+    terrain_geom: int,
+    touching: np.ndarray,
+    qpos: np.ndarray,
+    z: np.ndarray,
+    x0: float,
+    y0: float,
+    res: float,
+    contact_threshold_n: float,
+    normal_force: np.ndarray,
+    R: np.ndarray,
+) -> TickTruth:
+    """`tick_truth` into fresh arrays for the fields a tick's `GroundTruth` record keeps, and into the
+    caller's buffers `normal_force` (4,) and `R` (3, 3), which only serve the tick itself (the sensors, the
+    fall check): arrays allocated here and filled in place cost a third of arrays returned by the kernel."""
+    forces, contact_point = np.empty((4, 3)), np.empty((4, 3))
+    contact, feet, ground = np.empty(4, bool), np.empty((4, 3)), np.empty(5)
+    n = tick_truth(
+        contacts,
+        leg_of_geom,
+        terrain_geom,
+        touching,
+        qpos,
+        z,
+        x0,
+        y0,
+        res,
+        contact_threshold_n,
+        forces,
+        contact_point,
+        normal_force,
+        contact,
+        R,
+        feet,
+        ground,
+    )
+    return TickTruth(forces, contact_point, normal_force, contact, n, R, feet, ground)
