@@ -193,7 +193,7 @@ class SimulatedAliengo:
         self.t += self.control_dt
         self._apply_friction()
         con, tz = d.contact, self.terrain
-        self._tt = tt = tick_truth_into(
+        inputs = (
             (con.geom, con.efc_address, con.frame, con.pos, d.efc_force),
             self._leg_of_geom,
             self._terrain_geom,
@@ -204,9 +204,8 @@ class SimulatedAliengo:
             tz.y0,
             tz.res,
             cfg.contact_threshold_n,
-            self._normal_force,
-            self._R,
         )
+        self._tt = tt = tick_truth_into(inputs, self._normal_force, self._R)
         self._low_state = self.sensors.read(
             TrueBlock(self.dt, self._blk_acc, self._blk_gyro, self._blk_q, self._blk_tau, tt.normal_force)
         )

@@ -174,42 +174,12 @@ def tick_truth(
     return n_nonfoot
 
 
-def tick_truth_into(
-    contacts: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray],
-    leg_of_geom: np.ndarray,
-    terrain_geom: int,
-    touching: np.ndarray,
-    qpos: np.ndarray,
-    z: np.ndarray,
-    x0: float,
-    y0: float,
-    res: float,
-    contact_threshold_n: float,
-    normal_force: np.ndarray,
-    R: np.ndarray,
-) -> TickTruth:
-    """`tick_truth` into fresh arrays for the fields a tick's `GroundTruth` record keeps, and into the
-    caller's buffers `normal_force` (4,) and `R` (3, 3), which only serve the tick itself (the sensors, the
-    fall check): arrays allocated here and filled in place cost a third of arrays returned by the kernel."""
+def tick_truth_into(inputs: tuple, normal_force: np.ndarray, R: np.ndarray) -> TickTruth:
+    """`tick_truth` on its ten `inputs` (contacts … contact_threshold_n) into fresh arrays for the fields a
+    tick's `GroundTruth` record keeps, and into the caller's buffers `normal_force` (4,) and `R` (3, 3), which
+    only serve the tick itself (the sensors, the fall check): arrays allocated here and filled in place cost a
+    third of arrays returned by the kernel."""
     forces, contact_point = np.empty((4, 3)), np.empty((4, 3))
     contact, feet, ground = np.empty(4, bool), np.empty((4, 3)), np.empty(5)
-    n = tick_truth(
-        contacts,
-        leg_of_geom,
-        terrain_geom,
-        touching,
-        qpos,
-        z,
-        x0,
-        y0,
-        res,
-        contact_threshold_n,
-        forces,
-        contact_point,
-        normal_force,
-        contact,
-        R,
-        feet,
-        ground,
-    )
+    n = tick_truth(*inputs, *(forces, contact_point, normal_force, contact, R, feet, ground))
     return TickTruth(forces, contact_point, normal_force, contact, n, R, feet, ground)
