@@ -181,5 +181,5 @@ def tick_truth_into(inputs: tuple, normal_force: np.ndarray, R: np.ndarray) -> T
     third of arrays returned by the kernel."""
     forces, contact_point = np.empty((4, 3)), np.empty((4, 3))
     contact, feet, ground = np.empty(4, bool), np.empty((4, 3)), np.empty(5)
-    n = tick_truth(*inputs, *(forces, contact_point, normal_force, contact, R, feet, ground))
+    n = tick_truth(*inputs, forces, contact_point, normal_force, contact, R, feet, ground)  # type: ignore[call-arg]
     return TickTruth(forces, contact_point, normal_force, contact, n, R, feet, ground)
