@@ -317,9 +317,6 @@ class StateEstimator:
             if self._temp_prev == self._temp_prev and temp != self._temp_prev:
                 self.ekf.bg += self._tempco_k * (temp - self._temp_prev)
             self._temp_prev = temp
-            for i in range(3):
-                P[9 + i, 9 + i] += self._tempco_sd[i] ** 2 * d2g
-                P[12 + i, 12 + i] += c.acc_tempco_std**2 * d2
         # g-sensitivity: the gyro's offset moves with the specific force's direction in the IMU (tilt on a
         # slope), by G·Δu since the last zero-rate update, u = Rᵀ(−g): the bias variance is raised to
         # gs² × max|Δu|² (the largest shift so far bounds it). Adding gs² × |d|Δu|²| every tick instead summed
@@ -330,8 +327,12 @@ class StateEstimator:
         du2 = kernels.gravity_shift2(self.ekf.R, self.ekf.g, self._u_zaru)
         q = c.gyro_g_sens_std**2 * max(du2 - self._du2_peak, 0.0)
         self._du2_peak = max(du2, self._du2_peak)
-        for i in range(3):
-            P[9 + i, 9 + i] += q
+        # the bias variances: the temperature terms (when the thermometer reads), then the g-sensitivity's q
+        # (kernels.add_bias_noise: twelve element updates compiled)
+        if temp == temp:
+            kernels.add_bias_noise(P, self._tempco_sd, d2g, c.acc_tempco_std**2 * d2, q, True, 2.0)
+        else:
+            kernels.add_bias_noise(P, self._tempco_sd, 0.0, 0.0, q, False, 2.0)
         self.bias_heading_rad += math.sqrt(P[11, 11]) * dt
         vx, vy, _ = self.ekf.v.tolist()
         speed = math.hypot(vx, vy)

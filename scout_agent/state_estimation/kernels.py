@@ -13,6 +13,7 @@ import numpy as np
 from numba import njit
 
 __all__ = [
+    "add_bias_noise",
     "add_heading_variance",
     "gravity_shift2",
     "heading_variance",
@@ -245,3 +246,24 @@ def add_heading_variance(R: np.ndarray, P: np.ndarray, q: float) -> None:
 def world_z_rate(R: np.ndarray, gyro: np.ndarray, bg: np.ndarray) -> float:
     """The bias-corrected turn rate about world z: (Rᵀe_z)·(ω − b_g) [rad/s]."""
     return R[2, 0] * (gyro[0] - bg[0]) + R[2, 1] * (gyro[1] - bg[1]) + R[2, 2] * (gyro[2] - bg[2])
+
+
+@njit(cache=True, nogil=True)
+def add_bias_noise(
+    P: np.ndarray,
+    tempco_sd: np.ndarray,
+    d2g: float,
+    acc_temp_var: float,
+    q_gs: float,
+    temp_known: bool,
+    two: float,
+) -> None:
+    """The estimator's bias process noise in place (`StateEstimator._inflate`, the same additions in the same
+    order per element): with `temp_known`, the gyro biases' tempco_sd²·d(ΔT²) (`d2g`; raised to a run-time
+    `two` = 2.0, as numpy's scalar `**` calls libm's pow) and the accelerometer biases' `acc_temp_var`; then
+    the gyro biases' g-sensitivity `q_gs`."""
+    for i in range(3):
+        if temp_known:
+            P[9 + i, 9 + i] += tempco_sd[i] ** two * d2g
+            P[12 + i, 12 + i] += acc_temp_var
+        P[9 + i, 9 + i] += q_gs
