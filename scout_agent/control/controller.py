@@ -304,9 +304,10 @@ def _joint_commands(
     vel_des_b: np.ndarray,
 ) -> None:
     """Joint torques, PD targets and gains, and each foot's desired position/velocity in the base frame
-    (compiled). `plane_v` is `_trunk_wrench`'s `out`; `params` (8,): stance_kd, swing_kp, swing_kd,
+    (compiled). `plane_v` is `_trunk_wrench`'s `out`; `params` (10,): stance_kd, swing_kp, swing_kd,
     raibert_gain, max_foot_offset, swing_height, search_speed, search_depth (`ControllerConfig`); `targets`
-    (the swing targets, world) updated in place."""
+    (the swing targets, world) updated in place; `params[8:10]`: the trunk's sway (world x, y) this tick, taken
+    off the hips the footholds are placed under (else a swaying crawl narrows its stance by the sway each step)."""
     stance_kd, swing_kp, swing_kd = params[0], params[1], params[2]
     raibert, max_off, swing_h, search_speed, search_depth = (
         params[3],
@@ -342,6 +343,8 @@ def _joint_commands(
                 p1[0, 2] -= min(search_speed * (t - sched_td_t[i]), search_depth)
             else:
                 hip_w = pos + _mv(R, _NOMINAL_FEET[i])
+                hip_w[0] -= params[8]  # where the hip stands without the gait's sway
+                hip_w[1] -= params[9]
                 rem = (1.0 - sw[i]) * swing_s
                 o0 = min(max(vd0 * stance_s / 2 + raibert * (vel[0] - vd0), -max_off), max_off)
                 o1 = min(max(vd1 * stance_s / 2 + raibert * (vel[1] - vd1), -max_off), max_off)
@@ -411,6 +414,8 @@ class TrotController:
                 c.swing_height,
                 c.search_speed,
                 c.search_depth,
+                0.0,  # the gait's sway, world x, y [m] (set each tick)
+                0.0,
             ],
             dtype=float,
         )
@@ -515,6 +520,15 @@ class TrotController:
             self._ref[:2] += jump[:2]
             self.corrections_followed += 1
 
+    def _sway(self, s: RobotState) -> np.ndarray:
+        """(2,) the gait's sideways trunk offset this tick along the base's horizontal +y, world x, y [m]
+        (`TrotGait.sway`; zero for a gait without one)."""
+        d = self.gait.sway(s.t - self.t0)
+        if d == 0.0:
+            return np.zeros(2)
+        y = s.R[:2, 1]
+        return d * y / max(float(np.hypot(y[0], y[1])), 1e-6)
+
     def plane(self) -> tuple[np.ndarray, float]:
         """Foothold plane z = g·(x, y) + c through the last footholds (foot-sphere centres)."""
         return _fit_plane(self.footholds)
@@ -537,6 +551,8 @@ class TrotController:
         if self._frozen_at is not None:
             self._stand_refs(s)
         J, feet_w, pv = self._J, self._feet_w, self._plane_v
+        sway = self._sway(s) if self._frozen_at is None else np.zeros(2)
+        self._ref[:2] += sway  # the trunk tracks its reference plus the sway this tick
         self._limits[0] = self.config.height + self.height_offset
         self._limits[2] = self.config.terrain_tilt if self.terrain_tilt is None else self.terrain_tilt
         _trunk_wrench(
@@ -564,6 +580,8 @@ class TrotController:
             feet_w,
             pv,
         )
+        self._ref[:2] -= sway
+        self._params[8:10] = sway
         stance = self.in_stance.copy()
         forces = self.qp.solve_feet(stance, feet_w, s.pos, pv[3:6], pv[6:12], self.f_prev, self.mu_feet)
         self.f_prev = forces

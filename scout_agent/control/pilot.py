@@ -59,7 +59,7 @@ from scout_agent.control.controller import RobotState, TrotController
 from scout_agent.control.detour import DetourConfig, plan_detour
 from scout_agent.control.follower import FollowerConfig, PathFollower
 from scout_agent.control.friction_estimate import FrictionEstimate, FrictionEstimateConfig
-from scout_agent.control.gait import CRAWL, GaitConfig
+from scout_agent.control.gait import CRAWL, SWAY_CRAWL, GaitConfig
 from scout_agent.control.reflex import Felt, ReflexConfig, Senses
 from scout_agent.estimators import TickEstimates
 from scout_agent.estimators.pipeline import quat_to_matrix
@@ -116,6 +116,13 @@ class PilotConfig:
     crawl_near_m: float | None = None  # crawl while within this of a hazard felt, beyond the detour's hazard
     # radius (None: trot everywhere)
     crawl_speed: float = 0.1  # the most a crawl is asked to walk [m/s] (its feet reach 0.15 m from the hips)
+    # with `back_crawl`, from a hazard stop to the end of the back-off the scout walks `back_gait` (the sway
+    # crawl keeps three feet down with the trunk inside their triangle, so a foot that slides does not roll the
+    # trunk over a diagonal pair as the trot does: every back-off fall of the matrices, docs/results.md issue
+    # 24) at `back_gait_speed`; without, it trots
+    back_crawl: bool = False
+    back_gait: GaitConfig = SWAY_CRAWL
+    back_gait_speed: float = 0.03  # [m/s] (the sway crawl's 4 s cycle steps ≈ 0.12 m)
     back_max_yaw_rate: float = FollowerConfig.max_yaw_rate  # [rad/s] while backing off
     back_speed: float = 0.1  # [m/s], trotting (a crawl back-off fell in 4 of 4 ramp walks where this one fell in 2); no velocity loop: on ground that slips, pushing harder slides
     held_before_s: float = 1.0
@@ -231,6 +238,8 @@ class Pilot:
             return v, w
         if self.mode == "back" and self._back is not None:
             v, w = self._back.command(s.pos[:2], yaw, s.vel[:2], dt)
+            if self.config.back_crawl:
+                v = max(v, -self.config.back_gait_speed)
             if self._back.reached or s.t - self._t_mode > self.config.back_timeout_s:
                 self._go_around(s.pos[:2], s.t)
             return v, w
@@ -374,6 +383,8 @@ class Pilot:
         steep = math.degrees(math.atan(math.hypot(float(grad[0]), float(grad[1]))))
         stand = c.stop_stand or c.back_forward or not c.back_off
         self._stand_stop = stand and steep <= c.stand_max_slope_deg
+        if c.back_crawl:
+            self.controller.set_gait(c.back_gait, felt.t)
         self._set_mode("stop", felt.t)
 
     def _start_back(self, pos: np.ndarray, t: float) -> None:
@@ -407,7 +418,11 @@ class Pilot:
         # retraces the detour and then the way in before this place, not this back-off into the hazard
         del self.trail[keep:]
         back_cfg = FollowerConfig(
-            speed=c.back_speed, goal_tolerance_m=0.1, ki=0.0, max_boost=0.0, max_yaw_rate=c.back_max_yaw_rate
+            speed=c.back_speed,
+            goal_tolerance_m=0.1,
+            ki=0.0,
+            max_boost=0.0,
+            max_yaw_rate=c.back_max_yaw_rate,
         )
         self._back = PathFollower(np.array(back), back_cfg, reverse=not c.back_forward)
         self._set_mode("back", t)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from scout_agent.control.follower import FollowerConfig, PathFollower
-from scout_agent.control.gait import CRAWL, GaitConfig, TrotGait
+from scout_agent.control.gait import CRAWL, SWAY_CRAWL, GaitConfig, TrotGait
 from scout_agent.control.stance import StanceQP, StanceQPConfig
 from scout_agent.control.swing import swing_point
 from scout_agent.run import ScoutRunConfig, run_scout
@@ -33,6 +33,27 @@ def test_crawl_schedule_lifts_one_leg_at_a_time_in_walk_order():
         prev = st
     assert order[:4] == [2, 0, 3, 1]  # RL, FL, RR, FR
     assert g.stance(g.phase(0.0)).all()  # started at phase 0 (set_gait), all four feet down
+
+
+def test_sway_crawl_keeps_three_feet_down_with_the_trunk_swayed_away_from_the_swinging_leg():
+    g = TrotGait(SWAY_CRAWL)
+    left = np.array([True, False, True, False])  # FL, FR, RL, RR
+    assert g.stance(g.phase(0.0)).all() and g.sway(0.0) == pytest.approx(0.0)  # switched in centred
+    order, prev, t_side = [], np.ones(4, bool), []
+    for t in np.arange(0.0, 2.0 / SWAY_CRAWL.freq_hz, 0.01):
+        st = g.stance(g.phase(t))
+        assert st.sum() >= 3
+        order += [int(i) for i in np.flatnonzero(prev & ~st)]
+        prev = st
+        if not st.all():  # a leg swings: the trunk stands the full sway away from its side
+            (i,) = np.flatnonzero(~st)
+            assert g.sway(t) == pytest.approx(-SWAY_CRAWL.sway_m if left[i] else SWAY_CRAWL.sway_m)
+            t_side.append((t, left[i]))
+    assert order[:4] == [2, 0, 3, 1]  # RL, FL, RR, FR: one side, then the other
+    # between the sides at least a second on four feet, for the sway to turn at lunar g
+    switches = [t1 - t0 for (t0, a), (t1, b) in zip(t_side[:-1], t_side[1:], strict=True) if a != b]
+    assert switches and min(switches) >= 1.0
+    assert TrotGait(GaitConfig()).sway(0.3) == 0.0  # the trot does not sway
 
 
 def test_stance_qp_meets_wrench_within_friction_cone():
