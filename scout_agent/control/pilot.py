@@ -116,13 +116,21 @@ class PilotConfig:
     crawl_near_m: float | None = None  # crawl while within this of a hazard felt, beyond the detour's hazard
     # radius (None: trot everywhere)
     crawl_speed: float = 0.1  # the most a crawl is asked to walk [m/s] (its feet reach 0.15 m from the hips)
-    # with `back_crawl`, from a hazard stop to the end of the back-off the scout walks `back_gait` (the sway
-    # crawl keeps three feet down with the trunk inside their triangle, so a foot that slides does not roll the
-    # trunk over a diagonal pair as the trot does: every back-off fall of the matrices, docs/results.md issue
-    # 24) at `back_gait_speed`; without, it trots
+    # the gait where the trot's diagonal pair cannot hold: the sway crawl keeps three feet down with the trunk
+    # inside their triangle, so a foot that slides does not roll the trunk over a diagonal pair as the trot does
+    # (the lunar falls: diagonal-pair rolls on patches, docs/results.md issue 24). It walks at no more than
+    # `slip_gait_speed`, and the speed command falls to that no faster than `slip_gait_brake_mps2`
+    slip_gait: GaitConfig = SWAY_CRAWL
+    slip_gait_speed: float = 0.03  # [m/s] (the sway crawl's 4 s cycle steps ≈ 0.12 m)
+    slip_gait_brake_mps2: float = 0.2  # ≈ what μ 0.16 holds on level ground at lunar g, with a margin
+    # the switch into `slip_gait` waits, trotting, until the trunk is slower than this [m/s] or `slip_gait_wait_s`
+    # after the speed command reached `slip_gait_speed` (crawl steps under a trunk still moving at 0.2 m/s fell
+    # in 23 of 30 lunar walks, docs/results.md)
+    slip_gait_enter_mps: float = 0.06
+    slip_gait_wait_s: float = 2.0
+    # from a hazard stop to the end of the back-off, walk `slip_gait` (off: lunar matrix 23 falls of 30 with the
+    # crawl switched in at the stop, under a trunk still moving; braking first, the spot walks still fell)
     back_crawl: bool = False
-    back_gait: GaitConfig = SWAY_CRAWL
-    back_gait_speed: float = 0.03  # [m/s] (the sway crawl's 4 s cycle steps ≈ 0.12 m)
     back_max_yaw_rate: float = FollowerConfig.max_yaw_rate  # [rad/s] while backing off
     back_speed: float = 0.1  # [m/s], trotting (a crawl back-off fell in 4 of 4 ramp walks where this one fell in 2); no velocity loop: on ground that slips, pushing harder slides
     held_before_s: float = 1.0
@@ -184,6 +192,8 @@ class Pilot:
         self._normal = np.array([0.0, 0.0, 1.0])
         self._stand_stop = False  # this stop stands on four feet (`stop_stand`)
         self.lost_spots: list[tuple[float, float, float]] = []  # x, y [m], μ̂ where a foot lost its hold
+        self._wish = config.trot  # the gait to walk (`_shift_gait` switches the controller to it)
+        self._slow_since: float | None = None  # the speed command reached slip_gait_speed then [s]
 
     @property
     def done(self) -> bool:
@@ -201,12 +211,34 @@ class Pilot:
         limits = [] if c.max_accel_mps2 is None else [c.max_accel_mps2]
         if c.brake_share is not None and self.mode in ("stop", "back"):
             limits.append(self.brake_mps2())
+        if self._wish == c.slip_gait:
+            limits.append(c.slip_gait_brake_mps2)
         if not limits:
             self._v = v
-            return v, w
-        a = min(limits) * dt
-        self._v = self._v + min(a, max(-a, v - self._v))
+        else:
+            a = min(limits) * dt
+            self._v = self._v + min(a, max(-a, v - self._v))
+        self._shift_gait(s)
         return self._v, w
+
+    def _shift_gait(self, s: RobotState) -> None:
+        """Walk the gait wished for (`_wish`): at once, except into `slip_gait`, which waits (trotting, the speed
+        command falling to `slip_gait_speed`) until the trunk is slow enough to crawl under."""
+        c, current = self.config, self.controller.gait.config
+        if self._wish == current:
+            self._slow_since = None
+            return
+        if self._wish != c.slip_gait:
+            self.controller.set_gait(self._wish, s.t)
+            return
+        if abs(self._v) > c.slip_gait_speed + 1e-9:
+            return
+        if self._slow_since is None:
+            self._slow_since = s.t
+        slow = math.hypot(float(s.vel[0]), float(s.vel[1])) < c.slip_gait_enter_mps
+        if slow or s.t - self._slow_since >= c.slip_gait_wait_s:
+            self.controller.set_gait(c.slip_gait, s.t)
+            self._slow_since = None
 
     def brake_mps2(self) -> float:
         """The most the speed command may change per second after a hazard stop [m/s²]: a share of what the
@@ -235,11 +267,13 @@ class Pilot:
                 v *= self.setting.speed_scale
             if self.controller.gait.config == self.config.crawl:
                 v = min(v, self.config.crawl_speed)
+            elif self._wish == self.config.slip_gait:
+                v = min(v, self.config.slip_gait_speed)
             return v, w
         if self.mode == "back" and self._back is not None:
             v, w = self._back.command(s.pos[:2], yaw, s.vel[:2], dt)
-            if self.config.back_crawl:
-                v = max(v, -self.config.back_gait_speed)
+            if self._wish == self.config.slip_gait:
+                v = max(v, -self.config.slip_gait_speed)
             if self._back.reached or s.t - self._t_mode > self.config.back_timeout_s:
                 self._go_around(s.pos[:2], s.t)
             return v, w
@@ -292,7 +326,7 @@ class Pilot:
                 self.controller.set_friction(self._cone())
         if not c.reflex or self.mode != "walk" or self.reached:
             return None
-        self.controller.set_gait(c.crawl if self._near_hazard(x, y) else c.trot, t)
+        self._wish = c.crawl if self._near_hazard(x, y) else c.trot
         margin = self.setting.margin if self.setting is not None else math.inf
         felt = self.senses.feel(t, est, R, margin, lost)
         if felt is None:
@@ -384,7 +418,7 @@ class Pilot:
         stand = c.stop_stand or c.back_forward or not c.back_off
         self._stand_stop = stand and steep <= c.stand_max_slope_deg
         if c.back_crawl:
-            self.controller.set_gait(c.back_gait, felt.t)
+            self._wish = c.slip_gait
         self._set_mode("stop", felt.t)
 
     def _start_back(self, pos: np.ndarray, t: float) -> None:

@@ -227,6 +227,29 @@ def test_pilot_brakes_after_a_stop_no_harder_than_the_felt_ground_holds():
         assert vs[-1] == pytest.approx(-cfg.back_speed)  # it gets there
 
 
+def test_back_crawl_brakes_trotting_then_backs_off_in_the_sway_crawl():
+    # back_crawl (off by default: docs/results.md, issue 24): after a stop the speed command falls no faster than
+    # slip_gait_brake_mps2 while the scout still trots; the sway crawl comes in only once the command is down to
+    # the crawl's speed and the trunk is slow, and the back-off never asks more than that speed
+    cfg = PilotConfig(back_crawl=True)
+    pilot = _line_pilot(cfg)
+    dt = 0.01
+    walking = [pilot.command(_standing_state(k * dt), dt)[0] for k in range(50)]
+    assert pilot.controller.gait.config == cfg.trot and walking[-1] >= cfg.follower.speed
+    pilot._stop(Felt(0.5, 0.5, 0.0, ("slip",), 3), 0.3, 0.0)
+    pilot.trail = [(0.0, -1.0, 0.0), (0.4, 0.0, 0.0)]
+    vs, gaits = [], []
+    for k in range(300):
+        vs.append(pilot.command(_standing_state(0.5 + k * dt), dt)[0])
+        gaits.append(pilot.controller.gait.config)
+    steps = np.abs(np.diff([walking[-1], *vs]))
+    assert np.all(steps <= cfg.slip_gait_brake_mps2 * dt + 1e-12)
+    first = gaits.index(cfg.slip_gait)  # the switch: after braking to the crawl's speed, trotting until then
+    assert all(g == cfg.trot for g in gaits[:first]) and all(g == cfg.slip_gait for g in gaits[first:])
+    assert abs(vs[first]) <= cfg.slip_gait_speed + 1e-9 < abs(vs[first - 1])
+    assert pilot.mode == "back" and min(vs) == pytest.approx(-cfg.slip_gait_speed)
+
+
 def test_place_based_cone_gives_the_felt_friction_to_the_feet_standing_where_a_hold_was_lost():
     cfg = PilotConfig(cone_radius_m=0.35)
     pilot = _line_pilot(cfg)
