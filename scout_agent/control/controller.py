@@ -524,8 +524,6 @@ class TrotController:
         """(2,) the gait's sideways trunk offset this tick along the base's horizontal +y, world x, y [m]
         (`TrotGait.sway`; zero for a gait without one)."""
         d = self.gait.sway(s.t - self.t0)
-        if d == 0.0:
-            return np.zeros(2)
         y = s.R[:2, 1]
         return d * y / max(float(np.hypot(y[0], y[1])), 1e-6)
 
@@ -551,8 +549,11 @@ class TrotController:
         if self._frozen_at is not None:
             self._stand_refs(s)
         J, feet_w, pv = self._J, self._feet_w, self._plane_v
-        sway = self._sway(s) if self._frozen_at is None else np.zeros(2)
-        self._ref[:2] += sway  # the trunk tracks its reference plus the sway this tick
+        # a swaying gait (`GaitConfig.sway_m`): the trunk tracks its reference plus the sway this tick (the trot
+        # skips this: no per-tick cost)
+        sway = self._sway(s) if self.gait.config.sway_m > 0.0 and self._frozen_at is None else None
+        if sway is not None:
+            self._ref[:2] += sway
         self._limits[0] = self.config.height + self.height_offset
         self._limits[2] = self.config.terrain_tilt if self.terrain_tilt is None else self.terrain_tilt
         _trunk_wrench(
@@ -580,8 +581,11 @@ class TrotController:
             feet_w,
             pv,
         )
-        self._ref[:2] -= sway
-        self._params[8:10] = sway
+        if sway is not None:
+            self._ref[:2] -= sway
+            self._params[8:10] = sway
+        elif self._params[8] != 0.0 or self._params[9] != 0.0:
+            self._params[8:10] = 0.0
         stance = self.in_stance.copy()
         forces = self.qp.solve_feet(stance, feet_w, s.pos, pv[3:6], pv[6:12], self.f_prev, self.mu_feet)
         self.f_prev = forces
