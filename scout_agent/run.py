@@ -15,6 +15,7 @@ import tempfile
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -339,7 +340,7 @@ def run_scout(
             if on_fix is None:
                 localizer.on_tick(sample)
             else:
-                _localize_and_report(localizer, robot.estimator, sample, on_fix)
+                _localize_and_report(robot.estimator, partial(localizer.on_tick, sample), on_fix)
         est = on_tick(sample, truth, robot) if on_tick is not None else None
         felt = pilot.feel(sample, est if isinstance(est, TickEstimates) else None)
         if felt is not None and on_hazard is not None:
@@ -355,6 +356,11 @@ def run_scout(
             )
         if scout.fell or pilot.done:
             break
+    if localizer is not None:  # the last stretch's fix, before the mapper releases what it holds
+        if on_fix is None:
+            localizer.finish()
+        else:
+            _localize_and_report(robot.estimator, localizer.finish, on_fix)
     if bar is not None:
         bar.close()
     wall = time.perf_counter() - wall0
@@ -420,12 +426,11 @@ def _position_variances(P: np.ndarray) -> np.ndarray:
     return np.array([big, big, float(max(P[2, 2], 0.0))])
 
 
-def _localize_and_report(
-    localizer: Localizer, estimator: StateEstimator, sample: ProprioSample, on_fix: OnFix
-) -> None:
-    """The localizer's tick; a change of the estimate it made (a fused fix) goes to `on_fix`."""
+def _localize_and_report(estimator: StateEstimator, step: Callable[[], object], on_fix: OnFix) -> None:
+    """One step of the localizer (its tick, or its `finish`); a change of the estimate it made (a fused fix)
+    goes to `on_fix`."""
     p0, P0 = estimator.ekf.p.copy(), estimator.position_covariance()
-    localizer.on_tick(sample)
+    step()
     p1 = estimator.ekf.p
     if not np.array_equal(p1, p0):
         on_fix(

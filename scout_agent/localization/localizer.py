@@ -33,7 +33,7 @@ from scout_agent.state_estimation import StateEstimator
 from scout_agent.state_estimation.pose_update import heading, update_pose
 
 from .matcher import MatchConfig, MatchResult, match_height, match_track
-from .reference import HeightReference
+from .reference import GridReference, HeightReference
 from .track import FootholdTrack
 
 __all__ = [
@@ -60,11 +60,20 @@ class SourceConfig:
     track_m: float  # footholds of the last this much walked [m]
     match: MatchConfig
     datum_m: float  # σ of the reference's vertical datum [m]
-    # where the place is not found (flat, ambiguous, edge), fuse the height alone (`match_height`): a DEM's
-    # stated noise and bias bound the height long before its 5 m pixels bound the place; not for the shared
-    # map, whose heights carry the other scouts' own height drift that their cells' scatter does not state
+    # where the place is not found (`height_fix_on`), fuse the height alone (`match_height`): a DEM's stated
+    # noise and bias bound the height long before its 5 m pixels bound the place; the shared map's heights
+    # carry the other scouts' own height error, which their height layer states per cell (`datum_sigma`)
     height_fix: bool = False
     first_m: float | None = None  # the first match once this much is walked (default: `track_m`)
+    # a height fix fits the datum along the track as a line in the distance walked and fuses its value at the
+    # newest foothold (`match_height`), the line's slope with this prior σ [m/m] (0: the track's mean datum,
+    # which lags a drifting estimate by half the track's drift): the estimate's height drifts 1–3 cm per metre
+    # walked on the 100 m field (docs/results.md, "The map's heights at mission scale")
+    height_rate_sigma: float = 0.0
+    # the match's refusals after which the height alone is tried, and at most one height fix per this much
+    # walked [m] (a reference's datum error is common to the fixes in between: they must not count it twice)
+    height_fix_on: tuple[str, ...] = ("flat", "ambiguous", "edge")
+    height_every_m: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -93,6 +102,7 @@ class LocalizerConfig:
             0.03,
             height_fix=True,
             first_m=30.0,
+            height_rate_sigma=0.02,
         )
     )
     # the shared map: 0.4 m cells with cm-level scatter
@@ -103,6 +113,12 @@ class LocalizerConfig:
             # another scout's track covers part of ours where they cross or run alongside: a quarter will do
             MatchConfig(window_m=1.0, step_m=0.1, yaw_window_deg=3.0, max_sigma_m=0.3, min_coverage=0.25),
             0.01,
+            # where the place is not found, the height against the others' cells under ≥ 5 m of the track
+            # (`min_points` footholds), their vertical σ added whole; one per 20 m: an other scout's datum
+            # error changes at its own fixes, 25 m apart, so fixes closer than that would share it
+            height_fix=True,
+            height_fix_on=("few", "flat", "ambiguous", "edge"),
+            height_every_m=20.0,
         )
     )
 
@@ -194,6 +210,8 @@ class Localizer:
         self._next = {n: src.first_m if src.first_m is not None else src.track_m
                       for n, src in (("dem", config.dem), ("map", config.map))}  # fmt: skip
         self._prev_xy: tuple[float, float] | None = None
+        self._tried = {"dem": 0.0, "map": 0.0}  # distance walked at each source's last attempt [m]
+        self._height_at = {"dem": -np.inf, "map": -np.inf}  # ... at its last fused height fix [m]
 
     def on_tick(self, sample: ProprioSample) -> None:
         c = self.config
@@ -215,6 +233,14 @@ class Localizer:
                 self._next[name] = self.walked_m + getattr(c, name).every_m
                 self.localize(name)
 
+    def finish(self, min_track_m: float = 15.0, min_m: float = 5.0) -> None:
+        """At the walk's end: one more attempt per source, over at least `min_track_m` of track, if `min_m`
+        or more was walked since its last attempt, so the last stretch's footholds, held for the next fix, do
+        not leave uncorrected (and a walk shorter than the first match's track gets one fix at all)."""
+        for name in self.report.sources:
+            if self.walked_m >= min_track_m and self.walked_m - self._tried[name] >= min_m:
+                self.localize(name)
+
     def _reference(self, name: str, pts: np.ndarray) -> HeightReference | None:
         if name == "dem":
             return self.dem
@@ -231,6 +257,7 @@ class Localizer:
         w0 = time.perf_counter()
         self.report.attempts += 1
         pts = self.track.window(src.track_m, self.walked_m)
+        self._tried[name] = self.walked_m
         ref = self._reference(name, pts)
         fused = None
         if ref is None:
@@ -241,8 +268,9 @@ class Localizer:
             res = match_track(pts, ref, search_config(c, src, sig_xy, sig_yaw), pivot=ekf.p[:2])
             if not res.ok:
                 self.report.refused[f"{name}_{res.reason}"] += 1
-                if src.height_fix and res.reason in ("flat", "ambiguous", "edge"):
-                    self._fuse_height(name, pts, ref, src, sig_xy)
+                if src.height_fix and res.reason in src.height_fix_on:
+                    if self.walked_m - self._height_at[name] >= src.height_every_m:
+                        self._fuse_height(name, pts, ref, src, sig_xy)
             else:
                 assert res.cov is not None
                 cov = res.cov.copy()
@@ -270,12 +298,16 @@ class Localizer:
     ) -> None:
         """The height alone from `ref` (`match_height`), χ²-gated with one degree of freedom; counted as
         fused / refused under "<name>_height"."""
-        fix = match_height(pts, ref, sig_xy, src.match)
+        walked = self.track.walked(src.track_m, self.walked_m) if src.height_rate_sigma > 0 else None
+        fix = match_height(pts, ref, sig_xy, src.match, walked, src.height_rate_sigma)
         if fix is None:
             self.report.refused[f"{name}_height_few"] += 1
             return
         ekf = self.est.ekf
-        var = (fix.var_m2 + src.datum_m**2) * max(1.0, min(src.track_m, self.walked_m) / src.every_m)
+        share = max(1.0, min(src.track_m, self.walked_m) / max(src.every_m, src.height_every_m))
+        # the reference's own datum where it states one per cell (the shared map: the other scouts' vertical σ)
+        datum_var = ref.datum_var(pts[:, 0], pts[:, 1]) if isinstance(ref, GridReference) else 0.0
+        var = (fix.var_m2 + src.datum_m**2) * share + datum_var
         meas = np.array([np.nan, np.nan, ekf.p[2] + fix.dz, np.nan])
         cov = np.diag([np.inf, np.inf, var, np.inf])
         before = ekf.p.copy()
@@ -283,6 +315,7 @@ class Localizer:
         if up.accepted:
             self.track.shift(before, ekf.p.copy(), float(up.correction[3]))
             self.report.fused[f"{name}_height"] += 1
+            self._height_at[name] = self.walked_m
             self.report.height_corrections_m.append(float(up.correction[2]))
         else:
             self.report.refused[f"{name}_height_gate"] += 1

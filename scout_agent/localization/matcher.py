@@ -284,22 +284,37 @@ def _accepted(
 @dataclass(frozen=True)
 class HeightFix:
     """The vertical datum of a foothold track against a reference where its place is not found: dz (reference
-    minus track [m]) at the estimated place, with a variance that holds the horizontal uncertainty too."""
+    minus track [m]) at the estimated place, with a variance that holds the horizontal uncertainty too; with
+    the footholds' distances walked, dz is the datum at the track's newest end and `rate` its change per metre
+    walked (the estimate's height drift the reference sees along the track, [m/m])."""
 
     dz: float
     var_m2: float
     points: int
+    rate: float = 0.0
 
 
 def match_height(
-    pts: np.ndarray, ref: HeightReference, sigma_xy_m: float, cfg: MatchConfig = MatchConfig()
+    pts: np.ndarray,
+    ref: HeightReference,
+    sigma_xy_m: float,
+    cfg: MatchConfig = MatchConfig(),
+    walked_m: np.ndarray | None = None,
+    rate_sigma: float = 0.0,
 ) -> HeightFix | None:
     """The reference's height under the track where the estimate put it, for a track whose horizontal place
     the reference does not constrain (flat, ambiguous): a DEM's 5 m pixels bound the height long before the
     place. dz is the Huber-fitted datum at the estimated place (offset 0); its variance adds (a) the fit's
     residual scatter per independent reference cell and (b) how much the datum changes over the places the
     estimate allows (offsets on a grid of ±2 `sigma_xy_m`, weighted by the estimate's Gaussian). None with
-    fewer than `min_points` covered footholds."""
+    fewer than `min_points` covered footholds.
+
+    A height estimate that drifts while the scout walks puts the track's old footholds off by less than its
+    newest (or more): the track's mean datum lags the estimate's error now. Given each foothold's distance
+    walked `walked_m` (n,) and `rate_sigma` > 0 (the prior σ of the drift per metre walked [m/m]), the datum
+    is fitted as a line in the distance walked, dz(s) = a + b·(s − s_newest), b with the zero-mean prior
+    `rate_sigma` (a Bayesian straight line: a short or noisy track falls back toward the mean), and the fix is
+    a, the datum at the newest foothold, with its posterior variance (per independent cell, as above)."""
     pts = np.asarray(pts, dtype=float)
     n = len(pts)
     if n < cfg.min_points:
@@ -321,9 +336,34 @@ def match_height(
     var_place = float(np.sum(w * (DZ - np.sum(w * DZ)) ** 2))
     h, _ = ref.heights(pts[:, 0], pts[:, 1])
     ok = np.isfinite(h)
-    r = h[ok] - pts[ok, 2] - DZ[centre]
     cell = max(ref.cell_m, 1e-3)
     cells = len(np.unique(np.floor(pts[ok, :2] / cell).astype(np.int64), axis=0))
     inflation = max(1.0, int(ok.sum()) / max(cells, 1))
+    if walked_m is not None and rate_sigma > 0:
+        s = np.asarray(walked_m, dtype=float)[ok]
+        a, b, var_a = _drift_line(h[ok] - pts[ok, 2], s - s.max(), rate_sigma, cfg.huber_k, inflation)
+        return HeightFix(a, var_a + var_place, int(ok.sum()), b)
+    r = h[ok] - pts[ok, 2] - DZ[centre]
     var_fit = float(np.mean(r**2)) * inflation / max(int(ok.sum()), 1)
     return HeightFix(float(DZ[centre]), var_fit + var_place, int(ok.sum()))
+
+
+def _drift_line(
+    r: np.ndarray, s: np.ndarray, rate_sigma: float, k: float, inflation: float
+) -> tuple[float, float, float]:
+    """r ≈ a + b·s (s ≤ 0: distance walked before the newest foothold [m]) by Huber-weighted least squares
+    with the prior b ~ N(0, rate_sigma²), each point's σ the residuals' own scatter, counted per independent
+    reference cell (× `inflation`). Returns a, b and the posterior variance of a."""
+    A = np.stack([np.ones_like(s), s], 1)
+    prior = np.diag([0.0, 1.0 / rate_sigma**2])
+    var_r = max(float(np.var(r)), 1e-6)
+    hw = np.ones_like(r)
+    for _ in range(4):  # IRLS: the residual scale and the Huber weights
+        N = A.T @ (hw[:, None] * A) / (var_r * inflation) + prior
+        coef = np.linalg.solve(N, A.T @ (hw * r) / (var_r * inflation))
+        res = r - A @ coef
+        var_r = max(float(np.mean(res**2)), 1e-6)
+        u = np.abs(res) / np.sqrt(var_r)
+        hw = np.where(u <= k, 1.0, k / np.maximum(u, 1e-12))
+    N = A.T @ (hw[:, None] * A) / (var_r * inflation) + prior
+    return float(coef[0]), float(coef[1]), float(np.linalg.inv(N)[0, 0])

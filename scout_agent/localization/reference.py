@@ -67,6 +67,9 @@ class GridReference:
     gx: np.ndarray | None = None
     gy: np.ndarray | None = None
     name: str = "map"
+    # per cell, σ of the vertical datum of whoever mapped it [m] (NaN: not stated): common to a scout's cells
+    # nearby, so a height fix adds its mean square whole instead of averaging it over the cells
+    datum_sigma: np.ndarray | None = None
 
     @property
     def cell_m(self) -> float:
@@ -84,6 +87,18 @@ class GridReference:
             dy = np.asarray(y) - (self.y0 + (iyc + 0.5) * self.res)
             z = z + self.gx[iyc, ixc] * dx + self.gy[iyc, ixc] * dy
         return (np.where(inside, z, np.nan), np.where(inside, self.sigma[iyc, ixc], np.nan))
+
+    def datum_var(self, x: np.ndarray, y: np.ndarray) -> float:
+        """Mean square of `datum_sigma` over the cells under the points that have one [m²]; 0 without."""
+        if self.datum_sigma is None:
+            return 0.0
+        ix = np.floor((np.asarray(x) - self.x0) / self.res).astype(np.int64)
+        iy = np.floor((np.asarray(y) - self.y0) / self.res).astype(np.int64)
+        h, w = self.datum_sigma.shape
+        inside = (ix >= 0) & (iy >= 0) & (ix < w) & (iy < h)
+        d = self.datum_sigma[iy[inside], ix[inside]]
+        d = d[np.isfinite(d)]
+        return float(np.mean(d**2)) if len(d) else 0.0
 
 
 def map_reference(
@@ -124,7 +139,11 @@ def height_datum(get: Callable[[float, float], HeightReference | None]):
         ref = get(x, y)
         if ref is None:
             return None
-        h, s = ref.heights(np.array([x]), np.array([y]))
-        return (float(h[0]), float(s[0])) if np.isfinite(h[0]) and np.isfinite(s[0]) else None
+        px, py = np.array([x]), np.array([y])
+        h, s = ref.heights(px, py)
+        if not (np.isfinite(h[0]) and np.isfinite(s[0])):
+            return None
+        datum = ref.datum_var(px, py) if isinstance(ref, GridReference) else 0.0
+        return (float(h[0]), float(np.sqrt(s[0] ** 2 + datum)))
 
     return datum

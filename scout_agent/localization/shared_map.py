@@ -5,13 +5,16 @@ field): it queries the elevation statistics of the box it needs again only when 
 says that part of the map changed, or when it needs a box outside the one it holds. Its own contribution is
 taken out, cell by cell, before matching: the elevation statistics are sums, so the other scouts' part is the
 shared sums minus the scout's own local map (`scout_agent.cells.LocalMap`, exactly what it published) —
-matching its footholds against a map built from those same footholds would only confirm its own estimate.
+matching its footholds against a map built from those same footholds would only confirm its own estimate. The
+`height` layer's Σσ² and count, taken apart the same way, give the others' vertical σ per cell (their datum's
+uncertainty, `GridReference.datum_sigma`), which a height fix against their cells adds whole.
 """
 
 from __future__ import annotations
 
 import logging
 from collections.abc import Sequence
+from dataclasses import replace
 
 import numpy as np
 
@@ -28,6 +31,7 @@ __all__ = ["SharedMapSource"]
 log = logging.getLogger(__name__)
 
 _ADDITIVE = ("n", "sum", "sumsq", "sx", "sy", "sxx", "syy", "sxy", "sxz", "syz")
+_HEIGHT_ADDITIVE = ("n", "var")  # the height layer's sums the datum σ reads (Σ 1, Σ σ²)
 
 
 class SharedMapSource:
@@ -70,7 +74,7 @@ class SharedMapSource:
             ask = (box[0] - radius, box[1] - radius, box[2] + radius, box[3] + radius)  # room to walk on
             try:
                 self._grid = fetch_region(self.session, self.map_id, ask, self.timeout_s, trusted=self.trusted,
-                                          layers=("elevation",))  # fmt: skip
+                                          layers=("elevation", "height"))  # fmt: skip
                 self._box = ask
                 self.queries += 1
                 self.follow.done(statuses)
@@ -84,17 +88,32 @@ class SharedMapSource:
         g = self._grid
         if g is None or "elevation" not in g.layers or g.h == 0 or g.w == 0:
             return None
-        shared = g.layers["elevation"]
-        mine = self.own.region(g.ix0, g.iy0, g.ix0 + g.w - 1, g.iy0 + g.h - 1).get("elevation", {})
-        stats = {}
-        for s in _ADDITIVE:
-            a = np.nan_to_num(np.asarray(shared[s], dtype=float))
-            b = np.nan_to_num(np.asarray(mine[s], dtype=float)) if s in mine else 0.0
-            stats[s] = a - b
+        region = self.own.region(g.ix0, g.iy0, g.ix0 + g.w - 1, g.iy0 + g.h - 1)
+        stats = _minus(g.layers["elevation"], region.get("elevation", {}), _ADDITIVE)
         n = stats["n"]
         gone = n < self.min_count - 1e-6
         for s in _ADDITIVE:
             stats[s] = np.where(gone, 0.0, stats[s])
         if not (n >= self.min_count - 1e-6).any():
             return None
-        return map_reference(stats, g.x0 + g.ix0 * g.res, g.y0 + g.iy0 * g.res, g.res, self.min_count)
+        # the others' vertical σ per cell (the height layer's RMS σ of their footholds): their datum, common to
+        # all of a scout's cells nearby, which a height fix cannot average away (NaN where they stated none)
+        datum = None
+        if "height" in g.layers:
+            h = _minus(g.layers["height"], region.get("height", {}), _HEIGHT_ADDITIVE)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                datum = np.where(
+                    (h["n"] >= 1.0 - 1e-6) & ~gone, np.sqrt(np.maximum(h["var"], 0.0) / h["n"]), np.nan
+                )
+        ref = map_reference(stats, g.x0 + g.ix0 * g.res, g.y0 + g.iy0 * g.res, g.res, self.min_count)
+        return replace(ref, datum_sigma=datum) if datum is not None else ref
+
+
+def _minus(shared: dict, mine: dict, names: Sequence[str]) -> dict[str, np.ndarray]:
+    """The shared statistics `names` minus the scout's own (its part of the sums), NaN as 0."""
+    out = {}
+    for s in names:
+        a = np.nan_to_num(np.asarray(shared[s], dtype=float))
+        b = np.nan_to_num(np.asarray(mine[s], dtype=float)) if s in mine else 0.0
+        out[s] = a - b
+    return out

@@ -44,6 +44,11 @@ class FootholdTrack:
         sel = self._s[: self._n] >= walked_m - length_m
         return self._pts[: self._n][sel].copy()
 
+    def walked(self, length_m: float, walked_m: float) -> np.ndarray:
+        """The distance walked [m] when each of `window(length_m, walked_m)`'s footholds was placed."""
+        sel = self._s[: self._n] >= walked_m - length_m
+        return self._s[: self._n][sel].copy()
+
     def span_m(self, walked_m: float) -> float:
         """Distance walked that the kept footholds cover [m]."""
         return float(walked_m - self._s[0]) if self._n else 0.0

@@ -127,6 +127,11 @@ class EstimatorConfig:
     # the driver reports the mean of the tick's 5 IMU samples (10 ms), each latched one servo step (2 ms) after
     # it was sensed, against the encoders' last sample: (5 + 1) / 2 × 2 ms. 0: the gyro as read
     gyro_age_s: float = 0.006
+    # leg odometry's height error, a random walk in the distance walked [m/√m]: σ_z² grows by k² per metre.
+    # On the 100 m missions the height drifts ~1 cm per metre walked between DEM height fixes 25 m apart, so
+    # k = 0.06 (σ 0.3 m after 25 m); with the filter's z untouched by walking its height fixes moved it by
+    # 2–5 cm where its error was 0.3–1 m (docs/results.md, "The map's heights at mission scale")
+    odometry_height_std: float = 0.06
     slip_pos_std_m: float = 0.005  # horizontal position σ added per foot update the gate rejected [m]
     # leg odometry measures the base-frame velocity, which says nothing of heading; its updates leave heading
     # alone (a Schmidt update; "Heading" in the module docstring). False: the plain EKF update
@@ -343,6 +348,7 @@ class StateEstimator:
             P[7, 7] += q * uy * uy
             P[6, 7] += q * ux * uy
             P[7, 6] += q * ux * uy
+            P[8, 8] += c.odometry_height_std**2 * speed * dt
             self.walked_m += speed * dt
         # heading from the gyro's scale/cross-axis error: a constant factor s of the net turn, s·(ψ − ψ_ref), so
         # the heading variance is raised to k²·max|ψ − ψ_ref|² (k = `gyro_scale_std`; the largest net turn so

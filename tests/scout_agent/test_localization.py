@@ -177,9 +177,40 @@ def test_where_the_place_is_not_found_the_height_is_and_its_sigma_holds_the_plac
     assert match_height(far, ref, 1.0) is None
 
 
+def test_a_drifting_height_is_fixed_at_the_track_end_within_its_sigma() -> None:
+    """A 100 m track whose estimated height drifts up 2 cm per metre walked, from a datum 0.4 m high, against a
+    DEM of 5 m pixels with 0.3 m noise (drawn anew each time): fitted as a line in the distance walked, the
+    datum at the newest foothold is the estimate's error there (2.4 m high) within its stated σ (normalised
+    error² ≈ 1 over the draws), where the track's mean datum lags it by half the track's drift (1 m)."""
+    from scout_agent.localization.matcher import match_height
+
+    n_pts, length = 800, 100.0
+    pts_xy = _track(n_pts, length=length, heading_rad=0.7)
+    walked = np.linspace(0.0, length, n_pts)
+    n = 40
+    relief = gaussian_filter(np.random.default_rng(3).normal(0, 1, (n, n)), 2.0) * 4.0
+    err_end = 0.4 + 0.02 * length
+    z2, lag = [], []
+    for seed in range(40):
+        noisy = relief + np.random.default_rng(seed).normal(0, 0.3, relief.shape)
+        ref = GridReference(noisy, np.full(relief.shape, 0.3), -2.5, -2.5, 5.0)
+        truth = GridReference(relief, np.full(relief.shape, 0.3), -2.5, -2.5, 5.0)
+        h, _ = truth.heights(pts_xy[:, 0], pts_xy[:, 1])
+        pts = np.column_stack([pts_xy, h + 0.4 + 0.02 * walked])
+        fix = match_height(pts, ref, 0.5, MatchConfig(step_m=0.5), walked, rate_sigma=0.02)
+        mean = match_height(pts, ref, 0.5, MatchConfig(step_m=0.5))
+        assert fix is not None and mean is not None
+        z2.append((fix.dz + err_end) ** 2 / fix.var_m2)
+        lag.append(mean.dz + err_end)
+        assert fix.rate == pytest.approx(-0.02, abs=0.01)
+    assert 0.3 < np.mean(z2) < 2.0, np.mean(z2)
+    assert max(z2) < 10.8  # none beyond p = 0.001
+    assert np.mean(lag) > 0.8  # the mean datum: ≈ 1 m short of the error at the end
+
+
 def test_the_localizer_fuses_a_dem_height_where_the_place_is_flat_and_never_moves_the_place() -> None:
-    """On a flat DEM the match is refused ("flat") and the position stays where it was; the height alone is
-    fused (the estimate 0.5 m low comes up by most of it); against the shared map (no `height_fix`) nothing."""
+    """On a flat DEM (or shared map) the match is refused ("flat") and the position stays where it was; the
+    height alone is fused (the estimate 0.5 m low comes up by most of it)."""
     from types import SimpleNamespace
 
     from scout_agent.localization import Localizer, LocalizerConfig
@@ -200,11 +231,42 @@ def test_the_localizer_fuses_a_dem_height_where_the_place_is_flat_and_never_move
         name = "dem" if use_dem else "map"
         assert loc.report.refused[f"{name}_flat"] == 1
         np.testing.assert_allclose(e.p[:2], (20.0, 15.0), atol=1e-6)
-        if use_dem:
-            assert loc.report.fused["dem_height"] == 1
-            assert 0.3 < e.p[2] < 0.55 and np.sqrt(e.P[8, 8]) < 0.5
-        else:
-            assert not loc.report.fused and e.p[2] == 0.0
+        assert loc.report.fused[f"{name}_height"] == 1
+        assert 0.3 < e.p[2] < 0.55 and np.sqrt(e.P[8, 8]) < 0.5
+
+
+def test_a_height_against_the_other_scouts_cells_weighs_their_stated_datum() -> None:
+    """The shared map's cells, mapped by another scout 0.3 m above where this scout's estimate puts the same
+    ground, on a relief that does not place the track (flat): a well-datumed other scout (σ 0.05 m) pulls the
+    estimate (σ 0.5 m) up by nearly all of it, a poorly datumed one (σ 1 m) by a fifth; the place never moves;
+    the next fix waits for `height_every_m` walked (the other's datum error is common to both)."""
+    from dataclasses import replace
+    from types import SimpleNamespace
+
+    from scout_agent.localization import Localizer, LocalizerConfig
+
+    n = 200
+    for datum_m, lo, hi in ((0.05, 0.25, 0.31), (1.0, 0.03, 0.09)):
+        others = GridReference(np.full((n, n), 0.3), np.full((n, n), 0.02), 0.0, 0.0, 0.4, np.zeros((n, n)),
+                               np.zeros((n, n)), datum_sigma=np.full((n, n), datum_m))  # fmt: skip
+        e = _ekf(sig_pos=0.3)
+        e.P[8, 8] = 0.25
+        e.p[:] = (20.0, 15.0, 0.0)
+        cfg = LocalizerConfig()
+        loc = Localizer(SimpleNamespace(ekf=e, feet=None), cfg, map_source=lambda x, y, r, ref=others: ref)  # type: ignore[arg-type]
+        pts = np.column_stack([_track(200, length=10.0) + (10.0, 5.0), np.zeros(200)])
+        loc.track.add(pts, 0.0)
+        loc.walked_m = 10.0
+        loc.localize("map")
+        assert loc.report.fused["map_height"] == 1, loc.report
+        np.testing.assert_allclose(e.p[:2], (20.0, 15.0), atol=1e-6)
+        assert lo < e.p[2] < hi, (datum_m, e.p[2])
+        loc.walked_m = 10.0 + cfg.map.height_every_m - 1.0
+        loc.localize("map")
+        assert loc.report.fused["map_height"] == 1  # not yet: within 20 m of the last
+    # without a stated datum the cells' scatter alone: as sure as the cells (the old behaviour's weight)
+    assert replace(others, datum_sigma=None).datum_var(np.array([1.0]), np.array([1.0])) == 0.0
+    assert others.datum_var(np.array([1.0, 500.0]), np.array([1.0, 1.0])) == pytest.approx(1.0)
 
 
 def _dem_like(
@@ -256,3 +318,69 @@ def replace_window(cfg: MatchConfig, window_m: float) -> MatchConfig:
     from dataclasses import replace
 
     return replace(cfg, window_m=window_m)
+
+
+def test_the_shared_map_reference_states_the_other_scouts_vertical_sigma_not_the_scouts_own() -> None:
+    """`SharedMapSource` takes the scout's own part out of the shared sums for the height layer as for the
+    elevation: a cell both mapped keeps the other scout's footholds and their stated σ (0.2 m), the scout's
+    own σ (0.05 m) does not count; a cell only the scout mapped is unknown."""
+    from psrmap_mapcore import LayerGrid
+    from scout_agent.cells import CellAccumulator, LocalMap
+    from scout_agent.holding import elevation_rows, height_rows
+    from scout_agent.localization.shared_map import SharedMapSource
+
+    res = 0.4
+
+    def mapped(xs: np.ndarray, z: float, sigma: float) -> LocalMap:
+        acc = CellAccumulator(res)
+        ys = np.full_like(xs, 0.5)
+        zs = np.full_like(xs, z)
+        for row in elevation_rows(xs, ys, zs, res).tolist():
+            acc.append("elevation", tuple(row))
+        for row in height_rows(xs, ys, zs, np.full_like(xs, sigma), res).tolist():
+            acc.append("height", tuple(row))
+        m = LocalMap(res)
+        m.merge(acc.flush())
+        return m
+
+    xs = np.repeat(np.arange(0.1, 4.0, 0.4), 3) + np.tile(
+        [0.0, 0.1, 0.2], 10
+    )  # 3 footholds in each of 10 cells
+    own, other = mapped(xs, 1.0, 0.05), mapped(xs[xs < 2.0], 1.3, 0.2)  # the other: the first 5 cells
+    shared = LocalMap(res)
+    for m in (own, other):
+        shared.merge({layer: m.cells(layer) for layer in ("elevation", "height")})
+    src = object.__new__(SharedMapSource)
+    src.own, src.min_count = own, 2.0
+    region = shared.region(0, 0, 9, 2)
+    src._grid = LayerGrid("moon", res, 0, 0, 3, 10, {k: region[k] for k in ("elevation", "height")})
+    ref = src._others()
+    assert ref is not None and ref.datum_sigma is not None
+    h, _ = ref.heights(np.array([0.3, 1.5, 2.5, 3.5]), np.array([0.5] * 4))
+    np.testing.assert_allclose(h[:2], 1.3, atol=1e-9)  # the other scout's cells, its height
+    assert np.isnan(h[2:]).all()  # the scout's own cells alone: unknown
+    assert ref.datum_var(np.array([0.3, 1.5]), np.array([0.5, 0.5])) == pytest.approx(0.2**2)
+
+
+def test_the_walks_end_brings_one_last_fix_for_the_last_stretch() -> None:
+    """`Localizer.finish` at the walk's end: a walk of 20 m (shorter than the DEM's first 30 m track) gets
+    one height fix; right after an attempt, or after too short a walk, none."""
+    from types import SimpleNamespace
+
+    from scout_agent.localization import Localizer, LocalizerConfig
+
+    n = 40
+    flat = GridReference(np.full((n, n), 0.5), np.full((n, n), 0.3), -2.5, -2.5, 5.0, np.zeros((n, n)),
+                         np.zeros((n, n)))  # fmt: skip
+    for walked, attempts in ((20.0, 1), (10.0, 0)):
+        e = _ekf(sig_pos=0.3)
+        e.P[8, 8] = 0.25
+        e.p[:] = (20.0, 15.0, 0.0)
+        loc = Localizer(SimpleNamespace(ekf=e, feet=None), LocalizerConfig(), dem=flat)  # type: ignore[arg-type]
+        loc.track.add(np.column_stack([_track(400, length=walked) + (5.0, 5.0), np.zeros(400)]), walked)
+        loc.walked_m = walked
+        loc.finish()
+        assert loc.report.attempts == attempts
+        assert (loc.report.fused["dem_height"] == 1) == bool(attempts)
+        loc.finish()  # nothing walked since: no second attempt
+        assert loc.report.attempts == attempts
