@@ -47,6 +47,9 @@ DRIFT_KEYS = (
     "yaw_error_max_deg",
     "nees_pos_mean",
     "inside_3sigma_frac",
+    "height_error_max_m",
+    "nees_height_mean",
+    "height_inside_3sigma_frac",
 )
 
 

@@ -13,7 +13,9 @@
 - `inside_3sigma_frac`: share of ticks whose true horizontal position lies inside the estimate's 3σ ellipse
   (eᵀ P⁻¹ e ≤ 9; a consistent Gaussian filter: 98.9 %);
 - `nees_yaw_mean`, `yaw_inside_3sigma_frac`: the same for the heading (one degree of freedom: a consistent filter
-  averages 1, and 99.7 % of its ticks have |error| ≤ 3σ), when the heading variance is given.
+  averages 1, and 99.7 % of its ticks have |error| ≤ 3σ), when the heading variance is given;
+- `height_error_max_m`, `nees_height_mean`, `height_inside_3sigma_frac`: the same for the base height (one
+  degree of freedom), when the position covariance is 3×3 (the filter's: always).
 Only evaluation code calls this; it reads the simulator's truth.
 """
 
@@ -49,7 +51,11 @@ def yaw_of_quat(quat: np.ndarray) -> float:
     _EY0,
     _GROWTH_MAX,
     _GROWTH_FINAL,
-) = range(14)
+    _Z_MAX,
+    _NEES_Z_SUM,
+    _NEES_Z_N,
+    _Z_INSIDE,
+) = range(18)
 
 
 @njit(cache=True, nogil=True)
@@ -68,9 +74,10 @@ def _add(
     cov_xy: float,
     cov_yy: float,
     yaw_var: float,
+    var_z: float,
 ) -> None:
-    """One tick into `acc`; a NaN `cov_xx` (no covariance) or `yaw_var` (no heading variance) leaves out the
-    position or heading NEES."""
+    """One tick into `acc`; a NaN `cov_xx` (no covariance), `yaw_var` (no heading variance) or `var_z` (no
+    height variance) leaves out the position, heading or height NEES."""
     ex, ey = truth_pos[0] - est_pos[0], truth_pos[1] - est_pos[1]
     err = math.hypot(ex, ey)
     acc[_N] += 1.0
@@ -83,6 +90,13 @@ def _add(
     acc[_ERR_MAX] = max(acc[_ERR_MAX], err)
     dyaw = (_yaw(est_quat) - _yaw(truth_quat) + math.pi) % (2 * math.pi) - math.pi
     acc[_YAW_MAX] = max(acc[_YAW_MAX], abs(dyaw))
+    ez = truth_pos[2] - est_pos[2]
+    acc[_Z_MAX] = max(acc[_Z_MAX], abs(ez))
+    if var_z > 0:  # False for NaN
+        nees_z = ez * ez / var_z
+        acc[_NEES_Z_SUM] += nees_z
+        acc[_NEES_Z_N] += 1.0
+        acc[_Z_INSIDE] += nees_z <= 9.0
     if yaw_var > 0:  # False for NaN
         nees_yaw = dyaw * dyaw / yaw_var
         acc[_NEES_YAW_SUM] += nees_yaw
@@ -113,12 +127,12 @@ def _add_filter(
     for i in range(3):
         for j in range(3):
             yaw_var += R[2, i] * P[i, j] * R[2, j]
-    _add(acc, truth_pos, truth_quat, est_pos, est_quat, P[6, 6], P[6, 7], P[7, 7], yaw_var)
+    _add(acc, truth_pos, truth_quat, est_pos, est_quat, P[6, 6], P[6, 7], P[7, 7], yaw_var, P[8, 8])
 
 
 class ConsistencyTracker:
     def __init__(self) -> None:
-        self._acc = np.zeros(14)
+        self._acc = np.zeros(18)
         self._acc[_ERR_FINAL] = math.nan
 
     def add(
@@ -143,6 +157,7 @@ class ConsistencyTracker:
             b,
             d,
             math.nan if yaw_var is None else float(yaw_var),
+            float(pos_cov[2, 2]) if pos_cov is not None and len(pos_cov) > 2 else math.nan,
         )
 
     def add_filter(
@@ -175,6 +190,9 @@ class ConsistencyTracker:
             "inside_3sigma_frac": r(acc[_INSIDE] / nees_n) if nees_n else None,
             "nees_yaw_mean": r(acc[_NEES_YAW_SUM] / nees_yaw_n, 3) if nees_yaw_n else None,
             "yaw_inside_3sigma_frac": r(acc[_YAW_INSIDE] / nees_yaw_n) if nees_yaw_n else None,
+            "height_error_max_m": r(acc[_Z_MAX]) if n else None,
+            "nees_height_mean": r(acc[_NEES_Z_SUM] / acc[_NEES_Z_N], 3) if acc[_NEES_Z_N] else None,
+            "height_inside_3sigma_frac": r(acc[_Z_INSIDE] / acc[_NEES_Z_N]) if acc[_NEES_Z_N] else None,
         }
 
 

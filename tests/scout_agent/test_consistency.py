@@ -47,3 +47,21 @@ def test_the_start_error_and_the_growth_after_it_are_apart() -> None:
     assert s["pos_error_final_m"] == pytest.approx(0.5)
     assert s["pos_error_growth_final_m"] == pytest.approx(0.4)
     assert s["pos_error_growth_max_m"] == pytest.approx(0.4)
+
+
+def test_height_nees_and_containment_follow_the_errors_and_the_variance() -> None:
+    """With a 3×3 position covariance the height is judged too: errors 0.1, −0.2, 0.4 m at σ 0.1 m give NEES
+    1, 4, 16 (the last outside 3σ); a 2×2 covariance judges no height."""
+    tr = ConsistencyTracker()
+    q = _quat(0.0)
+    for ez in (0.1, -0.2, 0.4):
+        tr.add(np.zeros(3), q, np.array([0.0, 0.0, -ez]), q, np.diag([1.0, 1.0, 0.01]))
+    s = tr.summary()
+    assert s["nees_height_mean"] == pytest.approx(7.0, rel=1e-6)
+    assert s["height_inside_3sigma_frac"] == pytest.approx(2 / 3, abs=1e-4)
+    assert s["height_error_max_m"] == pytest.approx(0.4)
+    flat = ConsistencyTracker()
+    flat.add(np.zeros(3), q, np.array([0.0, 0.0, 0.3]), q, np.eye(2))
+    assert flat.summary()["nees_height_mean"] is None and flat.summary()[
+        "height_error_max_m"
+    ] == pytest.approx(0.3)
