@@ -32,7 +32,7 @@ from scout_agent.signals import ProprioSample
 from scout_agent.state_estimation import StateEstimator
 from scout_agent.state_estimation.pose_update import heading, update_pose
 
-from .matcher import MatchConfig, MatchResult, match_height, match_track
+from .matcher import HeightFix, MatchConfig, MatchResult, match_height, match_track
 from .reference import GridReference, HeightReference
 from .track import FootholdTrack
 
@@ -81,6 +81,11 @@ class LocalizerConfig:
     settle_s: float = 0.15  # a stance's foothold is taken once its contact has lasted this long [s]
     gate_p: float = 0.001  # χ² gate's false-rejection probability
     window_sigmas: float = 3.0  # the search window covers this many σ of the filter's position and heading
+    # the robot's own height drift per metre walked, learnt from the DEM height fixes' slopes along the track
+    # and taken off the estimate's height as it walks: prior σ [m/m] (0: not learnt). A calibration error of
+    # the legs' kinematics (joint zero offsets, link lengths) tilts leg odometry's velocity by a constant
+    # angle, so the height drifts by a constant rate per metre (±1 cm/m on the 100 m missions)
+    drift_rate_sigma: float = 0.02
     yaw_steps: int = 3  # yaw candidates each side of the estimate's heading
     # a DEM: 5 m pixels with 0.3 m noise: the likelihood's moments over a wide window (benchmarks/dem_match.py:
     # on the 100 m field's relief, true footholds, 60 m tracks are never placed within ±8 m and ±6°, 100 m
@@ -133,6 +138,7 @@ class LocalizerReport:
     match_seconds: float = 0.0  # wall time spent matching and fusing [s]
     corrections_m: list[float] = field(default_factory=list)  # horizontal size of each fused correction
     height_corrections_m: list[float] = field(default_factory=list)  # each fused height-only correction [m]
+    drift_rate_m_per_m: float = 0.0  # the height drift per metre walked learnt and taken off (Localizer)
 
     @staticmethod
     def _largest(values: list[float]) -> float | None:
@@ -154,6 +160,7 @@ class LocalizerReport:
             "match_ms_mean": round(1e3 * self.match_seconds / self.attempts, 2) if self.attempts else None,
             "correction_max_m": round(max(self.corrections_m), 4) if self.corrections_m else None,
             "height_correction_max_m": self._largest(self.height_corrections_m),
+            "drift_rate_m_per_m": round(self.drift_rate_m_per_m, 5),
         }
 
 
@@ -212,6 +219,8 @@ class Localizer:
         self._prev_xy: tuple[float, float] | None = None
         self._tried = {"dem": 0.0, "map": 0.0}  # distance walked at each source's last attempt [m]
         self._height_at = {"dem": -np.inf, "map": -np.inf}  # ... at its last fused height fix [m]
+        self.drift_rate = 0.0  # the height drift per metre walked taken off the estimate [m/m]
+        self.drift_rate_var = config.drift_rate_sigma**2  # its variance [(m/m)²]
 
     def on_tick(self, sample: ProprioSample) -> None:
         c = self.config
@@ -226,7 +235,10 @@ class Localizer:
             self._taken |= due
         x, y = float(est.p[0]), float(est.p[1])
         if self._prev_xy is not None:
-            self.walked_m += float(np.hypot(x - self._prev_xy[0], y - self._prev_xy[1]))
+            step = float(np.hypot(x - self._prev_xy[0], y - self._prev_xy[1]))
+            self.walked_m += step
+            if self.drift_rate:
+                est.p[2] -= self.drift_rate * step
         self._prev_xy = (x, y)
         for name in self.report.sources:
             if self.walked_m >= self._next[name]:
@@ -240,6 +252,21 @@ class Localizer:
         for name in self.report.sources:
             if self.walked_m >= min_track_m and self.walked_m - self._tried[name] >= min_m:
                 self.localize(name)
+
+    def _learn_drift_rate(self, fix: HeightFix, share: float) -> None:
+        """The track's slope of reference minus footholds per metre walked (`HeightFix.rate_data`) is the drift
+        rate left after what is already taken off, with a sign change: a scalar Kalman update of
+        `drift_rate`, its variance × `share` (consecutive tracks share footholds), χ²-gated (p = gate_p)."""
+        if not self.config.drift_rate_sigma or not np.isfinite(fix.rate_data_var):
+            return
+        var = fix.rate_data_var * share
+        innov = -fix.rate_data
+        if innov**2 / (self.drift_rate_var + var) > float(chi2.ppf(1.0 - self.config.gate_p, 1)):
+            return
+        k = self.drift_rate_var / (self.drift_rate_var + var)
+        self.drift_rate += k * innov
+        self.drift_rate_var *= 1.0 - k
+        self.report.drift_rate_m_per_m = self.drift_rate
 
     def _reference(self, name: str, pts: np.ndarray) -> HeightReference | None:
         if name == "dem":
@@ -317,5 +344,6 @@ class Localizer:
             self.report.fused[f"{name}_height"] += 1
             self._height_at[name] = self.walked_m
             self.report.height_corrections_m.append(float(up.correction[2]))
+            self._learn_drift_rate(fix, share)
         else:
             self.report.refused[f"{name}_height_gate"] += 1

@@ -292,6 +292,10 @@ class HeightFix:
     var_m2: float
     points: int
     rate: float = 0.0
+    # the track's own evidence on `rate` (the line's slope without its prior) and its variance [(m/m)²]; inf
+    # where the track does not state one (a mean datum, or all footholds at one distance)
+    rate_data: float = 0.0
+    rate_data_var: float = float("inf")
 
 
 def match_height(
@@ -341,8 +345,9 @@ def match_height(
     inflation = max(1.0, int(ok.sum()) / max(cells, 1))
     if walked_m is not None and rate_sigma > 0:
         s = np.asarray(walked_m, dtype=float)[ok]
-        a, b, var_a = _drift_line(h[ok] - pts[ok, 2], s - s.max(), rate_sigma, cfg.huber_k, inflation)
-        return HeightFix(a, var_a + var_place, int(ok.sum()), b)
+        a, b, var_a, b_data, var_b_data = _drift_line(h[ok] - pts[ok, 2], s - s.max(), rate_sigma, cfg.huber_k,
+                                                      inflation)  # fmt: skip
+        return HeightFix(a, var_a + var_place, int(ok.sum()), b, b_data, var_b_data)
     r = h[ok] - pts[ok, 2] - DZ[centre]
     var_fit = float(np.mean(r**2)) * inflation / max(int(ok.sum()), 1)
     return HeightFix(float(DZ[centre]), var_fit + var_place, int(ok.sum()))
@@ -350,10 +355,11 @@ def match_height(
 
 def _drift_line(
     r: np.ndarray, s: np.ndarray, rate_sigma: float, k: float, inflation: float
-) -> tuple[float, float, float]:
+) -> tuple[float, float, float, float, float]:
     """r ≈ a + b·s (s ≤ 0: distance walked before the newest foothold [m]) by Huber-weighted least squares
     with the prior b ~ N(0, rate_sigma²), each point's σ the residuals' own scatter, counted per independent
-    reference cell (× `inflation`). Returns a, b and the posterior variance of a."""
+    reference cell (× `inflation`). Returns a, b, the posterior variance of a, and b and its variance from the
+    data alone (a, b fitted without the prior; inf where the distances do not determine b)."""
     A = np.stack([np.ones_like(s), s], 1)
     prior = np.diag([0.0, 1.0 / rate_sigma**2])
     var_r = max(float(np.var(r)), 1e-6)
@@ -365,5 +371,11 @@ def _drift_line(
         var_r = max(float(np.mean(res**2)), 1e-6)
         u = np.abs(res) / np.sqrt(var_r)
         hw = np.where(u <= k, 1.0, k / np.maximum(u, 1e-12))
-    N = A.T @ (hw[:, None] * A) / (var_r * inflation) + prior
-    return float(coef[0]), float(coef[1]), float(np.linalg.inv(N)[0, 0])
+    data = A.T @ (hw[:, None] * A) / (var_r * inflation)
+    N = data + prior
+    b_data, var_b_data = 0.0, float("inf")
+    if np.linalg.det(data) > 1e-12 * max(data[0, 0] * data[1, 1], 1e-300):
+        cov_data = np.linalg.inv(data)
+        b_data = float((cov_data @ (A.T @ (hw * r) / (var_r * inflation)))[1])
+        var_b_data = float(cov_data[1, 1])
+    return float(coef[0]), float(coef[1]), float(np.linalg.inv(N)[0, 0]), b_data, var_b_data

@@ -384,3 +384,35 @@ def test_the_walks_end_brings_one_last_fix_for_the_last_stretch() -> None:
         assert (loc.report.fused["dem_height"] == 1) == bool(attempts)
         loc.finish()  # nothing walked since: no second attempt
         assert loc.report.attempts == attempts
+
+
+def test_the_robots_own_height_drift_rate_is_learnt_from_the_dem_fixes() -> None:
+    """A scout whose height drifts up 1.5 cm per metre walked, over a DEM of 5 m pixels with 0.3 m noise that
+    cannot place it (flat): the DEM height fix's slope along the 100 m track teaches the localizer the rate
+    (within 3 of its σ, the σ shrunk from the prior's 2 cm/m), with the sign that takes it off the estimate."""
+    from types import SimpleNamespace
+
+    from scout_agent.localization import Localizer, LocalizerConfig
+
+    n = 60
+    errs = []
+    for seed in range(6):
+        noisy = np.random.default_rng(seed).normal(0.0, 0.3, (n, n))
+        dem = GridReference(noisy, np.full((n, n), 0.3), -2.5, -2.5, 5.0)
+        e = _ekf(sig_pos=0.5)
+        e.P[8, 8] = 0.25
+        e.p[:] = (80.0, 80.0, 0.0)
+        loc = Localizer(SimpleNamespace(ekf=e, feet=None), LocalizerConfig(), dem=dem)  # type: ignore[arg-type]
+        walked = np.linspace(0.0, 100.0, 800)
+        xy = _track(800, length=100.0, heading_rad=0.7) + (10.0, 10.0)
+        loc.track.add(np.column_stack([xy, 0.015 * walked])[:400], 50.0)  # placed halfway ...
+        loc.track.add(np.column_stack([xy, 0.015 * walked])[400:], 100.0)  # ... and at the end
+        loc.track._s[:800] = walked  # each foothold at its own distance
+        loc.walked_m = 100.0
+        loc.localize("dem")
+        assert loc.report.fused["dem_height"] == 1
+        sigma = np.sqrt(loc.drift_rate_var)
+        assert sigma < 0.02
+        errs.append((loc.drift_rate - 0.015) / sigma)
+    assert np.max(np.abs(errs)) < 3.0, errs
+    assert abs(np.mean(errs)) < 1.5
