@@ -340,7 +340,7 @@ def run_scout(
             if on_fix is None:
                 localizer.on_tick(sample)
             else:
-                _localize_and_report(robot.estimator, partial(localizer.on_tick, sample), on_fix)
+                _localize_and_report(localizer, robot.estimator, partial(localizer.on_tick, sample), on_fix)
         est = on_tick(sample, truth, robot) if on_tick is not None else None
         felt = pilot.feel(sample, est if isinstance(est, TickEstimates) else None)
         if felt is not None and on_hazard is not None:
@@ -360,7 +360,7 @@ def run_scout(
         if on_fix is None:
             localizer.finish()
         else:
-            _localize_and_report(robot.estimator, localizer.finish, on_fix)
+            _localize_and_report(localizer, robot.estimator, localizer.finish, on_fix)
     if bar is not None:
         bar.close()
     wall = time.perf_counter() - wall0
@@ -426,16 +426,18 @@ def _position_variances(P: np.ndarray) -> np.ndarray:
     return np.array([big, big, float(max(P[2, 2], 0.0))])
 
 
-def _localize_and_report(estimator: StateEstimator, step: Callable[[], object], on_fix: OnFix) -> None:
-    """One step of the localizer (its tick, or its `finish`); a change of the estimate it made (a fused fix)
-    goes to `on_fix`."""
+def _localize_and_report(
+    localizer: Localizer, estimator: StateEstimator, step: Callable[[], object], on_fix: OnFix
+) -> None:
+    """One step of the localizer (its tick, or its `finish`); the change of the estimate a fused fix made goes
+    to `on_fix` (the learnt height drift the tick took off is dead reckoning, not a fix)."""
     p0, P0 = estimator.ekf.p.copy(), estimator.position_covariance()
+    fixes = localizer.report.fixes
     step()
-    p1 = estimator.ekf.p
-    if not np.array_equal(p1, p0):
-        on_fix(
-            PoseFix(p1 - p0, _position_variances(P0), _position_variances(estimator.position_covariance()))
-        )
+    if localizer.report.fixes != fixes:
+        change = estimator.ekf.p - p0
+        change[2] += localizer.drift_step_m
+        on_fix(PoseFix(change, _position_variances(P0), _position_variances(estimator.position_covariance())))
 
 
 def _r4(v: float) -> float:

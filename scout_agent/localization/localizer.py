@@ -146,6 +146,11 @@ class LocalizerReport:
         return round(float(max(values, key=abs)), 4) if values else None
 
     @property
+    def fixes(self) -> int:
+        """Fixes fused so far, of every kind."""
+        return sum(self.fused.values())
+
+    @property
     def used(self) -> str:
         """What localization used: "off", or the references joined by "+" ("dem", "map", "dem+map")."""
         return "+".join(self.sources) if self.sources else "off"
@@ -220,6 +225,7 @@ class Localizer:
         self._tried = {"dem": 0.0, "map": 0.0}  # distance walked at each source's last attempt [m]
         self._height_at = {"dem": -np.inf, "map": -np.inf}  # ... at its last fused height fix [m]
         self.drift_rate = 0.0  # the height drift per metre walked taken off the estimate [m/m]
+        self.drift_step_m = 0.0  # what the last tick took off the estimate's height for it [m]
         self.drift_rate_var = config.drift_rate_sigma**2  # its variance [(m/m)²]
 
     def on_tick(self, sample: ProprioSample) -> None:
@@ -237,8 +243,8 @@ class Localizer:
         if self._prev_xy is not None:
             step = float(np.hypot(x - self._prev_xy[0], y - self._prev_xy[1]))
             self.walked_m += step
-            if self.drift_rate:
-                est.p[2] -= self.drift_rate * step
+            self.drift_step_m = self.drift_rate * step
+            est.p[2] -= self.drift_step_m
         self._prev_xy = (x, y)
         for name in self.report.sources:
             if self.walked_m >= self._next[name]:

@@ -416,3 +416,32 @@ def test_the_robots_own_height_drift_rate_is_learnt_from_the_dem_fixes() -> None
         errs.append((loc.drift_rate - 0.015) / sigma)
     assert np.max(np.abs(errs)) < 3.0, errs
     assert abs(np.mean(errs)) < 1.5
+
+
+def test_only_a_fused_fix_reaches_the_mapper_not_the_learnt_drift_taken_off() -> None:
+    """The run loop hands the mapper a `PoseFix` when the localizer fused one, and only then: the learnt
+    height drift taken off the estimate every tick is dead reckoning (a fix per tick would release the
+    held samples tick by tick), and it is not counted in a fix's correction."""
+    from types import SimpleNamespace
+
+    from scout_agent.localization import LocalizerReport
+    from scout_agent.run import _localize_and_report
+
+    e = _ekf(sig_pos=0.3)
+    est = SimpleNamespace(ekf=e, position_covariance=e.P[6:9, 6:9].copy)  # a view's copy: P as it is then
+    loc = SimpleNamespace(report=LocalizerReport(), drift_step_m=0.0)
+    got = []
+
+    def drift_only():
+        loc.drift_step_m = 0.002
+        e.p[2] -= 0.002
+
+    def drift_and_fix():
+        drift_only()
+        e.p[2] += 0.3
+        loc.report.fused["dem_height"] += 1
+
+    _localize_and_report(loc, est, drift_only, got.append)  # type: ignore[arg-type]
+    assert got == []
+    _localize_and_report(loc, est, drift_and_fix, got.append)  # type: ignore[arg-type]
+    assert len(got) == 1 and got[0].correction[2] == pytest.approx(0.3)
