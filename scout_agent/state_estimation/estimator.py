@@ -348,7 +348,8 @@ class StateEstimator:
             P[7, 7] += q * uy * uy
             P[6, 7] += q * ux * uy
             P[7, 6] += q * ux * uy
-            P[8, 8] += c.odometry_height_std**2 * speed * dt
+            if self.anchored:  # the height's error grows from the launch ground's anchor on
+                P[8, 8] += c.odometry_height_std**2 * speed * dt
             self.walked_m += speed * dt
         # heading from the gyro's scale/cross-axis error: a constant factor s of the net turn, s·(ψ − ψ_ref), so
         # the heading variance is raised to k²·max|ψ − ψ_ref|² (k = `gyro_scale_std`; the largest net turn so
