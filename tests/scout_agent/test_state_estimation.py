@@ -559,3 +559,27 @@ def test_ideal_odometry_no_longer_runs_ahead_along_track():
     gyro in ω × r was 1.0 % of it (estimator.py, "Timing"). Taken at the encoders' instant, under 0.7 %."""
     assert _along_track_drift_pct(0.0) > 1.0  # the tick's mean rate, as before
     assert 0.0 < _along_track_drift_pct(EstimatorConfig().gyro_age_s) < 0.7
+
+
+def test_the_rolling_ball_foot_gives_the_base_velocity_exactly():
+    """Known geometry: a ball foot (radius ρ) rolling without slip on a tilted plane while the base moves and
+    turns. Its centre moves at ω_foot × ρn, so it is not at rest; the odometry must still return the base
+    velocity, and ignoring the rolling (ρ = 0 at the contact point) must not."""
+    from scout_agent.state_estimation import stance_velocity_measurements
+
+    rng = np.random.default_rng(4)
+    rho = 0.0265
+    n = np.array([0.2, -0.1, 1.0])
+    n /= np.linalg.norm(n)  # the ground normal, base frame (base frame = world frame here)
+    for _ in range(20):
+        v_base, w_base = rng.normal(0.0, 0.2, 3), rng.normal(0.0, 0.5, 3)
+        w_rel = rng.normal(0.0, 3.0, 3)  # the calf's rate relative to the base
+        r = np.array([0.2, 0.1, -0.33]) + rng.normal(0.0, 0.03, 3)  # foot centre
+        v_centre = np.cross(w_base + w_rel, rho * n)  # rolling: the contact point is at rest
+        u = v_centre - v_base - np.cross(w_base, r)  # the centre's velocity relative to the base
+        feet = np.tile(r, (4, 1))
+        z, rc = stance_velocity_measurements(feet, np.tile(u, (4, 1)), np.tile(w_rel, (4, 1)), w_base, n, rho)
+        np.testing.assert_allclose(z[0], v_base, atol=1e-12)
+        np.testing.assert_allclose(rc[0], r - rho * n, atol=1e-15)
+        z0, _ = stance_velocity_measurements(feet, np.tile(u, (4, 1)), np.tile(w_rel, (4, 1)), w_base, n, 0.0)
+        assert np.linalg.norm(z0[0] - v_base) > 1e-3
