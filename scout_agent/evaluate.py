@@ -9,6 +9,8 @@ on the same run, the same estimators and map fed the simulator's exact base stat
 `elevation_rmse_exact_m`, `slip_precision_exact`) and the paper-form slip detector (`slip_paper_*`); the state
 estimate's drift at the end (`drift_xy_pct`, `drift_z_m`, `drift_yaw_deg`), its error over the whole run and
 whether its covariance contains it (`pos_error_max_m`, `pos_error_final_m`, `yaw_error_max_deg`, `nees_pos_mean`,
+`pos_error_start_m` and the error's growth after the start `pos_error_growth_max_m`, `pos_error_growth_final_m`,
+`drift_after_start_xy_pct`,
 `inside_3sigma_frac`, and for the heading `nees_yaw_mean`, `yaw_inside_3sigma_frac`:
 `scout_agent/state_estimation/consistency.py`), the sensor profile (`sensors`:
 realistic/ideal), `localization` ("off" until a localizer runs), the start it was given (`launch`), and `cot_whole_run_truth` (the
@@ -62,6 +64,10 @@ __all__ = ["GT_SLIP_M", "Evaluator", "evaluate_run"]
 ERROR_KEYS = (
     "pos_error_max_m",
     "pos_error_final_m",
+    "pos_error_start_m",  # the launch survey's error, and what the walk added to it after t = 0
+    "pos_error_growth_max_m",
+    "pos_error_growth_final_m",
+    "drift_after_start_xy_pct",
     "yaw_error_max_deg",
     "nees_pos_mean",
     "inside_3sigma_frac",

@@ -68,7 +68,8 @@ can do, from what the robot knows:
   (0.1 °/s/g) times the change of gravity's direction in the IMU since the last zero-rate update;
 - leg odometry's along-track error is a fraction of the distance (1–2 % in the literature, docs/physics.md; foot
   rolling, compliance, link lengths): the horizontal position variance grows along the velocity by
-  2 k² d·|v| dt, so σ = k·d with k = `odometry_scale_std` (1 %);
+  2 k² d·|v| dt, so σ = k·d with k = `odometry_scale_std` (1 %; measured since the gyro timing, realistic sensors
+  from the exact start: +0.3 % on the ramps, +0.3–1.2 % on the 20 m lunar routes' rougher ground);
 - the gyro's scale and cross-axis error turn heading by a constant fraction of the net turn: the heading variance
   is raised to k²·max|ψ − ψ_ref|² with k = `gyro_scale_std` (1.4 %, BMI088 ±1 % each), the reference restarting
   when a measurement halved the heading variance (a pose fix); it is added about world z (`ErrorStateEKF.add_heading_variance`);
