@@ -140,6 +140,22 @@ class EstimatorConfig:
     standstill: StandstillConfig = field(default_factory=StandstillConfig)  # standstill.py
 
 
+class Inflation(NamedTuple):
+    """The running quantities of `StateEstimator._inflate` (kernels.inflate takes and returns them in order)."""
+
+    temp0: float  # IMU temperature at the first reading (the power-on calibration's) [°C]
+    gyro_temp0: float  # IMU temperature at the last ZARU (the gyro bias's reference) [°C]
+    dtemp_prev: float  # the accelerometer's ΔT at the last tick [K]
+    gyro_dtemp_prev: float  # the gyro's ΔT at the last tick [K]
+    temp_prev: float  # the last tick's IMU temperature [°C]
+    du2_peak: float  # the largest |Δu|² of gravity's direction since the last ZARU [(m/s²)²]
+    bias_heading_rad: float  # ∫σ_bz dt since the last ZARU: heading σ the gyro bias may have added
+    walked_m: float  # horizontal distance by the estimate [m]
+    turn_net_rad: float  # net heading turned by the estimate since the scale term's reference [rad]
+    turn_peak_rad: float  # the largest |turn_net_rad| since then [rad]
+    heading_var_prev: float  # heading variance after the last tick's inflation [rad²]
+
+
 class StateEstimate(NamedTuple):
     t: float
     pos: np.ndarray  # (3,) base origin, world [m]
@@ -256,27 +272,40 @@ class StateEstimator:
         self._gyro_fresh: np.ndarray | None = None  # the last fresh gyro reading [rad/s] (timing, docstring)
         self._stamp_prev = 0.0
         self._held_s = 0.0  # time propagated on lost packets since the last fresh reading [s]
-        self._temp0 = math.nan  # IMU temperature at the first reading (the power-on calibration's) [°C]
-        self._dtemp_prev = 0.0
-        self._gyro_temp0 = math.nan  # IMU temperature at the last ZARU (the gyro bias's reference) [°C]
-        self._temp_prev = math.nan  # the last tick's IMU temperature [°C]
         self.tempco = GyroTempco(c.gyro_tempco_std)  # the gyro's temperature coefficient, learnt standing
         self._tempco_k = np.zeros(3)  # its estimate [rad/s/K] and σ, per axis (the datasheet's before a fit)
         self._tempco_sd = np.full(3, c.gyro_tempco_std)
         self._u_first: np.ndarray | None = None  # gravity in the base frame at the first ZARU [m/s²]
-        self._gyro_dtemp_prev = 0.0
         self._u_zaru: np.ndarray | None = None  # gravity in the base frame at the last ZARU [m/s²]
-        self._du2_peak = 0.0
         self._stand_since: float | None = None  # standing on four settled feet since [s]
         self._zaru: ZeroRateWindow | None = None  # the standstill's open window (standstill.py)
         self.zaru_updates = 0  # zero-rate updates fused
         self.zaru_refused = 0  # windows refused (feet moved against each other, or the χ² gate)
         self.standstill_s = 0.0  # time stood with standstill updates [s]
-        self.bias_heading_rad = 0.0  # ∫σ_bz dt since the last ZARU: heading σ the gyro bias may have added
-        self.walked_m = 0.0  # horizontal distance by the estimate [m]
-        self.turn_net_rad = 0.0  # net heading turned by the estimate since the scale term's reference [rad]
-        self._turn_peak_rad = 0.0  # the largest |turn_net_rad| since then [rad]
-        self._heading_var_prev = math.inf  # heading variance after the last tick's inflation [rad²]
+        self._inflation = Inflation(
+            temp0=math.nan,
+            gyro_temp0=math.nan,
+            dtemp_prev=0.0,
+            gyro_dtemp_prev=0.0,
+            temp_prev=math.nan,
+            du2_peak=0.0,
+            bias_heading_rad=0.0,
+            walked_m=0.0,
+            turn_net_rad=0.0,
+            turn_peak_rad=0.0,
+            heading_var_prev=math.inf,
+        )
+        # the squared σ's `_inflate` adds with (kernels.inflate's `coef`)
+        self._inflate_coef = np.array(
+            [
+                c.gyro_g_sens_std**2,
+                c.acc_tempco_std**2,
+                c.odometry_scale_std**2,
+                c.odometry_height_std**2,
+                c.gyro_scale_std**2,
+                c.slip_pos_std_m**2,
+            ]
+        )
         self._contact_since = np.full(4, np.inf)
         self._settled = np.zeros(4, bool)
         self._use = np.zeros(4, bool)
@@ -306,76 +335,72 @@ class StateEstimator:
         return gyro + (gyro - prev) * (age / since_s)
 
     def _inflate(self, tick: SensorTick, dt: float, n_rejected: int) -> None:
-        """Process noise the 15-state model has no state for (module docstring, "Consistency")."""
-        c, P = self.config, self.ekf.P
-        temp = tick.imu_temp_c
-        if temp == temp:  # bias change with temperature: TCO² × d(ΔT²), ΔT since the bias was last measured
-            if self._temp0 != self._temp0:
-                self._temp0 = self._gyro_temp0 = temp
-            dtemp = temp - self._temp0  # accelerometer: since power-on (no standstill separates its bias)
-            d2 = abs(dtemp * dtemp - self._dtemp_prev * self._dtemp_prev)
-            self._dtemp_prev = dtemp
-            dtemp_g = temp - self._gyro_temp0  # gyro: since the last zero-rate update
-            d2g = abs(dtemp_g * dtemp_g - self._gyro_dtemp_prev * self._gyro_dtemp_prev)
-            self._gyro_dtemp_prev = dtemp_g
-            # the gyro's offset follows the learnt coefficient; what is left of it is the fit's σ (the datasheet's
-            # TCO until the standstills have measured it: bias_temperature.py)
-            if self._temp_prev == self._temp_prev and temp != self._temp_prev:
-                self.ekf.bg += self._tempco_k * (temp - self._temp_prev)
-            self._temp_prev = temp
-        # g-sensitivity: the gyro's offset moves with the specific force's direction in the IMU (tilt on a
-        # slope), by G·Δu since the last zero-rate update, u = Rᵀ(−g): the bias variance is raised to
-        # gs² × max|Δu|² (the largest shift so far bounds it). Adding gs² × |d|Δu|²| every tick instead summed
-        # the trot's roll and pitch wobble, up and down, into a variance growing without bound (1e-9 (rad/s)²/s
-        # on a 100 m walk, ten times the bias walk's), which spent the standstills' heading budget
-        if self._u_zaru is None:
-            self._u_zaru = self.ekf.R.T @ -self.ekf.g
-        du2 = kernels.gravity_shift2(self.ekf.R, self.ekf.g, self._u_zaru)
-        q = c.gyro_g_sens_std**2 * max(du2 - self._du2_peak, 0.0)
-        self._du2_peak = max(du2, self._du2_peak)
-        # the bias variances: the temperature terms (when the thermometer reads), then the g-sensitivity's q
-        # (kernels.add_bias_noise: twelve element updates compiled)
-        if temp == temp:
-            kernels.add_bias_noise(P, self._tempco_sd, d2g, c.acc_tempco_std**2 * d2, q, True, 2.0)
-        else:
-            kernels.add_bias_noise(P, self._tempco_sd, 0.0, 0.0, q, False, 2.0)
-        self.bias_heading_rad += math.sqrt(P[11, 11]) * dt
-        vx, vy, _ = self.ekf.v.tolist()
-        speed = math.hypot(vx, vy)
-        if speed > 1e-3:  # along-track odometry scale: σ = k·distance (d σ² = 2 k² d·|v| dt)
-            q = 2.0 * c.odometry_scale_std**2 * self.walked_m * speed * dt
-            ux, uy = vx / speed, vy / speed
-            P[6, 6] += q * ux * ux
-            P[7, 7] += q * uy * uy
-            P[6, 7] += q * ux * uy
-            P[7, 6] += q * ux * uy
-            if self.anchored:  # the height's error grows from the launch ground's anchor on
-                P[8, 8] += c.odometry_height_std**2 * speed * dt
-            self.walked_m += speed * dt
-        # heading from the gyro's scale/cross-axis error: a constant factor s of the net turn, s·(ψ − ψ_ref), so
-        # the heading variance is raised to k²·max|ψ − ψ_ref|² (k = `gyro_scale_std`; the largest net turn so
-        # far bounds it whatever the turns' order). Counting every turn's magnitude (k × the angle turned) made
-        # the σ grow without bound as a robot turned back and forth at hazard stops (16° after 660 s, error 3°).
-        # The reference restarts when a measurement at least halved the heading variance (a pose fix: what it
-        # left is mostly the fix's own error, and from there on the scale's is s times the turn since); not on
-        # the small reductions of a standstill's bias correction, which would split one growing error into
-        # segments whose variances add to less than its own.
-        # Added about world z (u = Rᵀe_z), not base z: on a slope the base-z variance was also tilt, fully
-        # correlated with heading, and the gravity update then turned the heading by cot(slope) × its tilt
-        # residual (3.8° in 0.4 s at a hazard stop on a 12° slope of a 100 m walk; ekf.add_heading_variance)
+        """Process noise the 15-state model has no state for (module docstring, "Consistency"); the arithmetic
+        compiled in `kernels.inflate`, whose lines say, in order:
+        - bias change with temperature: TCO² × d(ΔT²), ΔT since the bias was last measured (the accelerometer's
+          since power-on: no standstill separates its bias; the gyro's since the last zero-rate update); the
+          gyro's offset follows the learnt coefficient, what is left of it is the fit's σ (the datasheet's TCO
+          until the standstills have measured it: bias_temperature.py);
+        - g-sensitivity: the gyro's offset moves with the specific force's direction in the IMU (tilt on a
+          slope), by G·Δu since the last zero-rate update, u = Rᵀ(−g): the bias variance is raised to
+          gs² × max|Δu|² (the largest shift so far bounds it). Adding gs² × |d|Δu|²| every tick instead summed
+          the trot's roll and pitch wobble, up and down, into a variance growing without bound (1e-9 (rad/s)²/s
+          on a 100 m walk, ten times the bias walk's), which spent the standstills' heading budget;
+        - the bias variances: the temperature terms (when the thermometer reads), then the g-sensitivity's;
+        - along-track odometry scale: σ = k·distance (d σ² = 2 k² d·|v| dt); the height's error grows from the
+          launch ground's anchor on;
+        - heading from the gyro's scale/cross-axis error: a constant factor s of the net turn, s·(ψ − ψ_ref), so
+          the heading variance is raised to k²·max|ψ − ψ_ref|² (k = `gyro_scale_std`; the largest net turn so
+          far bounds it whatever the turns' order). Counting every turn's magnitude (k × the angle turned) made
+          the σ grow without bound as a robot turned back and forth at hazard stops (16° after 660 s, error 3°).
+          The reference restarts when a measurement at least halved the heading variance (a pose fix: what it
+          left is mostly the fix's own error, and from there on the scale's is s times the turn since); not on
+          the small reductions of a standstill's bias correction, which would split one growing error into
+          segments whose variances add to less than its own. Added about world z (u = Rᵀe_z), not base z: on a
+          slope the base-z variance was also tilt, fully correlated with heading, and the gravity update then
+          turned the heading by cot(slope) × its tilt residual (3.8° in 0.4 s at a hazard stop on a 12° slope
+          of a 100 m walk; ekf.add_heading_variance);
+        - the gate refused a foot: the others may be sliding too, undetected (slip σ² per refusal)."""
         e = self.ekf
-        if e.heading_variance() < 0.5 * self._heading_var_prev:
-            self.turn_net_rad = self._turn_peak_rad = 0.0
-        self.turn_net_rad += kernels.world_z_rate(e.R, tick.imu_gyro, e.bg) * dt
-        peak = max(self._turn_peak_rad, abs(self.turn_net_rad))
-        q = c.gyro_scale_std**2 * (peak * peak - self._turn_peak_rad * self._turn_peak_rad)
-        if q > 0.0:
-            e.add_heading_variance(q)
-        self._turn_peak_rad = peak
-        self._heading_var_prev = e.heading_variance()
-        if n_rejected:  # the gate refused a foot: the others may be sliding too, undetected
-            P[6, 6] += n_rejected * c.slip_pos_std_m**2
-            P[7, 7] += n_rejected * c.slip_pos_std_m**2
+        if self._u_zaru is None:
+            self._u_zaru = e.R.T @ -e.g
+        vx, vy, _ = e.v.tolist()
+        self._inflation = Inflation._make(
+            kernels.inflate(
+                e.R,
+                e.g,
+                e.bg,
+                e.P,
+                tick.imu_gyro,
+                self._u_zaru,
+                self._tempco_k,
+                self._tempco_sd,
+                self._inflate_coef,
+                float(tick.imu_temp_c),
+                math.hypot(vx, vy),
+                vx,
+                vy,
+                dt,
+                n_rejected,
+                self.anchored,
+                self._inflation,
+            )
+        )
+
+    @property
+    def bias_heading_rad(self) -> float:
+        """∫σ_bz dt since the last zero-rate update: the heading σ the gyro bias may have added [rad]."""
+        return self._inflation.bias_heading_rad
+
+    @property
+    def walked_m(self) -> float:
+        """Horizontal distance walked by the estimate [m]."""
+        return self._inflation.walked_m
+
+    @property
+    def turn_net_rad(self) -> float:
+        """Net heading turned by the estimate since the gyro scale term's reference [rad]."""
+        return self._inflation.turn_net_rad
 
     def position_covariance(self) -> np.ndarray:
         """(3, 3) covariance of the base position, world frame [m²]."""
@@ -509,12 +534,11 @@ class StateEstimator:
             self.zaru_refused += 1
             return
         self.zaru_updates += 1
-        self.bias_heading_rad = 0.0
+        self._inflation = self._inflation._replace(bias_heading_rad=0.0)
         temp = tick.imu_temp_c
         u = e.R.T @ -e.g
         if temp == temp:  # the bias's temperature drift restarts from here
-            self._gyro_temp0 = temp
-            self._gyro_dtemp_prev = 0.0
+            self._inflation = self._inflation._replace(gyro_temp0=temp, gyro_dtemp_prev=0.0)
             if (
                 self.config.gyro_tempco_learn
             ):  # and the window joins the temperature fit, its variance widened by
@@ -524,4 +548,4 @@ class StateEstimator:
                 self.tempco.add(temp, z, np.full(3, var + gs2))
                 self._tempco_k, self._tempco_sd = self.tempco.slope()
         self._u_zaru = u  # and its g-sensitivity from this attitude
-        self._du2_peak = 0.0
+        self._inflation = self._inflation._replace(du2_peak=0.0)

@@ -18,6 +18,7 @@ __all__ = [
     "gravity_shift2",
     "heading_variance",
     "imu_to_base",
+    "inflate",
     "propagate",
     "so3_exp",
     "update",
@@ -267,3 +268,91 @@ def add_bias_noise(
             P[9 + i, 9 + i] += tempco_sd[i] ** two * d2g
             P[12 + i, 12 + i] += acc_temp_var
         P[9 + i, 9 + i] += q_gs
+
+
+@njit(cache=True, nogil=True)
+def inflate(
+    R: np.ndarray,
+    g: np.ndarray,
+    bg: np.ndarray,
+    P: np.ndarray,
+    gyro: np.ndarray,
+    u_zaru: np.ndarray,
+    tempco_k: np.ndarray,
+    tempco_sd: np.ndarray,
+    coef: np.ndarray,
+    temp: float,
+    speed: float,
+    vx: float,
+    vy: float,
+    dt: float,
+    n_rejected: int,
+    anchored: bool,
+    state: tuple[float, ...],
+) -> tuple[float, float, float, float, float, float, float, float, float, float, float]:
+    """`StateEstimator._inflate`'s arithmetic in place on P and bg (the same operations in the same order; the
+    docstring there says what each term is). `coef`: the squared σ's (g-sensitivity, accelerometer tempco,
+    odometry scale, odometry height, gyro scale, slip). `state` (the estimator's `Inflation`) in, and out: temp0, gyro_temp0, dtemp_prev,
+    gyro_dtemp_prev, temp_prev, du2_peak, bias_heading_rad, walked_m, turn_net_rad, turn_peak_rad,
+    heading_var_prev. `speed` = hypot(vx, vy), from Python's math.hypot (numba's differs in the last bit)."""
+    temp0, gyro_temp0, dtemp_prev, gyro_dtemp_prev, temp_prev, du2_peak = state[0:6]
+    bias_heading, walked, turn_net, turn_peak, hv_prev = state[6:11]
+    gs2, acc2, scale2, height2, gscale2, slip2 = coef[0], coef[1], coef[2], coef[3], coef[4], coef[5]
+    d2 = d2g = 0.0
+    if temp == temp:
+        if temp0 != temp0:
+            temp0 = gyro_temp0 = temp
+        dtemp = temp - temp0
+        d2 = abs(dtemp * dtemp - dtemp_prev * dtemp_prev)
+        dtemp_prev = dtemp
+        dtemp_g = temp - gyro_temp0
+        d2g = abs(dtemp_g * dtemp_g - gyro_dtemp_prev * gyro_dtemp_prev)
+        gyro_dtemp_prev = dtemp_g
+        if temp_prev == temp_prev and temp != temp_prev:
+            step = temp - temp_prev
+            for i in range(3):
+                bg[i] += tempco_k[i] * step
+        temp_prev = temp
+    du2 = gravity_shift2(R, g, u_zaru)
+    q = gs2 * max(du2 - du2_peak, 0.0)
+    du2_peak = max(du2, du2_peak)
+    if temp == temp:
+        add_bias_noise(P, tempco_sd, d2g, acc2 * d2, q, True, 2.0)
+    else:
+        add_bias_noise(P, tempco_sd, 0.0, 0.0, q, False, 2.0)
+    bias_heading += np.sqrt(P[11, 11]) * dt
+    if speed > 1e-3:
+        q = 2.0 * scale2 * walked * speed * dt
+        ux, uy = vx / speed, vy / speed
+        P[6, 6] += q * ux * ux
+        P[7, 7] += q * uy * uy
+        P[6, 7] += q * ux * uy
+        P[7, 6] += q * ux * uy
+        if anchored:
+            P[8, 8] += height2 * speed * dt
+        walked += speed * dt
+    if heading_variance(R, P) < 0.5 * hv_prev:
+        turn_net = turn_peak = 0.0
+    turn_net += world_z_rate(R, gyro, bg) * dt
+    peak = max(turn_peak, abs(turn_net))
+    q = gscale2 * (peak * peak - turn_peak * turn_peak)
+    if q > 0.0:
+        add_heading_variance(R, P, q)
+    turn_peak = peak
+    hv_prev = heading_variance(R, P)
+    if n_rejected:
+        P[6, 6] += n_rejected * slip2
+        P[7, 7] += n_rejected * slip2
+    return (
+        temp0,
+        gyro_temp0,
+        dtemp_prev,
+        gyro_dtemp_prev,
+        temp_prev,
+        du2_peak,
+        bias_heading,
+        walked,
+        turn_net,
+        turn_peak,
+        hv_prev,
+    )

@@ -122,8 +122,10 @@ class StandstillState(Protocol):
     """What the planner reads of the state estimator (estimator.StateEstimator)."""
 
     standstill_s: float
-    bias_heading_rad: float
     zaru_updates: int
+
+    @property
+    def bias_heading_rad(self) -> float: ...
 
 
 class StandstillPlanner:
