@@ -129,7 +129,7 @@ class PilotConfig:
     slip_gait_enter_mps: float = 0.06
     slip_gait_wait_s: float = 2.0
     # from a hazard stop to the end of the back-off, walk `slip_gait` (off: lunar matrix 23 falls of 30 with the
-    # crawl switched in at the stop, under a trunk still moving; braking first, the spot walks still fell)
+    # crawl switched in at the stop, under a trunk still moving; braking first as here, 22 of 30; 7 without)
     back_crawl: bool = False
     back_max_yaw_rate: float = FollowerConfig.max_yaw_rate  # [rad/s] while backing off
     back_speed: float = 0.1  # [m/s], trotting (a crawl back-off fell in 4 of 4 ramp walks where this one fell in 2); no velocity loop: on ground that slips, pushing harder slides
