@@ -57,6 +57,11 @@ class PinocchioFeet:
         )
         return self._pos, self._vel
 
+    def buffers(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The arrays `feet_base_and_vel` fills in place: positions, velocities, angular velocities (4, 3),
+        Jacobians (4, 3, 3) (for a compiled caller that runs `kinematics.leg_motion` on them itself)."""
+        return self._pos, self._vel, self.foot_omega, self._J
+
     def feet_base(self, q: np.ndarray) -> np.ndarray:
         return self.feet_base_and_vel(q, np.zeros(12))[0].copy()
 

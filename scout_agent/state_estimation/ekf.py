@@ -85,6 +85,11 @@ class ErrorStateEKF:
             [n.acc_bias_walk**2] * 3,
         ]  # process noise densities², per unit time
 
+    @property
+    def process_noise(self) -> np.ndarray:
+        """(15,) the process noise densities², per unit time (the propagation's q)."""
+        return self._q
+
     def _arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The nominal state and covariance the kernels update in place: R, v, p, bg, ba, P."""
         return self.R, self.v, self.p, self.bg, self.ba, self.P

@@ -95,8 +95,8 @@ from . import kernels
 from .bias_temperature import GyroTempco
 from .ekf import ErrorStateEKF, NoiseConfig
 from .launch import LaunchPose
-from .leg_odometry import odometry_rows
 from .standstill import StandstillConfig, ZeroRateWindow
+from .tick_kernel import odometry_tick
 
 _EZ = np.array([0.0, 0.0, 1.0])
 _ALL4 = np.ones(4, bool)
@@ -185,30 +185,6 @@ def matrix_to_quat(R: np.ndarray) -> np.ndarray:
 
 
 @njit(cache=True, nogil=True)
-def _settled_feet(
-    contact: np.ndarray,
-    since: np.ndarray,
-    t: float,
-    settle_s: float,
-    mid_stance: np.ndarray,
-    settled: np.ndarray,
-    use: np.ndarray,
-) -> tuple[int, int, int]:
-    """Feet whose contact has lasted `settle_s` into `settled` (4,), and of those the ones in `mid_stance`
-    into `use`; `since` (4,) each contact's start [s] (inf without contact), updated in place. Returns the
-    counts (in contact, settled, in use): the tick's branches need only those."""
-    n_contact = n_settled = n_use = 0
-    for i in range(4):
-        since[i] = min(since[i], t) if contact[i] else np.inf
-        settled[i] = contact[i] and t - since[i] >= settle_s
-        use[i] = settled[i] and mid_stance[i]
-        n_contact += contact[i]
-        n_settled += settled[i]
-        n_use += use[i]
-    return n_contact, n_settled, n_use
-
-
-@njit(cache=True, nogil=True)
 def _update_footholds(
     contact: np.ndarray,
     was_contact: np.ndarray,
@@ -269,6 +245,7 @@ class StateEstimator:
         self._r_imu = np.asarray(c.imu_offset_m, dtype=float)
         self._lever = bool(np.any(self._r_imu))
         self._w_prev = np.zeros(3)
+        self._f_base = np.zeros(3)  # the tick's specific force at the base origin [m/s²] (filled in place)
         self._gyro_fresh: np.ndarray | None = None  # the last fresh gyro reading [rad/s] (timing, docstring)
         self._stamp_prev = 0.0
         self._held_s = 0.0  # time propagated on lost packets since the last fresh reading [s]
@@ -437,47 +414,56 @@ class StateEstimator:
             self._inflate(tick, dt, 0)
             self.estimate = self._estimate(tick.imu_gyro - e.bg)
             return self.estimate
-        if tick.stamp_s == tick.stamp_s:  # integrate over the stamped interval (less what was held)
-            dt = min(max(tick.stamp_s - self._stamp_prev - self._held_s, 0.2 * dt), 3.0 * dt)
-            self._stamp_prev = tick.stamp_s
-        gyro_now = self._gyro_at_encoders(tick.imu_gyro, dt + self._held_s)
-        self._held_s = 0.0
-        f_base = self._specific_force(tick, dt)
-        e.propagate(tick.imu_gyro, f_base, dt)
-        contact = tick.contact
-        settled, use = self._settled, self._use
         # the controller froze its gait with every foot down (a contact flag may still flicker on a lightly
         # loaded foot; the zero-rate window checks that the feet kept their places): every settled foot
         # planted, each one's odometry is a zero-velocity update
         stand = standing and c.standstill.enabled
-        n_contact, n_settled, n_use = _settled_feet(
-            contact,
-            self._contact_since,
-            t,
-            c.stance_settle_s,
-            _ALL4 if mid_stance is None or stand else mid_stance,
-            settled,
-            use,
+        # compiled (tick_kernel.odometry_tick, the same operations in the same order): the stamped interval
+        # (less what was held), the gyro at the encoders' instant (`_gyro_at_encoders`), the specific force at
+        # the base origin (`_specific_force`), the IMU propagation, the settled feet, the feet's kinematics,
+        # and the leg-odometry update of the settled feet in mid-stance (χ²-gated, heading held)
+        has_prev = self._gyro_fresh is not None
+        if self._gyro_fresh is None:
+            self._gyro_fresh = np.zeros(3)
+        f_base = self._f_base
+        dt, self._stamp_prev, n_contact, n_settled, n_rejected = odometry_tick(
+            (e.R, e.v, e.p, e.bg, e.ba, e.P, e.g, e.process_noise),
+            (
+                tick.imu_acc,
+                tick.imu_gyro,
+                np.ascontiguousarray(tick.q, dtype=float),
+                np.ascontiguousarray(tick.dq, dtype=float),
+                tick.contact,
+            ),
+            self.feet.buffers(),
+            (
+                self._contact_since,
+                self._settled,
+                self._use,
+                _ALL4 if mid_stance is None or stand else mid_stance,
+            ),
+            (self._r_imu, self._w_prev, self._gyro_fresh, f_base),
+            self._normal_w,
+            self._leg_var,
+            (
+                t,
+                dt,
+                tick.stamp_s,
+                self._stamp_prev,
+                self._held_s,
+                c.gyro_age_s,
+                c.stance_settle_s,
+                c.foot_radius_m,
+                c.gate_chi2,
+            ),
+            (self._lever, has_prev, stand, c.odometry_holds_heading),
         )
+        self._held_s = 0.0
+        contact, settled = tick.contact, self._settled
         any_contact = n_contact > 0
-        if any_contact or stand:
-            fb, fv = self.feet.feet_base_and_vel(tick.q, tick.dq)
-        if n_use:
-            feet = (fb, fv, self.feet.foot_omega)
-            n_b = e.R.T @ self._normal_w
-            residual, H = odometry_rows(use, e.R, e.v, e.bg, feet, gyro_now, n_b, c.foot_radius_m)
-            keep = e.update(
-                residual,
-                H,
-                self._leg_var[: H.shape[0]],
-                gate_chi2=c.gate_chi2,
-                hold_heading=c.odometry_holds_heading,
-            )
-            n_rejected = len(keep) - int(np.count_nonzero(keep))
-            self.rejected += n_rejected
-            self._inflate(tick, dt, n_rejected)
-        else:
-            self._inflate(tick, dt, 0)
+        fb = self.feet.buffers()[0]
+        self.rejected += n_rejected
+        self._inflate(tick, dt, n_rejected)
         if not self.anchored and n_settled >= 2:
             # settled feet stand on the launch ground: the one height the mission knows (its survey)
             feet_z = float(np.mean((fb[settled] @ e.R.T)[:, 2]))
