@@ -57,22 +57,30 @@ def odometry_tick(
     normal_w: np.ndarray,
     leg_var: np.ndarray,
     scalars: tuple[float, float, float, float, float, float, float, float, float],
-    flags: tuple[bool, bool, bool, bool],
+    flags: tuple[bool, bool, bool, bool, bool],
 ) -> tuple[float, float, int, int, int]:
-    """One fresh tick to the odometry update, in place.
+    """One tick to the odometry update, in place; a lost packet's (not `fresh`) only its propagation on the held
+    reading over the loop period.
 
     ekf: R, v, p, bg, ba, P, g, process noise q (the filter's arrays); reading: the tick's imu_acc, imu_gyro,
     q, dq, contact; feet: the kinematics' buffers (positions, velocities, angular velocities, Jacobians);
     stance: contact starts, settled, in use (written), the mid-stance mask to use; imu: the lever arm r, the last
     ω (lever-arm kernel's), the last fresh gyro reading (written), f_base (written: the specific force at the
     base origin). scalars: t, dt (the loop period), stamp_s, stamp_prev, held_s, gyro_age_s, settle_s,
-    foot_radius, gate_chi2; flags: lever arm, a previous fresh reading exists, standing, hold heading.
+    foot_radius, gate_chi2; flags: fresh, lever arm, a previous fresh reading exists, standing, hold heading.
     Returns (dt, stamp_prev, n_contact, n_settled, n_rejected)."""
     R, v, p, bg, ba, P, g, q = ekf
     acc, gyro, jq, jdq, contact = reading
     t, dt, stamp, stamp_prev, held, age, settle_s, foot_radius, gate_chi2 = scalars
-    lever, has_prev, stand, hold_heading = flags
+    fresh, lever, has_prev, stand, hold_heading = flags
     r_imu, w_prev, gyro_fresh, f_base = imu
+    if not fresh:  # a lost packet: the held reading propagated, no measurement
+        if lever:
+            f_base[:] = kernels.imu_to_base(acc, gyro, bg, w_prev, r_imu, dt)
+        else:
+            f_base[:] = acc
+        kernels.propagate(R, v, p, bg, ba, P, g, q, gyro, f_base, dt)
+        return dt, stamp_prev, 0, 0, 0
     if stamp == stamp:  # integrate over the stamped interval (less what was held)
         dt = min(max(stamp - stamp_prev - held, 0.2 * dt), 3.0 * dt)
         stamp_prev = stamp
