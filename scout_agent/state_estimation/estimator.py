@@ -84,9 +84,7 @@ from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
 
-from scout_agent.estimators.elevation import terrain_normal
 from scout_agent.estimators.feet import PinocchioFeet
 from scout_agent.onboard.drivers import SensorTick
 from scout_agent.robot import constants as C
@@ -96,7 +94,7 @@ from .bias_temperature import GyroTempco
 from .ekf import ErrorStateEKF, NoiseConfig
 from .launch import LaunchPose
 from .standstill import StandstillConfig, ZeroRateWindow
-from .tick_kernel import odometry_tick
+from .tick_kernel import estimate_arrays, matrix_to_quat, odometry_tick
 
 _EZ = np.array([0.0, 0.0, 1.0])
 _ALL4 = np.ones(4, bool)
@@ -163,56 +161,6 @@ class StateEstimate(NamedTuple):
     quat: np.ndarray  # (4,) wxyz of R
     vel: np.ndarray  # (3,) world [m/s]
     omega: np.ndarray  # (3,) bias-corrected angular velocity, base frame [rad/s]
-
-
-@njit(cache=True, nogil=True)
-def matrix_to_quat(R: np.ndarray) -> np.ndarray:
-    """(w, x, y, z) of a rotation matrix (Shepperd's method); compiled, the estimate needs it every tick."""
-    tr = R[0, 0] + R[1, 1] + R[2, 2]
-    if tr > 0:
-        s = 2.0 * np.sqrt(tr + 1.0)
-        q = np.array([0.25 * s, (R[2, 1] - R[1, 2]) / s, (R[0, 2] - R[2, 0]) / s, (R[1, 0] - R[0, 1]) / s])
-    elif R[0, 0] > R[1, 1] and R[0, 0] > R[2, 2]:
-        s = 2.0 * np.sqrt(1.0 + R[0, 0] - R[1, 1] - R[2, 2])
-        q = np.array([(R[2, 1] - R[1, 2]) / s, 0.25 * s, (R[0, 1] + R[1, 0]) / s, (R[0, 2] + R[2, 0]) / s])
-    elif R[1, 1] > R[2, 2]:
-        s = 2.0 * np.sqrt(1.0 + R[1, 1] - R[0, 0] - R[2, 2])
-        q = np.array([(R[0, 2] - R[2, 0]) / s, (R[0, 1] + R[1, 0]) / s, 0.25 * s, (R[1, 2] + R[2, 1]) / s])
-    else:
-        s = 2.0 * np.sqrt(1.0 + R[2, 2] - R[0, 0] - R[1, 1])
-        q = np.array([(R[1, 0] - R[0, 1]) / s, (R[0, 2] + R[2, 0]) / s, (R[1, 2] + R[2, 1]) / s, 0.25 * s])
-    return q if q[0] >= 0 else -q
-
-
-@njit(cache=True, nogil=True)
-def _update_footholds(
-    contact: np.ndarray,
-    was_contact: np.ndarray,
-    feet_b: np.ndarray,
-    R: np.ndarray,
-    p: np.ndarray,
-    footholds: np.ndarray,
-) -> bool:
-    """Each foot in contact: its world position R·foot + p into `footholds` (4, 3) (the same BLAS product as
-    numpy's `feet @ R.T`); True if one of them touched down this tick."""
-    k = 0
-    for i in range(4):
-        k += contact[i]
-    sel = np.empty((k, 3))
-    m = 0
-    for i in range(4):
-        if contact[i]:
-            sel[m] = feet_b[i]
-            m += 1
-    w = np.dot(sel, R.T)
-    m, new = 0, False
-    for i in range(4):
-        if contact[i]:
-            for j in range(3):
-                footholds[i, j] = w[m, j] + p[j]
-            m += 1
-            new |= not was_contact[i]
-    return new
 
 
 class StateEstimator:
@@ -392,6 +340,19 @@ class StateEstimator:
         e = self.ekf
         return StateEstimate(self.t, e.p.copy(), e.R.copy(), matrix_to_quat(e.R), e.v.copy(), omega)
 
+    def _finish(self, tick: SensorTick, any_contact: bool) -> StateEstimate:
+        """The tick's footholds (a new one refits the ground plane) and its `StateEstimate`, in one compiled
+        call (tick_kernel.estimate_arrays; `_estimate`'s arithmetic)."""
+        e = self.ekf
+        arrays = estimate_arrays(
+            (tick.contact, self._was_contact, self.feet.buffers()[0], self._footholds, self._normal_w),
+            (e.R, e.p, e.v, e.bg, tick.imu_gyro),
+            any_contact,
+        )
+        self._was_contact = tick.contact
+        self.estimate = StateEstimate(self.t, *arrays)
+        return self.estimate
+
     def _odometry_tick(
         self, t: float, tick: SensorTick, dt: float, mid_stance: np.ndarray | None, stand: bool
     ) -> tuple[float, float, int, int, int]:
@@ -462,8 +423,7 @@ class StateEstimator:
             if self._zaru is not None:
                 self._zaru.add(tick.imu_gyro, dt)
             self._inflate(tick, dt, 0)
-            self.estimate = self._estimate(tick.imu_gyro - e.bg)
-            return self.estimate
+            return self._finish(tick, False)
         # compiled (tick_kernel.odometry_tick, the same operations in the same order): the stamped interval
         # (less what was held), the gyro at the encoders' instant (`_gyro_at_encoders`), the specific force at
         # the base origin (`_specific_force`), the IMU propagation, the settled feet, the feet's kinematics,
@@ -473,7 +433,7 @@ class StateEstimator:
         )
         f_base = self._f_base
         self._held_s = 0.0
-        contact, settled = tick.contact, self._settled
+        settled = self._settled
         any_contact = n_contact > 0
         fb = self.feet.buffers()[0]
         self.rejected += n_rejected
@@ -492,11 +452,9 @@ class StateEstimator:
             e.P[8, 8] += datum_var
             self.anchored = True
         self._standstill(t, stand, tick, f_base, fb if any_contact or stand else None, dt)
-        if any_contact and _update_footholds(contact, self._was_contact, fb, e.R, e.p, self._footholds):
-            self._normal_w = terrain_normal(self._footholds)  # a new foothold: refit the ground plane
-        self._was_contact = contact
-        self.estimate = self._estimate(tick.imu_gyro - e.bg)
-        return self.estimate
+        return self._finish(
+            tick, any_contact
+        )  # footholds (a new one: the ground plane refitted), the estimate
 
     def _standstill(
         self, t: float, stand: bool, tick: SensorTick, f_base: np.ndarray, fb: np.ndarray | None, dt: float

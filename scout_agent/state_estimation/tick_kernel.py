@@ -13,12 +13,13 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from scout_agent.estimators.elevation import _terrain_normal
 from scout_agent.robot.kinematics import leg_motion
 
 from . import kernels
 from .leg_odometry import odometry_rows
 
-__all__ = ["odometry_tick", "settled_feet"]
+__all__ = ["estimate_arrays", "matrix_to_quat", "odometry_tick", "settled_feet"]
 
 
 @njit(cache=True, nogil=True)
@@ -121,3 +122,71 @@ def odometry_tick(
         for k in keep:
             n_rejected += not k
     return dt, stamp_prev, n_contact, n_settled, n_rejected
+
+
+@njit(cache=True, nogil=True)
+def matrix_to_quat(R: np.ndarray) -> np.ndarray:
+    """(w, x, y, z) of a rotation matrix (Shepperd's method); compiled, the estimate needs it every tick."""
+    tr = R[0, 0] + R[1, 1] + R[2, 2]
+    if tr > 0:
+        s = 2.0 * np.sqrt(tr + 1.0)
+        q = np.array([0.25 * s, (R[2, 1] - R[1, 2]) / s, (R[0, 2] - R[2, 0]) / s, (R[1, 0] - R[0, 1]) / s])
+    elif R[0, 0] > R[1, 1] and R[0, 0] > R[2, 2]:
+        s = 2.0 * np.sqrt(1.0 + R[0, 0] - R[1, 1] - R[2, 2])
+        q = np.array([(R[2, 1] - R[1, 2]) / s, 0.25 * s, (R[0, 1] + R[1, 0]) / s, (R[0, 2] + R[2, 0]) / s])
+    elif R[1, 1] > R[2, 2]:
+        s = 2.0 * np.sqrt(1.0 + R[1, 1] - R[0, 0] - R[2, 2])
+        q = np.array([(R[0, 2] - R[2, 0]) / s, (R[0, 1] + R[1, 0]) / s, 0.25 * s, (R[1, 2] + R[2, 1]) / s])
+    else:
+        s = 2.0 * np.sqrt(1.0 + R[2, 2] - R[0, 0] - R[1, 1])
+        q = np.array([(R[1, 0] - R[0, 1]) / s, (R[0, 2] + R[2, 0]) / s, (R[1, 2] + R[2, 1]) / s, 0.25 * s])
+    return q if q[0] >= 0 else -q
+
+
+@njit(cache=True, nogil=True)
+def update_footholds(
+    contact: np.ndarray,
+    was_contact: np.ndarray,
+    feet_b: np.ndarray,
+    R: np.ndarray,
+    p: np.ndarray,
+    footholds: np.ndarray,
+) -> bool:
+    """Each foot in contact: its world position R·foot + p into `footholds` (4, 3) (the same BLAS product as
+    numpy's `feet @ R.T`); True if one of them touched down this tick."""
+    k = 0
+    for i in range(4):
+        k += contact[i]
+    sel = np.empty((k, 3))
+    m = 0
+    for i in range(4):
+        if contact[i]:
+            sel[m] = feet_b[i]
+            m += 1
+    w = np.dot(sel, R.T)
+    m, new = 0, False
+    for i in range(4):
+        if contact[i]:
+            for j in range(3):
+                footholds[i, j] = w[m, j] + p[j]
+            m += 1
+            new |= not was_contact[i]
+    return new
+
+
+@njit(cache=True, nogil=True)
+def estimate_arrays(
+    feet: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+    state: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+    any_contact: bool,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The end of a tick: with `any_contact`, the footholds of the feet in contact (`update_footholds`) and, if one
+    of them touched down, the ground normal through them refitted in place (`elevation.terrain_normal`'s kernel);
+    then the estimate's arrays: copies of p, R, the quaternion of R, a copy of v, and ω = gyro − bg.
+    feet: contact, the last tick's contact, the feet (base frame), footholds (4, 3), normal_w (3,) (both written);
+    state: R, p, v, bg, the tick's gyro."""
+    contact, was_contact, feet_b, footholds, normal_w = feet
+    R, p, v, bg, gyro = state
+    if any_contact and update_footholds(contact, was_contact, feet_b, R, p, footholds):
+        _terrain_normal(footholds, normal_w)
+    return p.copy(), R.copy(), matrix_to_quat(R), v.copy(), gyro - bg
