@@ -16,9 +16,9 @@ scout_loop_real_time_factor / raw_real_time_factor (`ratio_cpu` the same on CPU 
 
     python3 benchmarks/sim.py [--seed 0] [--sim-seconds 30] [--repeats 1] [--no-estimators]
 
-Measured (docs/results.md, "Scout loop speed"): `--repeats 5` ratio 0.227 (CPU 0.220) with the estimators
-(fifth pass, median of six runs alternated with the tree before it, 0.201 / 0.198, at load 6–7 on the shared
-2-core machine; the issue's goal is 0.25); 0.260 with `--no-estimators` (second pass, load ≈ 4.7). CPU time includes the
+Measured (docs/results.md, "Scout loop speed"): `--repeats 5` ratio 0.270 (CPU 0.266) with the estimators
+(sixth pass, median of four runs alternated with the tree before it, 0.251 / 0.246, at load 1.5–2.4 on the shared
+2-core machine; the fifth pass's 0.227 / 0.220 was at load 6–7; the issue's goal is 0.25); 0.260 with `--no-estimators` (second pass, load ≈ 4.7). CPU time includes the
 walk's set-up (≈ 20 ms: the orbital DEM written and read back, the scene built).
 """
 
