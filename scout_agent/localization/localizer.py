@@ -74,6 +74,11 @@ class SourceConfig:
     # walked [m] (a reference's datum error is common to the fixes in between: they must not count it twice)
     height_fix_on: tuple[str, ...] = ("flat", "ambiguous", "edge")
     height_every_m: float = 0.0
+    # σ of the reference frame's heading [°]: a match against the others' cells turns the scout into the frame
+    # their own estimates drew them in, whose local orientation is off by their heading error (1.5–4.3° on the
+    # default mission, 1.4–4.8° on 100 m walks; docs/results.md); the map states their horizontal σ per cell
+    # (the placement layer, added whole to a place fix) but not their heading's, so this prior stands for it
+    frame_yaw_sigma_deg: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -127,6 +132,7 @@ class LocalizerConfig:
             height_fix=True,
             height_fix_on=("few", "flat", "ambiguous", "edge"),
             height_every_m=20.0,
+            frame_yaw_sigma_deg=3.0,
         )
     )
 
@@ -311,6 +317,12 @@ class Localizer:
                 assert res.cov is not None
                 cov = res.cov.copy()
                 cov[2, 2] += src.datum_m**2
+                if isinstance(
+                    ref, GridReference
+                ):  # the others' placement and heading: their frame, not truth
+                    cov[0, 0] += ref.place_var(pts[:, 0], pts[:, 1])
+                    cov[1, 1] += ref.place_var(pts[:, 0], pts[:, 1])
+                cov[3, 3] += np.radians(src.frame_yaw_sigma_deg) ** 2
                 cov *= max(1.0, min(src.track_m, self.walked_m) / src.every_m)  # footholds shared
                 meas = np.r_[
                     ekf.p[0] + res.dx, ekf.p[1] + res.dy, ekf.p[2] + res.dz, heading(ekf.R) + res.dyaw

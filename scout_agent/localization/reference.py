@@ -70,6 +70,9 @@ class GridReference:
     # per cell, σ of the vertical datum of whoever mapped it [m] (NaN: not stated): common to a scout's cells
     # nearby, so a height fix adds its mean square whole instead of averaging it over the cells
     datum_sigma: np.ndarray | None = None
+    # per cell, the RMS horizontal σ of whoever placed it [m] (the `placement` layer; NaN: not stated): common to
+    # a scout's cells nearby like the datum, so a place fix adds its mean square whole
+    place_sigma: np.ndarray | None = None
 
     @property
     def cell_m(self) -> float:
@@ -90,13 +93,20 @@ class GridReference:
 
     def datum_var(self, x: np.ndarray, y: np.ndarray) -> float:
         """Mean square of `datum_sigma` over the cells under the points that have one [m²]; 0 without."""
-        if self.datum_sigma is None:
+        return self._mean_square(self.datum_sigma, x, y)
+
+    def place_var(self, x: np.ndarray, y: np.ndarray) -> float:
+        """Mean square of `place_sigma` over the cells under the points that have one [m²]; 0 without."""
+        return self._mean_square(self.place_sigma, x, y)
+
+    def _mean_square(self, per_cell: np.ndarray | None, x: np.ndarray, y: np.ndarray) -> float:
+        if per_cell is None:
             return 0.0
         ix = np.floor((np.asarray(x) - self.x0) / self.res).astype(np.int64)
         iy = np.floor((np.asarray(y) - self.y0) / self.res).astype(np.int64)
-        h, w = self.datum_sigma.shape
+        h, w = per_cell.shape
         inside = (ix >= 0) & (iy >= 0) & (ix < w) & (iy < h)
-        d = self.datum_sigma[iy[inside], ix[inside]]
+        d = per_cell[iy[inside], ix[inside]]
         d = d[np.isfinite(d)]
         return float(np.mean(d**2)) if len(d) else 0.0
 

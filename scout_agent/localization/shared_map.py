@@ -7,7 +7,9 @@ taken out, cell by cell, before matching: the elevation statistics are sums, so 
 shared sums minus the scout's own local map (`scout_agent.cells.LocalMap`, exactly what it published) —
 matching its footholds against a map built from those same footholds would only confirm its own estimate. The
 `height` layer's Σσ² and count, taken apart the same way, give the others' vertical σ per cell (their datum's
-uncertainty, `GridReference.datum_sigma`), which a height fix against their cells adds whole.
+uncertainty, `GridReference.datum_sigma`), which a height fix against their cells adds whole; the `placement`
+layer's, their horizontal σ (`GridReference.place_sigma`: where their own estimates put the cells), which a
+place fix adds whole — a match against their cells places the scout in *their* frame, no better than they are.
 """
 
 from __future__ import annotations
@@ -31,7 +33,7 @@ __all__ = ["SharedMapSource"]
 log = logging.getLogger(__name__)
 
 _ADDITIVE = ("n", "sum", "sumsq", "sx", "sy", "sxx", "syy", "sxy", "sxz", "syz")
-_HEIGHT_ADDITIVE = ("n", "var")  # the height layer's sums the datum σ reads (Σ 1, Σ σ²)
+_SIGMA_ADDITIVE = ("n", "var")  # the height and placement layers' sums their σ reads (Σ 1, Σ σ²)
 
 
 class SharedMapSource:
@@ -74,7 +76,7 @@ class SharedMapSource:
             ask = (box[0] - radius, box[1] - radius, box[2] + radius, box[3] + radius)  # room to walk on
             try:
                 self._grid = fetch_region(self.session, self.map_id, ask, self.timeout_s, trusted=self.trusted,
-                                          layers=("elevation", "height"))  # fmt: skip
+                                          layers=("elevation", "height", "placement"))  # fmt: skip
                 self._box = ask
                 self.queries += 1
                 self.follow.done(statuses)
@@ -96,17 +98,26 @@ class SharedMapSource:
             stats[s] = np.where(gone, 0.0, stats[s])
         if not (n >= self.min_count - 1e-6).any():
             return None
-        # the others' vertical σ per cell (the height layer's RMS σ of their footholds): their datum, common to
-        # all of a scout's cells nearby, which a height fix cannot average away (NaN where they stated none)
-        datum = None
-        if "height" in g.layers:
-            h = _minus(g.layers["height"], region.get("height", {}), _HEIGHT_ADDITIVE)
-            with np.errstate(invalid="ignore", divide="ignore"):
-                datum = np.where(
-                    (h["n"] >= 1.0 - 1e-6) & ~gone, np.sqrt(np.maximum(h["var"], 0.0) / h["n"]), np.nan
-                )
         ref = map_reference(stats, g.x0 + g.ix0 * g.res, g.y0 + g.iy0 * g.res, g.res, self.min_count)
-        return replace(ref, datum_sigma=datum) if datum is not None else ref
+        return replace(
+            ref,
+            datum_sigma=self._per_cell_sigma(g, region, "height", gone),
+            place_sigma=self._per_cell_sigma(g, region, "placement", gone),
+        )
+
+    @staticmethod
+    def _per_cell_sigma(g: LayerGrid, region: dict, layer: str, gone: np.ndarray) -> np.ndarray | None:
+        """The others' RMS σ per cell from a layer's (Σ1, Σσ²) with the scout's own part taken out: the `height`
+        layer's vertical σ (their datum, common to all of a scout's cells nearby, which a height fix cannot
+        average away), the `placement` layer's horizontal σ (where their own estimate put the cells); NaN
+        where they stated none; None without the layer."""
+        if layer not in g.layers:
+            return None
+        h = _minus(g.layers[layer], region.get(layer, {}), _SIGMA_ADDITIVE)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(
+                (h["n"] >= 1.0 - 1e-6) & ~gone, np.sqrt(np.maximum(h["var"], 0.0) / h["n"]), np.nan
+            )
 
 
 def _minus(shared: dict, mine: dict, names: Sequence[str]) -> dict[str, np.ndarray]:

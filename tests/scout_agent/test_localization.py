@@ -445,3 +445,38 @@ def test_only_a_fused_fix_reaches_the_mapper_not_the_learnt_drift_taken_off() ->
     assert got == []
     _localize_and_report(loc, est, drift_and_fix, got.append)  # type: ignore[arg-type]
     assert len(got) == 1 and got[0].correction[2] == pytest.approx(0.3)
+
+
+def test_a_place_fix_against_the_others_cells_is_no_surer_than_they_were_placed() -> None:
+    """A match against the shared map places the scout in the frame the other scouts' estimates drew their
+    cells in: the cells' placement σ (their `placement` layer) is added whole to the fix. The same 0.3 m offset
+    on the same relief: against cells placed to 1 cm the estimate takes nearly all of it; against cells placed
+    to 0.4 m at most two thirds, and it keeps a σ of ≥ 0.3 m, 1.5 times the other's at least; and the
+    heading is never made surer than the reference frame's stated heading σ allows."""
+    from dataclasses import replace
+    from types import SimpleNamespace
+
+    from scout_agent.localization import Localizer, LocalizerConfig
+
+    z = _relief(4)
+    off = np.array([0.3, 0.0])
+    xy = _track(120, length=3.0, heading_rad=0.6) + (6.0, 6.0)
+    h, _ = _ref(z).heights(xy[:, 0], xy[:, 1])
+    taken, sigma, sig_yaw = {}, {}, {}
+    for place_m in (0.01, 0.4):
+        ref = replace(_ref(z), place_sigma=np.full(z.shape, place_m))
+        e = _ekf(sig_pos=0.5, sig_yaw=np.radians(5.0))
+        e.p[:2] = xy[-1] - off
+        loc = Localizer(SimpleNamespace(ekf=e, feet=None), LocalizerConfig(),  # type: ignore[arg-type]
+                        map_source=lambda x, y, r, ref=ref: ref)  # fmt: skip
+        loc.track.add(np.column_stack([xy - off, h]), 20.0)
+        loc.walked_m = 20.0
+        loc.localize("map")
+        assert loc.report.fused["map"] == 1, loc.report
+        taken[place_m] = float((e.p[0] - (xy[-1, 0] - off[0])) / off[0])
+        sigma[place_m] = float(np.sqrt(np.linalg.eigvalsh(e.P[6:8, 6:8]).max()))
+        sig_yaw[place_m] = float(np.degrees(np.sqrt(e.P[2, 2])))
+    assert taken[0.01] > 0.85 and taken[0.4] < 0.67, taken
+    assert sigma[0.4] >= 0.3 and sigma[0.4] > 1.5 * sigma[0.01], sigma
+    frame = LocalizerConfig().map.frame_yaw_sigma_deg
+    assert min(sig_yaw.values()) > 0.9 * frame * 5.0 / np.hypot(frame, 5.0), sig_yaw
