@@ -320,8 +320,9 @@ class Localizer:
                 if isinstance(
                     ref, GridReference
                 ):  # the others' placement and heading: their frame, not truth
-                    cov[0, 0] += ref.place_var(pts[:, 0], pts[:, 1])
-                    cov[1, 1] += ref.place_var(pts[:, 0], pts[:, 1])
+                    place = ref.place_var(pts[:, 0], pts[:, 1])
+                    cov[0, 0] += place
+                    cov[1, 1] += place
                 cov[3, 3] += np.radians(src.frame_yaw_sigma_deg) ** 2
                 cov *= max(1.0, min(src.track_m, self.walked_m) / src.every_m)  # footholds shared
                 meas = np.r_[
