@@ -32,6 +32,7 @@ SHARED = (  # what both sides may import: the interface, the records, the robot'
     "scout_agent.robot",
     "scout_agent.errors",
     "scout_agent.dem_reader",
+    "scout_agent.ccall",  # C routines of loaded libraries (quadprog, MuJoCo) called from compiled code
 )
 HARNESS = (  # joins the two and evaluates: the loop, the run, the command line
     "scout_agent.loop",
