@@ -26,6 +26,14 @@ from numba.core import cgutils
 from numba.extending import intrinsic
 
 
+def package_library(package_dir: str | Path, stem: str) -> Path:
+    """The shared library `stem` shipped in a package's directory (`libmujoco.so.4.0.0`, `.dylib`, `.dll`)."""
+    found = sorted(p for p in Path(package_dir).glob(f"{stem}*") if p.suffix != ".py")
+    if not found:
+        raise RuntimeError(f"no shared library {stem}* in {package_dir}")
+    return found[0]
+
+
 def c_function(library: str | Path, name: str) -> int:
     """The address of the exported C function `name` in the shared library at `library` (one already loaded:
     dlopen then returns the loaded copy)."""
@@ -101,4 +109,4 @@ def _ccall_int(typingctx, address, args):  # type: ignore[no-untyped-def]
 ccall_void = cast(Callable[[int, tuple[Any, ...]], None], _ccall_void)
 ccall_int = cast(Callable[[int, tuple[Any, ...]], int], _ccall_int)
 
-__all__ = ["c_function", "ccall_int", "ccall_void"]
+__all__ = ["c_function", "ccall_int", "ccall_void", "package_library"]

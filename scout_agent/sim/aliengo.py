@@ -26,7 +26,7 @@ import mujoco
 import numpy as np
 from numba import njit
 
-from scout_agent.ccall import c_function, ccall_void
+from scout_agent.ccall import c_function, ccall_void, package_library
 from scout_agent.lowlevel import LowCmd, LowState
 from scout_agent.robot import constants as C
 from scout_agent.robot import kinematics as K
@@ -40,7 +40,7 @@ from scout_agent.sim.truth import TickTruth, stance_displacement, tick_truth_int
 
 # MuJoCo's `mj_step` in the library its Python bindings loaded: the control tick's physics steps and the copies of
 # their readings run in one compiled call (`_physics_tick`) instead of five binding calls and twenty numpy copies
-_MJ_STEP = c_function(next(Path(mujoco.__file__).parent.glob("libmujoco.so*")), "mj_step")
+_MJ_STEP = c_function(package_library(Path(mujoco.__file__).parent, "libmujoco"), "mj_step")
 
 
 @dataclass(frozen=True)

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 import quadprog
 
+from scout_agent.ccall import c_function, package_library
 from scout_agent.control.stance import StanceQP, StanceQPConfig, qp_problem
 from scout_agent.lowlevel import LowCmd
 from scout_agent.robot import constants as C
@@ -101,3 +102,10 @@ def test_the_physics_tick_equals_mujocos_binding_bit_for_bit():
         assert a._energy_tick_j == work * a.dt
         touching += a.data.ncon > 0
     assert touching > 100 and np.abs(a.data.qpos[:2] - a.start[:2]).max() > 0.01  # on the ground, moved
+
+
+def test_a_missing_library_or_routine_is_named(tmp_path):
+    with pytest.raises(RuntimeError, match="no shared library libnothing"):
+        package_library(tmp_path, "libnothing")
+    with pytest.raises(RuntimeError, match="exports no C function 'no_such_routine'"):
+        c_function(quadprog.__file__, "no_such_routine")
