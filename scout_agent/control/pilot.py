@@ -89,6 +89,16 @@ class PilotConfig:
     stop_stand: bool = False
     stand_s: float = 1.0
     stand_max_slope_deg: float = 15.0
+    # with a stand at the stop: stand on beyond `stand_s` until the estimated trunk roll and pitch rates have stayed
+    # below `settle_rate_rps` for `settle_quiet_s`, at most `stand_max_s` in all (None: `stand_s` only). A back-off
+    # that starts while the trunk still rocks on its feet starts a trot on a moving base
+    settle_rate_rps: float | None = None
+    settle_quiet_s: float = 0.5
+    stand_max_s: float = 4.0
+    # back off straight backwards along the heading it stands at, as far as the trail's back-off would go, instead of
+    # along the trail itself: after a slide the trail lies to the side, and the reverse follower turned the trot at
+    # its full yaw rate on the patch to reach it (lunar seed 9 direct: a stand, then 0.5 rad/s, fell in 0.9 s)
+    back_straight: bool = False
     # back off facing forward: stand at the stop as `stop_stand` does (where the plane is gentle), then turn in
     # place (the follower's speed falls to 0 while the heading error exceeds 90°, turning at most
     # back_max_yaw_rate) and walk the back-off path forward, as the trot is built to, instead of reversing the
@@ -191,6 +201,9 @@ class Pilot:
         self._normal_key: tuple[float, float] | None = None
         self._normal = np.array([0.0, 0.0, 1.0])
         self._stand_stop = False  # this stop stands on four feet (`stop_stand`)
+        self._quiet_since: float | None = (
+            None  # the trunk's roll and pitch rates low since then [s] (settling)
+        )
         self.lost_spots: list[tuple[float, float, float]] = []  # x, y [m], μ̂ where a foot lost its hold
         self._wish = config.trot  # the gait to walk (`_shift_gait` switches the controller to it)
         self._slow_since: float | None = None  # the speed command reached slip_gait_speed then [s]
@@ -247,6 +260,22 @@ class Pilot:
         margin = self.setting.margin if self.setting is not None else math.inf
         return max(c.brake_min_mps2, c.brake_share * C.LUNAR_G * margin) if c.brake_share else math.inf
 
+    def _settled(self, s: RobotState) -> bool:
+        """A stand at a stop has lasted long enough: `stand_s`, and with `settle_rate_rps` set, until the trunk's
+        estimated roll and pitch rates stayed below it for `settle_quiet_s` (or `stand_max_s` passed)."""
+        c = self.config
+        t = s.t - self._t_mode
+        quiet = math.hypot(float(s.omega[0]), float(s.omega[1])) < (c.settle_rate_rps or math.inf)
+        if not quiet:
+            self._quiet_since = None
+        elif self._quiet_since is None:
+            self._quiet_since = s.t
+        if t < c.stand_s:
+            return False
+        if c.settle_rate_rps is None or t >= c.stand_max_s:
+            return True
+        return self._quiet_since is not None and s.t - self._quiet_since >= c.settle_quiet_s
+
     def _command(self, s: RobotState, dt: float) -> tuple[float, float]:
         yaw = float(np.arctan2(s.R[1, 0], s.R[0, 0]))
         stand = self.mode == "walk" and self.hold is not None and not self.reached and self.hold(s.t)
@@ -254,9 +283,9 @@ class Pilot:
         self.controller.hold = (
             stand  # on four feet, gait frozen: a standstill (state_estimation/standstill.py)
         )
-        if stand and self.mode == "stop" and s.t - self._t_mode >= self.config.stand_s:
+        if stand and self.mode == "stop" and self._settled(s):
             self.controller.hold = False
-            self._start_back(s.pos[:2], s.t)
+            self._start_back(s.pos[:2], s.t, yaw)
             return 0.0, 0.0
         if stand:
             return 0.0, 0.0
@@ -278,7 +307,7 @@ class Pilot:
                 self._go_around(s.pos[:2], s.t)
             return v, w
         if self.mode == "stop" and s.t - self._t_mode >= self.config.stop_s:
-            self._start_back(s.pos[:2], s.t)
+            self._start_back(s.pos[:2], s.t, yaw)
         return 0.0, 0.0
 
     # ------------------------------------------------------------------ feel
@@ -419,9 +448,10 @@ class Pilot:
         self._stand_stop = stand and steep <= c.stand_max_slope_deg
         if c.back_crawl:
             self._wish = c.slip_gait
+        self._quiet_since = None
         self._set_mode("stop", felt.t)
 
-    def _start_back(self, pos: np.ndarray, t: float) -> None:
+    def _start_back(self, pos: np.ndarray, t: float, yaw: float = math.nan) -> None:
         c = self.config
         if not c.back_off:
             self._back_len = 0.0
@@ -445,6 +475,9 @@ class Pilot:
             if walked >= c.backoff_max_m or (walked >= c.backoff_min_m and held):
                 break
         self._back_len = walked
+        if c.back_straight and yaw == yaw and walked >= 0.05:
+            # straight back along the heading it stands at, as far (the trail told how far, not where)
+            back = [back[0], (back[0][0] - walked * math.cos(yaw), back[0][1] - walked * math.sin(yaw))]
         if len(back) < 2 or walked < 0.05:
             self._go_around(pos, t)
             return

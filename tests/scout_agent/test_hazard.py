@@ -330,3 +330,60 @@ def test_without_back_off_the_scout_stands_and_plans_its_detour_from_where_it_st
     dense = np.concatenate([np.linspace(a, b, 50) for a, b in zip(way[:-1], way[1:], strict=True)])
     r = min(cfg.detour.hazard_radius_m, 1.5 - cfg.detour.res)
     assert np.hypot(dense[:, 0] - 1.5, dense[:, 1]).min() >= r - cfg.detour.res
+
+
+def _rocking_state(t: float, roll_rate: float, yaw: float = 0.0) -> RobotState:
+    """`_standing_state` with the trunk rolling at `roll_rate` [rad/s] (base frame) and heading `yaw` [rad]."""
+    s = _standing_state(t)
+    c, sn = np.cos(yaw), np.sin(yaw)
+    R = np.array([[c, -sn, 0.0], [sn, c, 0.0], [0.0, 0.0, 1.0]])
+    return s._replace(R=R, omega=np.array([roll_rate, 0.0, 0.0]))
+
+
+def test_a_settling_stop_stands_until_the_trunk_stops_rocking():
+    # settle_rate_rps: the stand at a stop lasts stand_s and then until the estimated roll and pitch rates stayed
+    # below the limit for settle_quiet_s (a back-off trot started on a rocking trunk: docs/results.md, issue 24)
+    cfg = PilotConfig(stop_stand=True, stand_max_slope_deg=90.0, settle_rate_rps=0.2, settle_quiet_s=0.5)
+    pilot = _line_pilot(cfg)
+    pilot._stop(Felt(2.0, 0.5, 0.0, ("slip",), 3), 0.3, 0.0)
+    pilot.trail = [(0.0, -1.0, 0.0), (1.0, 0.0, 0.0)]
+    t, dt = 2.0, 0.01
+    while t < 2.0 + cfg.stand_s + 0.5:  # still rocking at 0.5 rad/s beyond stand_s: it stands on
+        t += dt
+        pilot.command(_rocking_state(t, 0.5), dt)
+        assert pilot.mode == "stop" and pilot.controller.hold
+    quiet_from = t
+    while pilot.mode == "stop":
+        t += dt
+        pilot.command(_rocking_state(t, 0.05), dt)
+    assert pilot.mode == "back" and t == pytest.approx(quiet_from + cfg.settle_quiet_s, abs=2 * dt)
+    # a trunk that never settles backs off at stand_max_s
+    pilot = _line_pilot(cfg)
+    pilot._stop(Felt(2.0, 0.5, 0.0, ("slip",), 3), 0.3, 0.0)
+    pilot.trail = [(0.0, -1.0, 0.0), (1.0, 0.0, 0.0)]
+    t = 2.0
+    while pilot.mode == "stop":
+        t += dt
+        pilot.command(_rocking_state(t, 0.5), dt)
+    assert t == pytest.approx(2.0 + cfg.stand_max_s, abs=2 * dt)
+
+
+def test_a_straight_back_off_reverses_along_the_heading_not_toward_the_trail():
+    # back_straight: after a slide the trail lies to the side; the straight back-off goes as far, straight behind
+    for straight in (True, False):
+        pilot = _line_pilot(PilotConfig(back_straight=straight))
+        pilot._stop(Felt(2.0, 0.5, 0.0, ("slip",), 3), 0.3, 0.0)
+        pilot.trail = [(0.0, -1.0, 0.6), (0.5, -0.5, 0.6), (1.0, 0.0, 0.6)]  # the way in, 0.6 m to the side
+        yaw = 0.3
+        v, w = pilot.command(_rocking_state(2.1, 0.0, yaw), 0.01)
+        assert pilot.mode == "back"
+        end = pilot._back.points[-1]
+        back_len = pilot._back_len
+        if straight:
+            assert np.allclose(end, (-back_len * np.cos(yaw), -back_len * np.sin(yaw)), atol=1e-9)
+            v, w = pilot.command(_rocking_state(2.11, 0.0, yaw), 0.01)
+            assert v < 0 and abs(w) < 0.01  # backwards, no turn
+        else:
+            assert end[1] == pytest.approx(0.6)  # along the trail, to the side (turning to reach it)
+            v, w = pilot.command(_rocking_state(2.11, 0.0, yaw), 0.01)
+            assert abs(w) > 0.1
