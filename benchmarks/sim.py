@@ -16,8 +16,8 @@ scout_loop_real_time_factor / raw_real_time_factor (`ratio_cpu` the same on CPU 
 
     python3 benchmarks/sim.py [--seed 0] [--sim-seconds 30] [--repeats 1] [--no-estimators]
 
-Measured (docs/results.md, "Scout loop speed"): `--repeats 5` ratio 0.299 (CPU 0.286) with the estimators
-(seventh pass, median of four runs alternated with the tree before it, 0.265 / 0.256, at load 8.6–9.5 on the
+Measured (docs/results.md, "Scout loop speed"): `--repeats 5` ratio 0.293 (CPU 0.283) with the estimators
+(seventh pass, median of six runs alternated with the tree before it, 0.261 / 0.254, at load 8.6–10 on the
 shared 2-core machine; the sixth pass's 0.270 / 0.266 was at load 1.5–2.4; the issue's goal is 0.25); 0.260 with
 `--no-estimators` (second pass, load ≈ 4.7). CPU time includes the walk's set-up (≈ 20 ms: the orbital DEM
 written and read back, the scene built).
