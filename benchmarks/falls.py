@@ -63,6 +63,8 @@ def walk(job: dict) -> dict:
                              hazard_control=job["on"])  # fmt: skip
     if job.get("pilot"):
         cfg = replace(cfg, pilot=replace(cfg.pilot, **job["pilot"]))
+    if job.get("controller"):
+        cfg = replace(cfg, sim=replace(cfg.sim, controller=replace(cfg.sim.controller, **job["controller"])))
     world = build_world(cfg)
     ev = Evaluator(res=0.4)
     t0 = time.time()
@@ -203,20 +205,21 @@ def _patch_unholdable(r: dict) -> bool:
     return r["kind"] == "ramps" and r["mu"] < math.tan(math.radians(r["slope"]))
 
 
-def _pilot_options(p: argparse.ArgumentParser, items: list[str]) -> dict:
-    """{field: value} from FIELD=VALUE items naming scalar PilotConfig fields."""
+def _pilot_options(p: argparse.ArgumentParser, items: list[str], flag: str = "--pilot") -> dict:
+    """{field: value} from FIELD=VALUE items naming scalar PilotConfig fields (`--controller`: scalar
+    ControllerConfig fields)."""
+    from scout_agent.control.controller import ControllerConfig
     from scout_agent.control.pilot import PilotConfig
 
+    cls = ControllerConfig if flag == "--controller" else PilotConfig
     scalar = {
-        f.name
-        for f in fields(PilotConfig)
-        if not hasattr(getattr(PilotConfig(), f.name), "__dataclass_fields__")
+        f.name for f in fields(cls) if isinstance(getattr(cls(), f.name), (bool, int, float, type(None)))
     }
     out: dict = {}
     for item in items:
         name, eq, text = item.partition("=")
         if not eq or name not in scalar:
-            p.error(f"--pilot {item!r}: give FIELD=VALUE with FIELD one of {', '.join(sorted(scalar))}")
+            p.error(f"{flag} {item!r}: give FIELD=VALUE with FIELD one of {', '.join(sorted(scalar))}")
         low = text.strip().lower()
         if low in ("true", "false", "none"):
             out[name] = {"true": True, "false": False, "none": None}[low]
@@ -224,7 +227,7 @@ def _pilot_options(p: argparse.ArgumentParser, items: list[str]) -> dict:
         try:
             out[name] = int(text) if low.lstrip("-").isdigit() else float(text)
         except ValueError:
-            p.error(f"--pilot {item!r}: VALUE must be true, false, none or a number")
+            p.error(f"{flag} {item!r}: VALUE must be true, false, none or a number")
     return out
 
 
@@ -249,6 +252,13 @@ def main() -> int:
         metavar="FIELD=VALUE",
         help="a PilotConfig field for the walks with the hazard control (bool, int, float or none), repeatable",
     )
+    p.add_argument(
+        "--controller",
+        action="append",
+        default=[],
+        metavar="FIELD=VALUE",
+        help="a scalar ControllerConfig field (the trot's contact handling) for every walk, repeatable",
+    )
     p.add_argument("--summary", type=Path, nargs="+")
     a = p.parse_args()
     if a.summary:
@@ -268,9 +278,12 @@ def main() -> int:
     jobs = [j for j in _jobs(a.kind, seeds, a.before or a.only == "before", angles, offsets)
             if a.only is None or j["on"] == (a.only == "after")
             if _key(j) not in done]  # fmt: skip
+    controller = _pilot_options(p, a.controller, "--controller")
     for j in jobs:
         if pilot and j["on"]:
             j["pilot"] = pilot
+        if controller:
+            j["controller"] = controller
     a.out.parent.mkdir(parents=True, exist_ok=True)
     with mp.get_context("spawn").Pool(a.workers, maxtasksperchild=4) as pool, a.out.open("a") as f:
         for r in pool.imap_unordered(walk, jobs):

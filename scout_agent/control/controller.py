@@ -61,6 +61,10 @@ class ControllerConfig:
     early_contact: float = 0.5  # swing progress after which a contact ends the swing
     search_speed: float = 0.4  # late touchdown: the foot keeps descending at this speed [m/s]
     search_depth: float = 0.12  # ... up to this far below its target [m]
+    # the swing lands at this share of its sine's vertical speed (`swing`): 1 landed every foot at 0.9 m/s, a
+    # one-tick impact of 50-60 N at a lunar weight of 33 N on every step, unequal between the diagonal's feet on
+    # uneven ground (docs/results.md, "The trot's touchdowns")
+    land_share: float = 0.4
 
 
 class RobotState(NamedTuple):
@@ -304,10 +308,11 @@ def _joint_commands(
     vel_des_b: np.ndarray,
 ) -> None:
     """Joint torques, PD targets and gains, and each foot's desired position/velocity in the base frame
-    (compiled). `plane_v` is `_trunk_wrench`'s `out`; `params` (10,): stance_kd, swing_kp, swing_kd,
+    (compiled). `plane_v` is `_trunk_wrench`'s `out`; `params` (11,): stance_kd, swing_kp, swing_kd,
     raibert_gain, max_foot_offset, swing_height, search_speed, search_depth (`ControllerConfig`); `targets`
     (the swing targets, world) updated in place; `params[8:10]`: the trunk's sway (world x, y) this tick, taken
-    off the hips the footholds are placed under (else a swaying crawl narrows its stance by the sway each step)."""
+    off the hips the footholds are placed under (else a swaying crawl narrows its stance by the sway each step);
+    `params[10]`: land_share."""
     stance_kd, swing_kp, swing_kd = params[0], params[1], params[2]
     raibert, max_off, swing_h, search_speed, search_depth = (
         params[3],
@@ -338,7 +343,7 @@ def _joint_commands(
         else:
             # swing foot: to the Raibert foothold on the plane or (late touchdown) down from its held target
             late = sched[i]
-            if late:
+            if late:  # the held target, lowered by the search so far (the target itself stays)
                 p1[0] = targets[i]
                 p1[0, 2] -= min(search_speed * (t - sched_td_t[i]), search_depth)
             else:
@@ -351,10 +356,10 @@ def _joint_commands(
                 p1[0, 0] = hip_w[0] + vd0 * rem + o0
                 p1[0, 1] = hip_w[1] + vd1 * rem + o1
                 p1[0, 2] = p1[0, 0] * g0 + p1[0, 1] * g1 + z0 - 0.01
-            targets[i] = p1[0]
+                targets[i] = p1[0]
             p0[0] = liftoff[i]
             prog[0] = 1.0 if late else sw[i]
-            swing_point_into(p0, p1, prog, swing_h, swing_s, p_w, v_w)
+            swing_point_into(p0, p1, prog, swing_h, swing_s, p_w, v_w, params[10])
             p_b = _mtv(R, p_w[0] - pos)
             v_b = _mtv(R, v_w[0] - vel) - _cross(omega, p_b)
             dq = _solve3(J[i], v_b, _EPS)
@@ -416,6 +421,7 @@ class TrotController:
                 c.search_depth,
                 0.0,  # the gait's sway, world x, y [m] (set each tick)
                 0.0,
+                c.land_share,
             ],
             dtype=float,
         )

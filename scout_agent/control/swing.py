@@ -1,4 +1,5 @@
-"""Swing-foot trajectories: a cubic (smoothstep) in xy and height plus a sine bump in z."""
+"""Swing-foot trajectories: a cubic (smoothstep) in xy and height plus a bump in z: h·(w·sin πs + (1 − w)·sin² πs),
+so the foot lifts off and lands at w times the sine's vertical speed h·π/T (w = 1: the plain sine)."""
 
 from __future__ import annotations
 
@@ -15,6 +16,7 @@ def swing_point_into(
     duration: float,
     pos: np.ndarray,
     vel: np.ndarray,
+    land_share: float = 1.0,
 ) -> None:
     """`swing_point` into `pos`, `vel` (k, 3) (compiled; the controller's tick calls it)."""
     for i in range(s.shape[0]):
@@ -24,13 +26,18 @@ def swing_point_into(
         for j in range(3):
             pos[i, j] = p0[i, j] + (p1[i, j] - p0[i, j]) * b
             vel[i, j] = (p1[i, j] - p0[i, j]) * db
-        pos[i, 2] += height * np.sin(np.pi * si)
-        vel[i, 2] += height * np.pi * np.cos(np.pi * si) / duration
+        sn, cs = np.sin(np.pi * si), np.cos(np.pi * si)
+        w = land_share
+        pos[i, 2] += height * (w * sn + (1.0 - w) * sn * sn)
+        vel[i, 2] += height * np.pi * (w * cs + (1.0 - w) * 2.0 * sn * cs) / duration
 
 
-def swing_point(p0: np.ndarray, p1: np.ndarray, s: np.ndarray, height: float, duration: float):
+def swing_point(
+    p0: np.ndarray, p1: np.ndarray, s: np.ndarray, height: float, duration: float, land_share: float = 1.0
+):
     """Position and velocity (k, 3) at progress `s` (k,) ∈ [0, 1] from lift-off `p0` to touchdown `p1`
-    (k, 3), world frame; `duration` is the swing time [s]."""
+    (k, 3), world frame; `duration` is the swing time [s]; `land_share` the share of the sine's vertical speed
+    the foot lands with."""
     k = len(s)
     pos, vel = np.empty((k, 3)), np.empty((k, 3))
     swing_point_into(
@@ -41,5 +48,6 @@ def swing_point(p0: np.ndarray, p1: np.ndarray, s: np.ndarray, height: float, du
         duration,
         pos,
         vel,
+        land_share,
     )
     return pos, vel

@@ -154,3 +154,34 @@ def test_controller_moves_its_world_points_with_a_state_estimate_correction():
         spread.step(state(k * dt, (0.1 * k * dt, 0.004 * k, 0.33)), dt)
     assert spread.corrections_followed == 1
     assert spread.footholds[0, 1] - f0[0, 1] == pytest.approx(0.004 * (1 + 0.9 * (1 + 0.9)), abs=1e-9)
+
+
+def test_a_late_foot_searches_down_at_the_search_speed_from_its_held_target():
+    """A foot scheduled in stance that has not touched down reaches down from its swing target at
+    `search_speed`, up to `search_depth` (before: the lowered target was written back every tick, so the
+    descent grew with the square of the time — 0.18 m below the target after 0.1 s instead of 0.04 m — and the
+    leg's servo drove the foot into the ground: touchdown impacts of 50–100 N at a lunar weight of 33 N)."""
+    from scout_agent.control.controller import ControllerConfig, RobotState, TrotController
+    from scout_agent.robot import constants as C
+
+    q, R, dt = np.array(C.HOME_Q, dtype=float), np.eye(3), 0.01
+    cfg = ControllerConfig()
+    ctl = TrotController(cfg)
+    ctl.set_command(0.0, 0.0)
+    g = ctl.gait
+    swing_end = g.stance_s + g.swing_s  # FL's (leg 0) first swing ends, its stance is scheduled
+    depth, t_sched, held = [], None, None
+    for k in range(int((swing_end + 0.35) / dt)):
+        t = k * dt
+        contact = np.ones(4, bool)
+        contact[0] = False  # FL never finds the ground
+        out = ctl.step(RobotState(t, np.array([0.0, 0.0, 0.33]), R, np.zeros(3), np.zeros(3), q, np.zeros(12),
+                                  contact), dt)  # fmt: skip
+        if out.stance_planned[0] and t > g.stance_s:
+            if t_sched is None:
+                t_sched, held = t, ctl.targets[0, 2]
+            depth.append((t - t_sched, held - out.foot_pos_des_base[0, 2] - 0.33))
+    assert t_sched is not None and len(depth) > 20
+    for elapsed, d in depth:  # the foot's target below its held swing target [m]
+        want = min(cfg.search_speed * elapsed, cfg.search_depth)
+        assert d == pytest.approx(want, abs=1e-6)
