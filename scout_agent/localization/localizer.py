@@ -32,8 +32,9 @@ from scout_agent.signals import ProprioSample
 from scout_agent.state_estimation import StateEstimator
 from scout_agent.state_estimation.pose_update import heading, update_pose
 
+from .height_track import HeightTrack, HeightTrackConfig
 from .matcher import HeightFix, MatchConfig, MatchResult, match_height, match_track
-from .reference import GridReference, HeightReference
+from .reference import DemReference, GridReference, HeightReference
 from .track import FootholdTrack
 
 __all__ = [
@@ -94,6 +95,11 @@ class LocalizerConfig:
     # gate, and the height ran away (−1.8 m on one scout; docs/results.md, "The map's heights at mission
     # scale"): the slope of one DEM track carries the horizontal misplacement too, which its σ does not state
     drift_rate_sigma: float = 0.0
+    # the DEM's height from every foothold since launch, each DEM pixel's error counted once, the datum and its
+    # drift per metre walked fitted together (height_track.py), at every DEM attempt; the filter's height is
+    # set to that estimate (it holds all the DEM said so far, and the shared map's height fixes). None: the
+    # height alone from the last `track_m` where the place is not found (`match_height`), as before
+    height_track: HeightTrackConfig | None = field(default_factory=HeightTrackConfig)
     yaw_steps: int = 3  # yaw candidates each side of the estimate's heading
     # a DEM: 5 m pixels with 0.3 m noise: the likelihood's moments over a wide window (benchmarks/dem_match.py:
     # on the 100 m field's relief, true footholds, 60 m tracks are never placed within ±8 m and ±6°, 100 m
@@ -178,6 +184,12 @@ class LocalizerReport:
         }
 
 
+def _sigma_xy(P: np.ndarray) -> float:
+    """σ of the position along its worst horizontal direction [m] (the larger eigenvalue of P[6:8, 6:8])."""
+    a, b, d = float(P[6, 6]), float(P[6, 7]), float(P[7, 7])
+    return float(np.sqrt(max(0.5 * (a + d) + np.hypot(0.5 * (a - d), b), 0.0)))
+
+
 @njit(cache=True, nogil=True)
 def _due_feet(
     contact: np.ndarray, since: np.ndarray, taken: np.ndarray, t: float, settle_s: float, due: np.ndarray
@@ -236,6 +248,11 @@ class Localizer:
         self.drift_rate = 0.0  # the height drift per metre walked taken off the estimate [m/m]
         self.drift_step_m = 0.0  # what the last tick took off the estimate's height for it [m]
         self.drift_rate_var = config.drift_rate_sigma**2  # its variance [(m/m)²]
+        self.heights = (
+            HeightTrack(config.height_track)
+            if config.height_track is not None and isinstance(dem, DemReference)
+            else None
+        )
 
     def on_tick(self, sample: ProprioSample) -> None:
         c = self.config
@@ -247,6 +264,8 @@ class Localizer:
             pts = fb[due] @ est.R.T + est.p
             pts[:, 2] -= C.FOOT_RADIUS
             self.track.add(pts, self.walked_m)
+            if self.heights is not None:
+                self.heights.add(pts, self.walked_m, _sigma_xy(est.P))
             self._taken |= due
         x, y = float(est.p[0]), float(est.p[1])
         if self._prev_xy is not None:
@@ -302,6 +321,7 @@ class Localizer:
         self._tried[name] = self.walked_m
         ref = self._reference(name, pts)
         fused = None
+        batch = name == "dem" and self.heights is not None  # the DEM's height from the whole walk
         if ref is None:
             self.report.refused[f"no_{name}"] += 1
         else:
@@ -310,13 +330,13 @@ class Localizer:
             res = match_track(pts, ref, search_config(c, src, sig_xy, sig_yaw), pivot=ekf.p[:2])
             if not res.ok:
                 self.report.refused[f"{name}_{res.reason}"] += 1
-                if src.height_fix and res.reason in src.height_fix_on:
+                if src.height_fix and res.reason in src.height_fix_on and not batch:
                     if self.walked_m - self._height_at[name] >= src.height_every_m:
                         self._fuse_height(name, pts, ref, src, sig_xy)
             else:
                 assert res.cov is not None
                 cov = res.cov.copy()
-                cov[2, 2] += src.datum_m**2
+                cov[2, 2] = np.inf if batch else cov[2, 2] + src.datum_m**2
                 if isinstance(
                     ref, GridReference
                 ):  # the others' placement and heading: their frame, not truth
@@ -332,15 +352,57 @@ class Localizer:
                 before = ekf.p.copy()
                 up = update_pose(ekf, meas, cov, float(chi2.ppf(1.0 - c.gate_p, k)))
                 if up.accepted:
-                    self.track.shift(before, ekf.p.copy(), float(up.correction[3]))
+                    self._shift(before, float(up.correction[3]))
                     self.report.fused[name] += 1
                     self.report.corrections_m.append(float(np.hypot(*up.correction[:2])))
                     fused = res
                 else:
                     self.report.refused[f"{name}_gate"] += 1
+            if batch:
+                self._fuse_walk_height(src)
         self.report.last_sigma_m = float(np.sqrt(max(np.linalg.eigvalsh(ekf.P[6:8, 6:8]).max(), 0.0)))
         self.report.match_seconds += time.perf_counter() - w0
         return fused
+
+    def _shift(self, before: np.ndarray, dyaw: float) -> None:
+        """Move what the localizer holds of the walk as the correction just fused moved the estimate."""
+        after = self.est.ekf.p.copy()
+        self.track.shift(before, after, dyaw)
+        if self.heights is not None:
+            self.heights.shift(before, after, dyaw)
+
+    def _fuse_walk_height(self, src: SourceConfig) -> None:
+        """The DEM's datum from the whole walk (`HeightTrack.fix`) replaces what the filter knew of its height:
+        it holds every foothold since launch and the shared map's height fixes, so fusing it as one more
+        independent measurement would count them again. The filter's height is set to the fix's mean and
+        variance (+ the DEM's vertical bias) by the one measurement whose update yields exactly those (its
+        noise R = P·V/(P − V), its value offset by the gain); none where the filter already knows its height
+        as well (V ≥ P: nothing new since the last). χ²-gated on the difference of the two estimates
+        (d²/(P − V)); counted as fused / refused under "dem_height"."""
+        assert self.heights is not None and isinstance(self.dem, DemReference)
+        fix = self.heights.fix(self.dem.dem, self.dem.subpixel_m, self.walked_m)
+        if fix is None:
+            self.report.refused["dem_height_few"] += 1
+            return
+        ekf = self.est.ekf
+        P0 = float(ekf.P[8, 8])
+        V = fix.var_m2 + src.datum_m**2
+        if not V < 0.98 * P0:
+            self.report.refused["dem_height_known"] += 1
+            return
+        R = P0 * V / (P0 - V)
+        gain = P0 / (P0 + R)
+        meas = np.array([np.nan, np.nan, ekf.p[2] + fix.dz / gain, np.nan])
+        before = ekf.p.copy()
+        up = update_pose(ekf, meas, np.diag([np.inf, np.inf, R, np.inf]),
+                         float(chi2.ppf(1.0 - self.config.gate_p, 1)))  # fmt: skip
+        if up.accepted:
+            self._shift(before, float(up.correction[3]))
+            self.report.fused["dem_height"] += 1
+            self._height_at["dem"] = self.walked_m
+            self.report.height_corrections_m.append(float(up.correction[2]))
+        else:
+            self.report.refused["dem_height_gate"] += 1
 
     def _fuse_height(
         self, name: str, pts: np.ndarray, ref: HeightReference, src: SourceConfig, sig_xy: float
@@ -362,7 +424,9 @@ class Localizer:
         before = ekf.p.copy()
         up = update_pose(ekf, meas, cov, float(chi2.ppf(1.0 - self.config.gate_p, 1)))
         if up.accepted:
-            self.track.shift(before, ekf.p.copy(), float(up.correction[3]))
+            if self.heights is not None:  # the DEM's next fix keeps what this one said
+                self.heights.add_point(self.walked_m, fix.dz, var)
+            self._shift(before, float(up.correction[3]))
             self.report.fused[f"{name}_height"] += 1
             self._height_at[name] = self.walked_m
             self.report.height_corrections_m.append(float(up.correction[2]))
