@@ -327,22 +327,24 @@ class Localizer:
         else:
             sig_xy = float(np.sqrt(max(np.linalg.eigvalsh(ekf.P[6:8, 6:8]).max(), 0.0)))
             sig_yaw = float(np.degrees(np.sqrt(max(ekf.P[2, 2], 0.0))))
-            res = match_track(pts, ref, search_config(c, src, sig_xy, sig_yaw), pivot=ekf.p[:2])
+            # the others' cells are where their own estimates put them: the search (within the source's window)
+            # and a height fix's averaging over the places allowed cover both placements
+            place = ref.place_var(pts[:, 0], pts[:, 1]) if isinstance(ref, GridReference) else 0.0
+            sig_rel = float(np.sqrt(sig_xy**2 + place))
+            res = match_track(pts, ref, search_config(c, src, sig_rel, sig_yaw), pivot=ekf.p[:2])
             if not res.ok:
                 self.report.refused[f"{name}_{res.reason}"] += 1
                 if src.height_fix and res.reason in src.height_fix_on and not batch:
                     if self.walked_m - self._height_at[name] >= src.height_every_m:
-                        self._fuse_height(name, pts, ref, src, sig_xy)
+                        self._fuse_height(name, pts, ref, src, sig_rel)
             else:
                 assert res.cov is not None
                 cov = res.cov.copy()
                 cov[2, 2] = np.inf if batch else cov[2, 2] + src.datum_m**2
-                if isinstance(
-                    ref, GridReference
-                ):  # the others' placement and heading: their frame, not truth
-                    place = ref.place_var(pts[:, 0], pts[:, 1])
+                if isinstance(ref, GridReference):  # the others' placement, datum and heading: their frame
                     cov[0, 0] += place
                     cov[1, 1] += place
+                    cov[2, 2] += ref.datum_var(pts[:, 0], pts[:, 1])
                 cov[3, 3] += np.radians(src.frame_yaw_sigma_deg) ** 2
                 cov *= max(1.0, min(src.track_m, self.walked_m) / src.every_m)  # footholds shared
                 meas = np.r_[
@@ -352,6 +354,8 @@ class Localizer:
                 before = ekf.p.copy()
                 up = update_pose(ekf, meas, cov, float(chi2.ppf(1.0 - c.gate_p, k)))
                 if up.accepted:
+                    if name == "map" and self.heights is not None:  # the DEM's next fix keeps this datum
+                        self.heights.add_point(self.walked_m, res.dz, float(cov[2, 2]))
                     self._shift(before, float(up.correction[3]))
                     self.report.fused[name] += 1
                     self.report.corrections_m.append(float(np.hypot(*up.correction[:2])))

@@ -480,3 +480,35 @@ def test_a_place_fix_against_the_others_cells_is_no_surer_than_they_were_placed(
     assert sigma[0.4] >= 0.3 and sigma[0.4] > 1.5 * sigma[0.01], sigma
     frame = LocalizerConfig().map.frame_yaw_sigma_deg
     assert min(sig_yaw.values()) > 0.9 * frame * 5.0 / np.hypot(frame, 5.0), sig_yaw
+
+
+def test_a_height_against_the_others_cells_averages_over_where_they_and_the_scout_may_be() -> None:
+    """The height from the others' cells on sloping ground, where the place match is refused: the datum is
+    read over the places the scout's σ and the others' placement σ allow together, so cells they placed with a
+    1.5 m σ pull the height less than the same cells placed to 1 cm, and the stated σ grows with it."""
+    from types import SimpleNamespace
+
+    from scout_agent.localization import Localizer, LocalizerConfig
+
+    n = 200
+    yy, xx = np.mgrid[0:n, 0:n] * 0.4 + 0.2
+    slope = 0.25 * xx + 0.1 * np.sin(yy / 3.0)  # a 14° slope, rolling across
+    pulled, sig = {}, {}
+    for place_m in (0.01, 1.5):
+        others = GridReference(slope + 0.3, np.full((n, n), 0.02), 0.0, 0.0, 0.4, np.full((n, n), 0.25),
+                               0.1 / 3.0 * np.cos(yy / 3.0), datum_sigma=np.full((n, n), 0.05),
+                               place_sigma=np.full((n, n), place_m))  # fmt: skip
+        e = _ekf(sig_pos=0.3)
+        e.P[8, 8] = 0.25
+        xy = _track(200, length=10.0, heading_rad=np.pi / 2) + (30.0, 20.0)  # along the contour
+        h, _ = GridReference(slope, np.full((n, n), 0.02), 0.0, 0.0, 0.4).heights(xy[:, 0], xy[:, 1])
+        e.p[:] = (*xy[-1], 0.0)
+        cfg = LocalizerConfig()
+        loc = Localizer(SimpleNamespace(ekf=e, feet=None), cfg, map_source=lambda x, y, r, ref=others: ref)  # type: ignore[arg-type]
+        loc.track.add(np.column_stack([xy, h]), 0.0)
+        loc.walked_m = 10.0
+        loc.localize("map")
+        assert loc.report.fused["map_height"] == 1, loc.report
+        pulled[place_m], sig[place_m] = float(e.p[2]), float(np.sqrt(e.P[8, 8]))
+    assert pulled[0.01] > 0.25 and pulled[1.5] < 0.8 * pulled[0.01], pulled
+    assert sig[1.5] > 1.5 * sig[0.01], sig
