@@ -13,6 +13,10 @@ samples with the tick's filter variances and distance walked, and
   smoothed variance P(t) − (P(t)/P⁻(T))²·(P⁻(T) − P⁺(T)). A tick just before the fix takes (almost) all of
   it, the launch's datum error (in P from the start) its share, drift grown since the last fix none of the
   previous one's. Then everything held is released, corrected;
+- a fix that states its datum along the walk (`PoseFix.height_profile`) sets each held foothold's height to
+  where that datum puts it (its height as placed, plus every correction since, plus the datum at its distance
+  walked): the whole-walk DEM fix revises the older part of the walk too, which the smoother's gain, built
+  for a fix that only adds the newest evidence, would leave as the previous fix had it;
 - releases samples older than `hold_m` walked without a fix as they are (the localizer refused or was not
   due), and everything when the mapper closes.
 
@@ -30,6 +34,7 @@ from __future__ import annotations
 
 import math
 from bisect import bisect_left
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -60,11 +65,15 @@ class HoldConfig:
 
 class PoseFix(NamedTuple):
     """A pose correction a localizer fused into the estimate: the change of the base position (x, y, z) [m]
-    and the filter's variance of x, y, z just before and just after it [m²] (x, y: the larger axis)."""
+    and the filter's variance of x, y, z just before and just after it [m²] (x, y: the larger axis); with
+    `height_profile`, the fix's datum along the walk behind it (distance walked before now, ≤ 0 [m] -> the
+    reference's height minus the estimate's there [m], in the frame before the correction): a fix from the
+    whole walk (localization/height_track.py) revises the heights it already corrected, the launch's too."""
 
     correction: np.ndarray  # (3,)
     var_before: np.ndarray  # (3,) as (xy, xy, z)
     var_after: np.ndarray  # (3,)
+    height_profile: Callable[[np.ndarray], np.ndarray] | None = None
 
 
 def height_rows(
@@ -112,10 +121,12 @@ class HeldSamples:
         self.config = config
         # per tick: walked [m], var_xy, var_z [m²] (smoothed in place by each fix); NaN variance = unknown
         self._ticks: list[tuple[float, float, float]] = []
+        self.dz_total = 0.0  # the height corrections of every fix so far [m]
         self._tick0 = 0  # absolute index of `_ticks[0]`
         self._chunks: list[tuple[int, float, float]] = []  # (end tick, exclusive; newest t [s]; walked there)
         self._rows: dict[str, list[tuple[float, ...]]] = {name: [] for name in LAYERS}  # (tick, x, y, *stats)
-        self._feet: list[tuple[float, ...]] = []  # (tick, x, y, z)
+        # (tick, x, y, z, z as placed less the height corrections before it: its height in no fix's frame)
+        self._feet: list[tuple[float, ...]] = []
         self._prev_xy: tuple[float, float] | None = None
         self._t = 0.0
         self.walked_m = 0.0
@@ -142,7 +153,7 @@ class HeldSamples:
         self._rows[layer].append((self._tick0 + len(self._ticks) - 1, *row))
 
     def add_elevation(self, x: float, y: float, z: float) -> None:
-        self._feet.append((self._tick0 + len(self._ticks) - 1, x, y, z))
+        self._feet.append((self._tick0 + len(self._ticks) - 1, x, y, z, z - self.dz_total))
 
     @property
     def pending(self) -> int:
@@ -195,6 +206,8 @@ class HeldSamples:
                 float(np.sqrt(max(after[2], 0.0))),
             )
         )
+        dz_before = self.dz_total
+        self.dz_total += float(fix.correction[2])
         if not self._ticks:
             return
         self.fixes += 1
@@ -210,7 +223,10 @@ class HeldSamples:
         shift = gain * np.asarray(fix.correction, dtype=float)  # (k, 3) per tick
         if self._feet:
             f = np.asarray(self._feet, dtype=float)
-            f[:, 1:4] += shift[f[:, 0].astype(np.int64) - self._tick0]
+            rel = f[:, 0].astype(np.int64) - self._tick0
+            f[:, 1:4] += shift[rel]
+            if fix.height_profile is not None:  # where the whole walk's datum puts each, before this fix
+                f[:, 3] = f[:, 4] + dz_before + fix.height_profile(t[rel, 0] - self.walked_m)
             self._feet = [(int(r[0]), *r[1:]) for r in f.tolist()]
             self.corrected += len(f)
         for name, rows in self._rows.items():

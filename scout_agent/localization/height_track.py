@@ -30,7 +30,9 @@ height fix against the shared map) join the same problem (`add_point`), so a lat
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 
@@ -65,6 +67,9 @@ class HeightTrack:
         self._n = 0
         self._points: list[list[float]] = []  # [walked, reference minus estimate, variance]
         self.rate_var = float("nan")  # the last fix's posterior variance of its rate [(m/m)²]
+        # the last fix's datum along the walk behind it: distance before the newest foothold (≤ 0) [m] -> the
+        # reference's height minus the estimate's there [m], in the frame the fix was computed in
+        self.last_profile: Callable[[np.ndarray], np.ndarray] | None = None
 
     def __len__(self) -> int:
         return self._n
@@ -109,24 +114,19 @@ class HeightTrack:
         got = self._solve(dem, subpixel_m, walked_m)
         if got is None:
             return None
-        theta, cov, m, _ = got
+        theta, cov, m, (knot_m, n_knots) = got
         self.rate_var = float(cov[1, 1])
+        self.last_profile = partial(_profile, theta[: 2 + n_knots].copy(), knot_m)
         return HeightFix(float(theta[0]), float(cov[0, 0]), m, rate=float(theta[1]))
 
     def profile(
         self, dem: DemGrid, subpixel_m: float, walked_m: float, at_m: np.ndarray
     ) -> np.ndarray | None:
         """The datum the whole walk's evidence gives at the distances walked `at_m` (≤ `walked_m`) [m]:
-        hindsight (what the map's older heights would need; evaluation)."""
-        got = self._solve(dem, subpixel_m, walked_m)
-        if got is None:
+        hindsight (what the map's older heights need: holding.py takes it for the samples it holds)."""
+        if self.fix(dem, subpixel_m, walked_m) is None or self.last_profile is None:
             return None
-        theta, _, _, knots = got
-        return (
-            theta[0]
-            + theta[1] * (at_m - walked_m)
-            + _walk_rows(at_m - walked_m, *knots) @ theta[2 : 2 + knots[1]]
-        )
+        return self.last_profile(np.asarray(at_m, dtype=float) - walked_m)
 
     def _solve(
         self, dem: DemGrid, subpixel_m: float, walked_m: float
@@ -192,6 +192,13 @@ class HeightTrack:
             u = np.abs(r) / np.sqrt(np.maximum(marg, 1e-12))
             wr = np.where(u <= c.huber_k, 1.0, c.huber_k / np.maximum(u, 1e-12))
         return theta, cov, m, (c.knot_m, n_knots)
+
+
+def _profile(theta: np.ndarray, knot_m: float, rel: np.ndarray) -> np.ndarray:
+    """d + c·rel + W(rel) at distances `rel` ≤ 0 before the newest foothold (beyond the oldest knot: held)."""
+    n_knots = len(theta) - 2
+    rel = np.clip(np.asarray(rel, dtype=float), -n_knots * knot_m, 0.0)
+    return theta[0] + theta[1] * rel + _walk_rows(rel, knot_m, n_knots) @ theta[2:]
 
 
 def _walk_rows(rel: np.ndarray, knot_m: float, n_knots: int) -> np.ndarray:

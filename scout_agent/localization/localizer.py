@@ -248,6 +248,9 @@ class Localizer:
         self.drift_rate = 0.0  # the height drift per metre walked taken off the estimate [m/m]
         self.drift_step_m = 0.0  # what the last tick took off the estimate's height for it [m]
         self.drift_rate_var = config.drift_rate_sigma**2  # its variance [(m/m)²]
+        # the datum along the walk behind the last fused DEM fix (`HeightTrack.last_profile`), for the mapper's
+        # held samples (holding.PoseFix.height_profile); the run loop takes it with the fix
+        self.height_profile: Callable[[np.ndarray], np.ndarray] | None = None
         self.heights = (
             HeightTrack(config.height_track)
             if config.height_track is not None and isinstance(dem, DemReference)
@@ -401,6 +404,7 @@ class Localizer:
         up = update_pose(ekf, meas, np.diag([np.inf, np.inf, R, np.inf]),
                          float(chi2.ppf(1.0 - self.config.gate_p, 1)))  # fmt: skip
         if up.accepted:
+            self.height_profile = self.heights.last_profile  # computed in the frame before this correction
             self._shift(before, float(up.correction[3]))
             self.report.fused["dem_height"] += 1
             self._height_at["dem"] = self.walked_m

@@ -1,7 +1,7 @@
 """The DEM's height from the whole walk (`localization.height_track`): each DEM pixel's error is counted once
 however often the footholds read it, the datum and its drift per metre are fitted together within their stated
 σ, one early fix does not set the rate, and the localizer sets its height to the walk's datum without counting
-the same footholds twice."""
+the same footholds twice, handing the mapper the walk's datum with the fix."""
 
 from __future__ import annotations
 
@@ -13,6 +13,7 @@ from scipy.ndimage import gaussian_filter
 from scout_agent.dem_reader import DemGrid
 from scout_agent.localization import DemReference, Localizer, LocalizerConfig
 from scout_agent.localization.height_track import HeightTrack, HeightTrackConfig
+from scout_agent.run import _localize_and_report
 from scout_agent.state_estimation import ErrorStateEKF, NoiseConfig
 
 N_PIX, PIX, NOISE = 40, 5.0, 0.3
@@ -120,7 +121,8 @@ def test_the_localizer_takes_the_walks_datum_once_and_keeps_a_shared_map_height(
     e = _ekf(0.5)
     e.p[:] = (*xy[-1], 0.3)
     cfg = LocalizerConfig()
-    loc = Localizer(SimpleNamespace(ekf=e, feet=None), cfg, dem=DemReference(flat, subpixel_m=0.05))  # type: ignore[arg-type]
+    est = SimpleNamespace(ekf=e, feet=None, position_covariance=e.P[6:9, 6:9].copy)  # a view: P as it is then
+    loc = Localizer(est, cfg, dem=DemReference(flat, subpixel_m=0.05))  # type: ignore[arg-type]
     assert loc.heights is not None
     pts = np.column_stack([xy, np.full(len(xy), 0.3)])  # the estimate 0.3 m above the DEM's flat ground
     for k in range(len(s)):
@@ -129,8 +131,12 @@ def test_the_localizer_takes_the_walks_datum_once_and_keeps_a_shared_map_height(
     loc.walked_m = float(s[-1])
     fix = loc.heights.fix(flat, 0.05, loc.walked_m)
     assert fix is not None
-    loc.localize("dem")
+    fixes: list = []
+    _localize_and_report(loc, est, lambda: loc.localize("dem"), fixes.append)  # type: ignore[arg-type]
     assert loc.report.fused["dem_height"] == 1, loc.report
+    # the mapper gets the fix with the walk's datum behind it (holding.py revises its held heights by it)
+    assert len(fixes) == 1 and fixes[0].height_profile is not None
+    assert abs(float(fixes[0].height_profile(np.array([0.0]))[0]) - fix.dz) < 1e-9
     assert abs(e.p[2] - (0.3 + fix.dz)) < 1e-6
     assert abs(e.P[8, 8] - (fix.var_m2 + cfg.dem.datum_m**2)) < 1e-9
     z_after, var_after = float(e.p[2]), float(e.P[8, 8])

@@ -115,3 +115,36 @@ def test_horizontal_fix_moves_every_held_layer() -> None:
     # smoothed horizontal σ: 0.04 − 1²·(0.04 − 0.01) = 0.01 m² → σ 0.1 m
     placement = layers["placement"]
     assert np.allclose(placement["max"], 0.1)
+
+
+def test_a_fix_that_states_the_walks_datum_revises_the_heights_an_earlier_fix_corrected() -> None:
+    """The estimate's height 0.3 m off at launch and drifting 1 cm per metre walked; a first fix at 10 m
+    takes off what it sees there but misjudges the datum by 0.2 m, a second at 20 m (the whole walk's DEM
+    datum, height_track.py) states the datum along all of it: every held foothold lands on the ground,
+    those before the first fix too. Spread by the smoother's gain alone, as a fix that only adds the newest
+    evidence, the first fix's misjudged datum stays in them."""
+
+    def err(x):
+        return 0.3 + 0.01 * np.asarray(x)
+
+    worst = {}  # the fixes come at the last tick, 9.95 and 19.95 m walked: the profiles' "now"
+    c1 = -float(err(10.0)) + 0.2  # the first fix: 0.2 m short of the datum
+    c2 = -(float(err(20.0)) + c1)
+    for with_profile in (True, False):
+        acc = CellAccumulator(RES)
+        held = HeldSamples(acc, HoldConfig(hold_m=30.0))
+        local = LocalMap(RES)
+        _walk(held, local, 0.0, 10.0, err)
+        held.correct(PoseFix(np.array([0.0, 0.0, c1]), np.array([0.01, 0.01, SIGMA0_M2 + 0.01]),
+                             np.array([0.01, 0.01, 0.01]),
+                             (lambda rel: -err(9.95 + rel) + 0.2) if with_profile else None))  # fmt: skip
+        _walk(held, local, 10.0, 20.0, lambda x: err(x) + c1)
+        held.correct(PoseFix(np.array([0.0, 0.0, c2]), np.array([0.01, 0.01, 0.01 + Q_M2_PER_M * 10.0]),
+                             np.array([0.01, 0.01, 1e-4]),
+                             (lambda rel: -(err(19.95 + rel) + c1)) if with_profile else None))  # fmt: skip
+        list(held.chunks())
+        local.merge(acc.flush())
+        _, z = _heights(local)
+        worst[with_profile] = float(np.abs(z).max())
+    assert worst[True] < 1e-9, worst
+    assert worst[False] > 0.05, worst
