@@ -62,7 +62,9 @@ def walk(job: dict) -> dict:
         cfg = ScoutRunConfig(scene="lunar", seed=job["seed"], route=job["route"], slippery_patches=4,
                              hazard_control=job["on"])  # fmt: skip
     if job.get("pilot"):
-        cfg = replace(cfg, pilot=replace(cfg.pilot, **job["pilot"]))
+        top = {k: v for k, v in job["pilot"].items() if "." not in k}
+        senses = {k.split(".", 1)[1]: v for k, v in job["pilot"].items() if k.startswith("senses.")}
+        cfg = replace(cfg, pilot=replace(cfg.pilot, **top, senses=replace(cfg.pilot.senses, **senses)))
     if job.get("controller"):
         cfg = replace(cfg, sim=replace(cfg.sim, controller=replace(cfg.sim.controller, **job["controller"])))
     world = build_world(cfg)
@@ -206,15 +208,18 @@ def _patch_unholdable(r: dict) -> bool:
 
 
 def _pilot_options(p: argparse.ArgumentParser, items: list[str], flag: str = "--pilot") -> dict:
-    """{field: value} from FIELD=VALUE items naming scalar PilotConfig fields (`--controller`: scalar
-    ControllerConfig fields)."""
+    """{field: value} from FIELD=VALUE items naming scalar PilotConfig fields or the reflex's as senses.FIELD
+    (`--controller`: scalar ControllerConfig fields)."""
     from scout_agent.control.controller import ControllerConfig
     from scout_agent.control.pilot import PilotConfig
+    from scout_agent.control.reflex import ReflexConfig
 
     cls = ControllerConfig if flag == "--controller" else PilotConfig
     scalar = {
         f.name for f in fields(cls) if isinstance(getattr(cls(), f.name), (bool, int, float, type(None)))
     }
+    if cls is PilotConfig:
+        scalar |= {f"senses.{f.name}" for f in fields(ReflexConfig)}
     out: dict = {}
     for item in items:
         name, eq, text = item.partition("=")

@@ -58,6 +58,7 @@ from scout_agent.control.adaptation import GaitAdaptation, GaitAdaptationConfig,
 from scout_agent.control.controller import RobotState, TrotController
 from scout_agent.control.detour import DetourConfig, plan_detour
 from scout_agent.control.follower import FollowerConfig, PathFollower
+from scout_agent.control.foot_slope import FootTracks
 from scout_agent.control.friction_estimate import FrictionEstimate, FrictionEstimateConfig
 from scout_agent.control.gait import CRAWL, SWAY_CRAWL, GaitConfig
 from scout_agent.control.reflex import Felt, ReflexConfig, Senses
@@ -179,6 +180,7 @@ class Pilot:
         self.friction = FrictionEstimate(config.friction)
         self.adaptation = GaitAdaptation(config.gait)
         self.senses = Senses(config.senses)
+        self.tracks = FootTracks()  # the front feet's own slope (read with `senses.front_slip_margin` set)
         self.setting: GaitSetting | None = None
         self.mode = "walk"
         self.reached = False
@@ -357,7 +359,13 @@ class Pilot:
             return None
         self._wish = c.crawl if self._near_hazard(x, y) else c.trot
         margin = self.setting.margin if self.setting is not None else math.inf
-        felt = self.senses.feel(t, est, R, margin, lost)
+        front = math.inf
+        if c.senses.front_slip_margin is not None:
+            self.tracks.update(self.controller.footholds)
+            tan_front = self.tracks.front_tan()
+            if tan_front == tan_front:
+                front = self.friction.area_mu - tan_front
+        felt = self.senses.feel(t, est, R, margin, lost, front)
         if felt is None:
             return None
         self._stop(felt, x, y)
@@ -441,6 +449,7 @@ class Pilot:
         t0 = self.senses.first_slip_t() if "slip" in felt.reasons else None
         self._t_held = (t0 if t0 is not None else felt.t) - self.config.held_before_s
         self.senses.reset()
+        self.tracks.reset()
         c = self.config
         grad, _ = self.controller.plane()
         steep = math.degrees(math.atan(math.hypot(float(grad[0]), float(grad[1]))))

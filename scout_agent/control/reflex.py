@@ -13,7 +13,11 @@ Four triggers, each from the scout's own estimates (`estimators.TickEstimates`) 
     falls came after a stop that had waited for 6–16 slips in 3 s; 6 slips below 0.15 cut the lunar falls
     from 15 to 10 of 30 but stopped 8 more holdable ramp walks (goal reached 13 → 5 of 20; docs/results.md);
   - one slip event when the margin is below `slip_sure_margin` (clearly unholdable);
-  - `slip_events_alone` events in the window whatever the margin.
+  - `slip_events_alone` events in the window whatever the margin;
+  - (when `front_slip_margin` is set, off by default) a front foot's slip event, or a lost hold, with the felt
+    μ̂ minus the tangent of the front feet's own slope (`foot_slope.FootTracks`, not the four-foot plane)
+    below `front_slip_margin`: the front feet feel the patch first, and the foothold plane through all four
+    reads the flat the rear feet still stand on.
   Slippery ground the scout can still hold (the paper's patches) makes slips too; there the adaptive gait
   slows down and walks on.
 - **margin**: GIIM below `min_giim_rad` or GIAM below `min_giam` on at least `margin_share` of the ticks
@@ -49,6 +53,7 @@ class ReflexConfig:
     # needs more than standing: on a 5° ramp the fixed trot fell on μ = tan 5° exactly)
     lost_hold_margin: float = 0.08  # μ̂ − tan θ̂ below which one lost hold is enough
     slip_sure_margin: float = -0.05  # ... below which one slip is enough (the first foot on the patch)
+    front_slip_margin: float | None = None  # μ̂ − tan θ̂_front below which a front foot's slip is enough
     min_giim_rad: float = 0.087  # 5°: the planner's hard limit; GIIM fell below it 0.5–1 s before falls
     min_giam: float = -math.inf  # [m/s²]
     margin_window_s: float = 0.5
@@ -94,8 +99,10 @@ class Senses:
         R: np.ndarray,
         ground_margin: float,
         hold_lost: bool = False,
+        front_margin: float = math.inf,
     ) -> Felt | None:
-        """`hold_lost`: a stance foot lost its hold this tick (`FrictionEstimate.update` returned True)."""
+        """`hold_lost`: a stance foot lost its hold this tick (`FrictionEstimate.update` returned True);
+        `front_margin`: μ̂ − tan of the front feet's own slope (inf: unknown)."""
         c = self.config
         reasons: list[str] = []
         x = y = math.nan
@@ -115,6 +122,11 @@ class Senses:
                     and ground_margin < c.slip_many_margin
                 )
                 or (n >= 1 and ground_margin < c.slip_sure_margin)
+                or (
+                    c.front_slip_margin is not None
+                    and front_margin < c.front_slip_margin
+                    and (hold_lost or est.slip.event[0] or est.slip.event[1])
+                )
             ):
                 reasons.append("slip")
                 if n:

@@ -6,11 +6,12 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 
 from scout_agent.control.controller import RobotState, TrotController
 from scout_agent.control.detour import plan_detour
 from scout_agent.control.pilot import Pilot, PilotConfig
-from scout_agent.control.reflex import Felt
+from scout_agent.control.reflex import Felt, ReflexConfig
 from scout_agent.estimators import TickEstimates
 from scout_agent.estimators.slip import SlipTick
 from scout_agent.signals import BaseState, ProprioSample
@@ -149,3 +150,41 @@ def test_a_second_back_off_retraces_the_detour_and_the_way_in_not_the_first_back
     # back along the detour (y falls) and then the way in (x falls): never toward the first hazard
     assert np.all(np.diff(back[:, 1]) <= 1e-9) and np.all(np.diff(back[:, 0]) <= 1e-9)
     assert np.hypot(back[-1][0] - 6.2, back[-1][1]).min() > np.hypot(end[0] - 6.2, 0.0)
+
+
+def _walk_onto_a_wall(p: Pilot, tan_wall: float) -> None:
+    """Three trot steps of 0.1 m with the front feet past a wall's edge at x 0.4 (z falls at `tan_wall`), the rear
+    feet on the flat before it: the controller's footholds as its touchdowns would set them."""
+    for k in range(3):
+        x_front, x_rear = 0.45 + 0.1 * k, 0.0 + 0.1 * k
+        p.controller.footholds[:] = [
+            [x_front, 0.15, -tan_wall * (x_front - 0.4)],
+            [x_front, -0.15, -tan_wall * (x_front - 0.4)],
+            [x_rear, 0.15, 0.0],
+            [x_rear, -0.15, 0.0],
+        ]
+        p.feel(_sample(0.1 * k, x_rear + 0.2), _est(0.1 * k))
+
+
+def test_front_feet_slope_reads_the_wall_the_foothold_plane_averages_away():
+    tan20 = math.tan(math.radians(20.0))
+    p = _pilot(25.0, senses=ReflexConfig(front_slip_margin=0.12))
+    _walk_onto_a_wall(p, tan20)
+    assert p.tracks.front_tan() == pytest.approx(tan20, abs=0.01)
+    grad, _ = p.controller.plane()
+    assert float(np.hypot(*grad)) < 0.7 * tan20  # the four-foot plane: the wall and the flat, averaged
+
+
+@pytest.mark.parametrize("front_slip_margin", [None, 0.12])
+def test_a_front_foot_slip_on_a_wall_steeper_than_the_felt_friction_stops_at_once(front_slip_margin):
+    # the scout has felt μ̂ 0.3 (a lost hold); its front feet stand on 20° (tan 0.364: unholdable), its rear feet
+    # on the flat: the four-foot plane's margin reads ≈ +0.1, so one front-foot slip stops only with the trigger
+    p = _pilot(25.0, senses=ReflexConfig(front_slip_margin=front_slip_margin))
+    p.friction.mu[:] = 0.3
+    _walk_onto_a_wall(p, math.tan(math.radians(20.0)))
+    assert p.mode == "walk" and p.setting is not None and p.setting.margin > ReflexConfig().slip_sure_margin
+    felt = p.feel(_sample(0.4, 0.4), _est(0.4, event=(0,)))
+    if front_slip_margin is None:
+        assert felt is None and p.mode == "walk"
+    else:
+        assert felt is not None and "slip" in felt.reasons and p.mode == "stop"
