@@ -30,12 +30,13 @@ from scout_agent.estimators.feet import PinocchioFeet
 from scout_agent.robot import constants as C
 from scout_agent.signals import ProprioSample
 from scout_agent.state_estimation import StateEstimator
-from scout_agent.state_estimation.pose_update import heading, update_pose
+from scout_agent.state_estimation.pose_update import heading, heading_row, update_pose
 
 from .height_track import HeightTrack, HeightTrackConfig
 from .matcher import HeightFix, MatchConfig, MatchResult, match_height, match_track
 from .reference import DemReference, GridReference, HeightReference
 from .track import FootholdTrack
+from .trail import TrailConfig, TrailFix, match_trail
 
 __all__ = [
     "LOCALIZE_MODES",
@@ -101,11 +102,15 @@ class LocalizerConfig:
     # height alone from the last `track_m` where the place is not found (`match_height`), as before
     height_track: HeightTrackConfig | None = field(default_factory=HeightTrackConfig)
     yaw_steps: int = 3  # yaw candidates each side of the estimate's heading
-    # a DEM: 5 m pixels with 0.3 m noise: the likelihood's moments over a wide window (benchmarks/dem_match.py:
-    # on the 100 m field's relief, true footholds, 60 m tracks are never placed within ±8 m and ±6°, 100 m
-    # ones sometimes, σ ≈ 2.3 m and 1.9°), so the longest track (up to 100 m), every 25 m from 30 m; a loose σ
-    # limit (2.5 m still bounds a drift of metres; the gate keeps it from pulling a better estimate away);
-    # datum σ: the DEM's vertical bias (OrbitalDemConfig, LOLA).
+    # the orbital DEM's place and heading fix (`trail.match_trail`): the footholds walked since the last fused
+    # fix, read against the DEM with the last `dem_trail_m` of trail fixing the datum line, the filter's own
+    # (x, y, heading) covariance as the prior, fused as the posterior divided by it (each foothold once)
+    dem_trail: TrailConfig = field(default_factory=TrailConfig)
+    dem_trail_m: float = 60.0
+    # a DEM: 5 m pixels with 0.3 m noise: a place and heading fix (`dem_trail`) every 25 m from 30 m; the
+    # height alone (`match_height`, over the last 100 m) at every attempt; `match` holds the height fix's
+    # settings (its search grid step, footholds, Huber k); datum σ: the DEM's vertical bias (OrbitalDemConfig,
+    # LOLA).
     dem: SourceConfig = field(
         default_factory=lambda: SourceConfig(
             25.0,
@@ -153,6 +158,7 @@ class LocalizerReport:
     match_seconds: float = 0.0  # wall time spent matching and fusing [s]
     corrections_m: list[float] = field(default_factory=list)  # horizontal size of each fused correction
     height_corrections_m: list[float] = field(default_factory=list)  # each fused height-only correction [m]
+    heading_corrections_deg: list[float] = field(default_factory=list)  # each fused fix's heading change [°]
     drift_rate_m_per_m: float = 0.0  # the height drift per metre walked learnt and taken off (Localizer)
 
     @staticmethod
@@ -180,6 +186,7 @@ class LocalizerReport:
             "match_ms_mean": round(1e3 * self.match_seconds / self.attempts, 2) if self.attempts else None,
             "correction_max_m": round(max(self.corrections_m), 4) if self.corrections_m else None,
             "height_correction_max_m": self._largest(self.height_corrections_m),
+            "heading_correction_max_deg": self._largest(self.heading_corrections_deg),
             "drift_rate_m_per_m": round(self.drift_rate_m_per_m, 5),
         }
 
@@ -245,6 +252,7 @@ class Localizer:
         self._prev_xy: tuple[float, float] | None = None
         self._tried = {"dem": 0.0, "map": 0.0}  # distance walked at each source's last attempt [m]
         self._height_at = {"dem": -np.inf, "map": -np.inf}  # ... at its last fused height fix [m]
+        self._dem_new_from = 0.0  # footholds placed from here on [m walked] are new to the DEM place fix
         self.drift_rate = 0.0  # the height drift per metre walked taken off the estimate [m/m]
         self.drift_step_m = 0.0  # what the last tick took off the estimate's height for it [m]
         self.drift_rate_var = config.drift_rate_sigma**2  # its variance [(m/m)²]
@@ -327,6 +335,13 @@ class Localizer:
         batch = name == "dem" and self.heights is not None  # the DEM's height from the whole walk
         if ref is None:
             self.report.refused[f"no_{name}"] += 1
+        elif isinstance(ref, DemReference):  # place and heading (trail.py), then the height
+            self._dem_fix(ref)
+            if batch:
+                self._fuse_walk_height(src)
+            elif src.height_fix and self.walked_m - self._height_at[name] >= src.height_every_m:
+                sig_xy = float(np.sqrt(max(np.linalg.eigvalsh(ekf.P[6:8, 6:8]).max(), 0.0)))
+                self._fuse_height(name, pts, ref, src, sig_xy)
         else:
             sig_xy = float(np.sqrt(max(np.linalg.eigvalsh(ekf.P[6:8, 6:8]).max(), 0.0)))
             sig_yaw = float(np.degrees(np.sqrt(max(ekf.P[2, 2], 0.0))))
@@ -411,6 +426,41 @@ class Localizer:
             self.report.height_corrections_m.append(float(up.correction[2]))
         else:
             self.report.refused["dem_height_gate"] += 1
+
+    def _dem_fix(self, ref: DemReference) -> TrailFix:
+        """The DEM's place and heading fix (`match_trail`) of the footholds walked since the last fused one,
+        against the filter's own (x, y, heading) covariance, fused as a pose measurement without its height
+        (χ²-gated, 3 dof); counted under "dem" (fused) or "dem_<reason>" / "dem_gate" (refused)."""
+        c, ekf = self.config, self.est.ekf
+        length = max(c.dem_trail_m, self.walked_m - self._dem_new_from)
+        pts = self.track.window(length, self.walked_m)
+        walked = self.track.walked(length, self.walked_m)
+        H = np.zeros((3, 15))
+        H[0, 6] = H[1, 7] = 1.0
+        H[2, 0:3] = heading_row(ekf.R)
+        prior = H @ ekf.P @ H.T
+        fix = match_trail(pts, walked, ref, prior, ekf.p[:2], self._dem_new_from, c.dem_trail)
+        if not fix.ok:
+            self.report.refused[f"dem_{fix.reason}"] += 1
+            return fix
+        assert fix.offset is not None and fix.cov is not None
+        meas = np.r_[
+            ekf.p[0] + fix.offset[0], ekf.p[1] + fix.offset[1], np.nan, heading(ekf.R) + fix.offset[2]
+        ]
+        cov = np.zeros((4, 4))
+        cov[np.ix_([0, 1, 3], [0, 1, 3])] = fix.cov
+        cov[2, 2] = np.inf
+        before = ekf.p.copy()
+        up = update_pose(ekf, meas, cov, float(chi2.ppf(1.0 - c.gate_p, 3)))
+        if not up.accepted:
+            self.report.refused["dem_gate"] += 1
+            return fix
+        self._shift(before, float(up.correction[3]))
+        self._dem_new_from = self.walked_m
+        self.report.fused["dem"] += 1
+        self.report.corrections_m.append(float(np.hypot(*up.correction[:2])))
+        self.report.heading_corrections_deg.append(float(np.degrees(up.correction[3])))
+        return fix
 
     def _fuse_height(
         self, name: str, pts: np.ndarray, ref: HeightReference, src: SourceConfig, sig_xy: float

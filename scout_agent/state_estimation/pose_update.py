@@ -19,7 +19,7 @@ import numpy as np
 from .ekf import ErrorStateEKF
 from .kernels import so3_exp
 
-__all__ = ["PoseUpdate", "heading", "update_pose"]
+__all__ = ["PoseUpdate", "heading", "heading_row", "update_pose"]
 
 
 class PoseUpdate(NamedTuple):
@@ -33,7 +33,8 @@ def heading(R: np.ndarray) -> float:
     return float(np.arctan2(R[1, 0], R[0, 0]))
 
 
-def _heading_row(R: np.ndarray, eps: float = 1e-6) -> np.ndarray:
+def heading_row(R: np.ndarray, eps: float = 1e-6) -> np.ndarray:
+    """∂ψ/∂δθ: the heading's row of the error state's rotation (numerical)."""
     row = np.zeros(3)
     psi = heading(R)
     for i in range(3):
@@ -55,7 +56,7 @@ def update_pose(ekf: ErrorStateEKF, measured: np.ndarray, cov: np.ndarray, gate_
         return PoseUpdate(False, float("nan"), 0, np.zeros(4))
     H = np.zeros((4, 15))
     H[0, 6] = H[1, 7] = H[2, 8] = 1.0
-    H[3, 0:3] = _heading_row(ekf.R)
+    H[3, 0:3] = heading_row(ekf.R)
     pred = np.r_[ekf.p, heading(ekf.R)]
     res = measured - pred
     res[3] = (res[3] + np.pi) % (2 * np.pi) - np.pi
