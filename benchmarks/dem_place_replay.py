@@ -40,8 +40,9 @@ POSE_EVERY_S = 0.2
 XY_YAW = [6, 7, 2]  # the error state's x, y and base-z rotation (heading on level ground)
 
 
-def record(out: str, seed: int, field_m: float) -> dict:
-    cfg = ScoutRunConfig(scene="lunar", seed=seed, field_m=field_m, route="direct", localize="off")
+def record(out: str, seed: int, field_m: float, sim_seconds: float | None = None) -> dict:
+    cfg = ScoutRunConfig(scene="lunar", seed=seed, field_m=field_m, route="direct", localize="off",
+                         sim_seconds=sim_seconds)  # fmt: skip
     feet, poses = [], []
     st = {"since": np.full(4, np.inf), "taken": np.zeros(4, bool), "due": np.zeros(4, bool), "walked": 0.0,
           "prev": None, "next": 0.0}  # fmt: skip
@@ -175,13 +176,14 @@ def main() -> None:
     r.add_argument("out")
     r.add_argument("--seed", type=int, required=True)
     r.add_argument("--field", type=float, default=100.0)
+    r.add_argument("--sim-seconds", type=float, default=None, help="stop after this much (default: the walk)")
     p = sub.add_parser("replay")
     p.add_argument("rec")
     p.add_argument("--draws", type=int, default=6)
     p.add_argument("--fixes", choices=("trail", "window", "none"), default="trail")
     a = ap.parse_args()
     if a.cmd == "record":
-        print(json.dumps(record(a.out, a.seed, a.field)))
+        print(json.dumps(record(a.out, a.seed, a.field, a.sim_seconds)))
         return
     rows = replay(a.rec, a.draws, a.fixes)
     for row in rows:
