@@ -132,9 +132,11 @@ class Mapper:
         self.held.acc = acc
 
     def fix(self, fix: PoseFix) -> None:
-        """A pose fix the localizer fused: spread it back over the held samples and send them."""
+        """A pose fix the localizer fused: spread it back over the held samples and send them; a fix that
+        states the walk's datum (`PoseFix.height_profile`) sends only those `hold_m` behind: the next such fix
+        revises the rest again with more of the walk behind it (holding.py)."""
         self.held.correct(fix)
-        self._send(self.held.chunks())
+        self._send(self.held.chunks() if fix.height_profile is None else self.held.due())
 
     def _send(self, chunks) -> None:
         """One delta per released chunk, stamped with its newest sample's time."""

@@ -35,6 +35,7 @@ from dataclasses import dataclass
 from functools import partial
 
 import numpy as np
+from scipy.linalg import cho_factor, cho_solve
 
 from scout_agent.dem_reader import DemGrid
 
@@ -181,16 +182,21 @@ class HeightTrack:
             A = np.vstack([A, rows])
             yv = np.r_[yv, P[:, 1]]
             noise = np.r_[noise, P[:, 2]]
+        # the Huber weights' scale: a bin's spread about the line before the fit (its own noise, its pixels'
+        # errors through its weights, its segment's misplacement); the points' own variance
+        scale = noise.copy()
+        scale[:m] += (
+            np.sum(wts**2, axis=1) * dem.noise_m**2
+            + (np.nan_to_num(gx) ** 2 + np.nan_to_num(gy) ** 2) * seg_var[seg]
+        )
         wr = np.ones(len(yv))
-        for _ in range(3):  # Huber IRLS over the bins' residuals against their marginal σ
+        for _ in range(3):  # Huber IRLS over the residuals
             W = wr / noise
-            N = A.T @ (W[:, None] * A) + np.diag(prior)
-            theta = np.linalg.solve(N, A.T @ (W * yv))
-            cov = np.linalg.inv(N)
-            r = yv - A @ theta
-            marg = noise + np.einsum("ij,jk,ik->i", A, cov, A)  # ≈ the residual's variance before the fit
-            u = np.abs(r) / np.sqrt(np.maximum(marg, 1e-12))
+            N = cho_factor(A.T @ (W[:, None] * A) + np.diag(prior))
+            theta = cho_solve(N, A.T @ (W * yv))
+            u = np.abs(yv - A @ theta) / np.sqrt(scale)
             wr = np.where(u <= c.huber_k, 1.0, c.huber_k / np.maximum(u, 1e-12))
+        cov = cho_solve(N, np.eye(n_u)[:, :2])[:2]  # (d, c)'s covariance
         return theta, cov, m, (c.knot_m, n_knots)
 
 

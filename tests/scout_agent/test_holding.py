@@ -148,3 +148,23 @@ def test_a_fix_that_states_the_walks_datum_revises_the_heights_an_earlier_fix_co
         worst[with_profile] = float(np.abs(z).max())
     assert worst[True] < 1e-9, worst
     assert worst[False] > 0.05, worst
+
+
+def test_a_fix_that_states_the_walks_datum_keeps_the_samples_younger_than_hold_m_for_the_next() -> None:
+    """The mapper releases everything it holds at a fix that adds only the newest evidence; at a fix that
+    states the walk's datum (`PoseFix.height_profile`) only what is `hold_m` behind, so the next such fix revises
+    the rest with more of the walk behind it."""
+    from scout_agent.mapping import Mapper, MapperConfig
+
+    left = {}
+    for with_profile in (False, True):
+        mapper = Mapper(MapperConfig(res=RES, hold=HoldConfig(hold_m=30.0)))
+        _walk(mapper.held, mapper.local, 0.0, 40.0, lambda x: 0.1)  # 40 m: the first 10 m already left
+        mapper.held.cut()
+        held_before = mapper.held.pending
+        profile = (lambda rel: np.full(np.shape(rel), -0.1)) if with_profile else None
+        mapper.fix(PoseFix(np.array([0.0, 0.0, -0.1]), np.array([0.01, 0.01, 0.05]), np.array([0.01, 0.01, 0.01]),
+                           profile))  # fmt: skip
+        left[with_profile] = (held_before, mapper.held.pending)
+    assert left[False][0] > 0 and left[False][1] == 0, left
+    assert left[True][1] == left[True][0], left  # nothing 30 m old: all stay for the next fix
