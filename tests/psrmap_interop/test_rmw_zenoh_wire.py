@@ -108,6 +108,8 @@ def test_a_reliable_transient_local_publisher_sends_sporadic_heartbeats(router: 
             sub.undeclare()
             node.close()
     assert beats, "no heartbeat"
-    key, payload = beats[0]
-    assert key.startswith(f"{pub.key}/@adv/pub/{zid}/") and payload == struct.pack("<I", 1)
-    assert len(beats) == 1, beats
+    assert all(key.startswith(f"{pub.key}/@adv/pub/{zid}/") for key, _ in beats), beats
+    # One beat per period in which something was published: one, or two when a period's end fell between
+    # the two publishes (a loaded machine); the sequence numbers never go back and the last is the last sent.
+    seqs = [struct.unpack("<I", payload)[0] for _, payload in beats]
+    assert len(beats) <= 2 and seqs == sorted(set(seqs)) and seqs[-1] == 1, beats
