@@ -180,7 +180,8 @@ class Pilot:
         self.friction = FrictionEstimate(config.friction)
         self.adaptation = GaitAdaptation(config.gait)
         self.senses = Senses(config.senses)
-        self.tracks = FootTracks()  # the front feet's own slope (read unless `senses.front_slip_margin` is None)
+        # the front feet's own slope (read unless `senses.front_slip_margin` is None)
+        self.tracks = FootTracks()
         self.setting: GaitSetting | None = None
         self.mode = "walk"
         self.reached = False
