@@ -51,7 +51,7 @@ def _run_config(field_m: float, seed: int, index: int) -> ScoutRunConfig:
 
 def record(field_m: float, seed: int, index: int, out: Path) -> None:
     cfg = _run_config(field_m, seed, index)
-    feet: list[tuple[float, ...]] = []  # walked, t, est x y z, true z, σ_xy
+    feet: list[tuple[float, ...]] = []  # walked, t, est x y z, true z, σ_xy, true x y
     fixes: list[tuple[float, float]] = []  # t, height correction
     ticks: list[tuple[float, ...]] = []  # t, walked, est z, true z
     since, taken = np.full(4, np.inf), np.zeros(4, bool)
@@ -71,8 +71,10 @@ def record(field_m: float, seed: int, index: int, out: Path) -> None:
             fb, _ = robot.estimator.feet.feet_base_and_vel(sample.q, sample.dq)
             pts = fb[due] @ e.R.T + e.p
             sig = float(np.sqrt(max(np.linalg.eigvalsh(e.P[6:8, 6:8]).max(), 0.0)))
-            for p, tz in zip(pts, truth.contact_point_world[due, 2], strict=True):
-                feet.append((state["walked"], sample.t, p[0], p[1], p[2] - C.FOOT_RADIUS, tz, sig))
+            for p, tp in zip(pts, truth.contact_point_world[due], strict=True):
+                feet.append(
+                    (state["walked"], sample.t, p[0], p[1], p[2] - C.FOOT_RADIUS, tp[2], sig, tp[0], tp[1])
+                )
             taken[:] |= due
         if len(ticks) == 0 or sample.t - ticks[-1][0] >= 0.05:
             ticks.append((sample.t, state["walked"], float(e.p[2]), float(truth.base.pos[2])))
