@@ -11,6 +11,11 @@ the distance walked at the nearest point of the path; per `--segment` metres of 
 The three mean squares add up to the own map's mean square error; the script prints their square roots, per
 segment and per scout, and the mission's map figures beside them.
 
+Per pair of scouts with shared cells, their disagreement (what `map_cross_scout_rms_m` pools) is split the same
+way along the first scout's walk: the part in `--segment` means (their datums apart) and the rest (placement,
+the cell's own footholds); and how much of their error against the terrain they share (the correlation of
+the two errors' segment means, and the RMS of their mean: what no tie between them can take off).
+
     python benchmarks/map_heights.py /tmp/run                  # a `psrmap mission --run-dir /tmp/run` folder
     python benchmarks/map_heights.py /tmp/run --segment 20 --quiet
 """
@@ -78,6 +83,56 @@ def decompose(
     }
 
 
+def _cells(run: Path, scout: str) -> dict[tuple[int, int], tuple[float, float, float]]:
+    """The scout's own map per cell (ix, iy) -> (height, centre x, centre y) [m]."""
+    g = read_npz(run / f"{scout}_local.npz")
+    h = grid_height(g)
+    if h is None:
+        return {}
+    ok = (np.nan_to_num(g.layers["elevation"]["n"]) > 0) & np.isfinite(h)
+    iy, ix = np.nonzero(ok)
+    return {
+        (g.ix0 + int(i), g.iy0 + int(j)): (
+            float(h[j, i]),
+            g.x0 + (g.ix0 + i + 0.5) * g.res,
+            g.y0 + (g.iy0 + j + 0.5) * g.res,
+        )
+        for i, j in zip(ix, iy, strict=True)
+    }
+
+
+def cross_decompose(
+    run: Path, a: str, b: str, summary: dict, terrain: Terrain, segment_m: float
+) -> dict | None:
+    """Scouts a and b over their shared cells: RMS difference = datum (segment means along a's walk) ⊕ rest;
+    their errors' shared part (correlation of the segment means, RMS of the two maps' mean error)."""
+    ca, cb = _cells(run, a), _cells(run, b)
+    shared = sorted(ca.keys() & cb.keys())
+    if len(shared) < 3:
+        return None
+    cx = np.array([ca[k][1] for k in shared])
+    cy = np.array([ca[k][2] for k in shared])
+    t = terrain.height(cx, cy)
+    ea = np.array([ca[k][0] for k in shared]) - t
+    eb = np.array([cb[k][0] for k in shared]) - t
+    path = np.asarray(summary["scouts"][a]["path_estimate"], dtype=float)
+    s = np.r_[0.0, np.cumsum(np.hypot(np.diff(path[:, 1]), np.diff(path[:, 2])))]
+    near = np.argmin((cx[:, None] - path[None, :, 1]) ** 2 + (cy[:, None] - path[None, :, 2]) ** 2, axis=1)
+    seg = np.floor(s[near] / segment_m).astype(int)
+    d = ea - eb
+    smooth = np.zeros_like(d)
+    ma, mb = [], []
+    for q in np.unique(seg):
+        m = seg == q
+        smooth[m] = d[m].mean()
+        ma.append(ea[m].mean())
+        mb.append(eb[m].mean())
+    corr = float(np.corrcoef(ma, mb)[0, 1]) if len(ma) > 2 else float("nan")
+    r = lambda v: round(float(np.sqrt(np.mean(np.square(v)))), 3)  # noqa: E731
+    return {"cells": len(shared), "rms_diff_m": r(d), "datum_m": r(smooth), "rest_m": r(d - smooth),
+            "err_corr": round(corr, 2), "err_a_m": r(ea), "err_b_m": r(eb), "err_mean_m": r((ea + eb) / 2)}  # fmt: skip
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("run", type=Path, help="a mission's run folder (summary.json, <scout>_local.npz)")
@@ -113,6 +168,16 @@ def main(argv: list[str] | None = None) -> int:
             "all own maps: "
             + ", ".join(f"{k} {np.sqrt(max(v, 0.0) / cells):.3f} m" for k, v in total.items())
         )
+    scouts = [k for k, v in summary["scouts"].items() if (args.run / f"{k}_local.npz").is_file()]
+    for i, a in enumerate(scouts):
+        for b in scouts[i + 1 :]:
+            x = cross_decompose(args.run, a, b, summary, terrain, args.segment)
+            if x is None:
+                continue
+            print(f"{a}-{b}: {x['cells']} shared cells, RMS diff {x['rms_diff_m']:.3f} m = datum "
+                  f"{x['datum_m']:.3f} ⊕ rest {x['rest_m']:.3f} m; against the terrain {x['err_a_m']:.3f} / "
+                  f"{x['err_b_m']:.3f} m, their mean {x['err_mean_m']:.3f} m, segment means correlated "
+                  f"{x['err_corr']:+.2f}")  # fmt: skip
     print(f"mission: map_elevation_rmse_m {summary.get('map_elevation_rmse_m')} "
           f"({summary.get('map_elevation_cells')} cells), map_cross_scout_rms_m "
           f"{summary.get('map_cross_scout_rms_m')}")  # fmt: skip
