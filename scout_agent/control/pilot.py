@@ -25,6 +25,14 @@ Modes:
   back-off toward the previous hazard (100 m field, seed 33: with the old trail, which kept the back-offs,
   2.5 m back along it led from the detour back onto the previous back-off's way, next to both hazards, and
   the scout stopped again there 1.7 s later).
+- `slide` (on by default; `slide_mps` None switches it off): go with the ground, never against it. After a stop, while the estimated trunk
+  still moves forward (toward the hazard), and during a back-off once it speeds up forward again, the speed
+  command follows the trunk's forward speed less a gentle brake (`slide_brake_mps2` through the trunk
+  controller's velocity gain), with no turn, until the trunk rests; then it backs off from there, or, if the
+  ground carried it beyond the hazard's keep-out radius, it plans the detour from where it came to rest.
+  Reversing the command while the trunk slid on asked the feet for ≈ 2 m/s² the patch could not give: the
+  ramps matrix's 25° walks slid the whole patch down trotting backwards and fell where the ramp meets the
+  flat, 0.75 m/s fast (docs/results.md, "Going with the slide").
 - then plan a detour (`detour.plan_detour`) from there to the goal around every hazard it has felt (and the
   hazards and slips of a known map, when given) and `walk` it; with no detour, `stopped` with `gave_up` saying
   why. The stop policy scales with the route: it gives up after `max_stops` stops at one place (within
@@ -69,7 +77,7 @@ from scout_agent.signals import ProprioSample
 
 __all__ = ["Pilot", "PilotConfig"]
 
-MODES = ("walk", "stop", "back", "stopped")
+MODES = ("walk", "stop", "slide", "back", "stopped")
 
 
 @dataclass(frozen=True)
@@ -153,6 +161,27 @@ class PilotConfig:
     max_stops: int = 3  # hazard stops at one place (within same_place_m of the newest) before giving up
     same_place_m: float = 4.0  # stops this close count as one place (and widen each other's detour radius)
     stops_per_100m: float = 8.0  # all stops of a walk: at most this per 100 m of route (at least max_stops)
+    # go with the ground, never against it (mode `slide`; None: off): after a stop, while the estimated trunk
+    # still moves forward (toward the hazard) faster than `slide_end_mps`, and during a back-off once it speeds up
+    # forward again (faster than `slide_mps` and `slide_rise_mps` above the slowest it went in that back-off, for
+    # `slide_s`), trot with it — the speed command at the trunk's forward speed less what brakes it by
+    # `slide_brake_mps2` through the trunk controller's velocity gain, no turn — until its forward speed stayed
+    # below `slide_end_mps` for `slide_s`. Then back off from there, or, if the ground carried it past the
+    # hazard's keep-out radius, plan the detour from where it came to rest. Reversing the command while the
+    # trunk slid on toward the hazard asked the feet for ≈ 2 m/s² that ground cannot give (every fall of the
+    # matrices came while backing off; with it the ramps matrix fell 1 of 50 against 6, the lunar matrix 5 of 30
+    # against 7, docs/results.md "Going with the slide")
+    slide_mps: float | None = 0.05
+    slide_rise_mps: float = 0.05
+    slide_s: float = 0.2
+    slide_brake_mps2: float = 0.2
+    slide_end_mps: float = 0.05
+    max_slides: int = 3  # slides after one stop before the scout goes around from where it rests
+
+
+def _forward(s: RobotState, yaw: float) -> float:
+    """The trunk's estimated horizontal speed along its heading `yaw` [m/s]."""
+    return float(s.vel[0]) * math.cos(yaw) + float(s.vel[1]) * math.sin(yaw)
 
 
 def _length(points: np.ndarray) -> float:
@@ -210,6 +239,9 @@ class Pilot:
         self.lost_spots: list[tuple[float, float, float]] = []  # x, y [m], μ̂ where a foot lost its hold
         self._wish = config.trot  # the gait to walk (`_shift_gait` switches the controller to it)
         self._slow_since: float | None = None  # the speed command reached slip_gait_speed then [s]
+        self._slide_since: float | None = None  # carried forward since (back) / at rest since (slide) [s]
+        self._fwd_min = math.inf  # the slowest forward speed of this back-off [m/s]
+        self._slides = 0  # slides since the last stop
 
     @property
     def done(self) -> bool:
@@ -302,7 +334,12 @@ class Pilot:
             elif self._wish == self.config.slip_gait:
                 v = min(v, self.config.slip_gait_speed)
             return v, w
+        if self.mode == "slide":
+            return self._slide(s, yaw), 0.0
         if self.mode == "back" and self._back is not None:
+            if self._carried(s, yaw):
+                self._set_mode("slide", s.t)
+                return self._slide(s, yaw), 0.0
             v, w = self._back.command(s.pos[:2], yaw, s.vel[:2], dt)
             if self._wish == self.config.slip_gait:
                 v = max(v, -self.config.slip_gait_speed)
@@ -310,6 +347,9 @@ class Pilot:
                 self._go_around(s.pos[:2], s.t)
             return v, w
         if self.mode == "stop" and s.t - self._t_mode >= self.config.stop_s:
+            if self.config.slide_mps is not None and _forward(s, yaw) >= self.config.slide_end_mps:
+                self._set_mode("slide", s.t)
+                return self._slide(s, yaw), 0.0
             self._start_back(s.pos[:2], s.t, yaw)
         return 0.0, 0.0
 
@@ -459,7 +499,46 @@ class Pilot:
         if c.back_crawl:
             self._wish = c.slip_gait
         self._quiet_since = None
+        self._slides, self._slide_since = 0, None
         self._set_mode("stop", felt.t)
+
+    def _carried(self, s: RobotState, yaw: float) -> bool:
+        """Backing off, the trunk has sped up forward again: faster than `slide_mps` and `slide_rise_mps` above
+        the slowest it went in this back-off, for `slide_s` (estimated)."""
+        c = self.config
+        if c.slide_mps is None or self._slides >= c.max_slides:
+            return False
+        fwd = _forward(s, yaw)
+        self._fwd_min = min(self._fwd_min, fwd)
+        if fwd <= c.slide_mps or fwd <= self._fwd_min + c.slide_rise_mps:
+            self._slide_since = None
+            return False
+        if self._slide_since is None:
+            self._slide_since = s.t
+        return s.t - self._slide_since >= c.slide_s
+
+    def _slide(self, s: RobotState, yaw: float) -> float:
+        """The speed command while the ground carries the trunk forward: its own forward speed, braking gently;
+        once at rest, back off from here or (carried past the hazard's radius) go around from here."""
+        c = self.config
+        fwd = _forward(s, yaw)
+        if fwd >= c.slide_end_mps:
+            self._slide_since = None
+            return max(0.0, fwd - c.slide_brake_mps2 / self.controller.config.kd_pos[0])
+        if self._slide_since is None:
+            self._slide_since = s.t
+        if s.t - self._slide_since < c.slide_s:
+            return 0.0
+        self._slides += 1
+        self._slide_since = None
+        hx, hy = self.hazards[-1]
+        x, y = float(s.pos[0]), float(s.pos[1])
+        if math.hypot(x - hx, y - hy) > self._radius(hx, hy) or self._slides >= c.max_slides:
+            self._back_len = 0.0
+            self._go_around(s.pos[:2], s.t)
+        else:
+            self._start_back(s.pos[:2], s.t, yaw)
+        return 0.0
 
     def _start_back(self, pos: np.ndarray, t: float, yaw: float = math.nan) -> None:
         c = self.config
@@ -502,6 +581,7 @@ class Pilot:
             max_yaw_rate=c.back_max_yaw_rate,
         )
         self._back = PathFollower(np.array(back), back_cfg, reverse=not c.back_forward)
+        self._fwd_min, self._slide_since = math.inf, None
         self._set_mode("back", t)
 
     def _go_around(self, pos: np.ndarray, t: float) -> None:
