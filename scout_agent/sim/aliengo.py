@@ -96,7 +96,11 @@ class SimulatedAliengo:
         self._v_foot_mu = m.geom_friction[_ids_slice(self._foot_geoms, foot_step), 0]
         # the simulated robot as built, not as designed (sensors/suite.py): IMU where it is mounted, and
         # thigh/calf lengths off the nominal ones the robot's software uses
-        m.site_pos[m.site(C.IMU_SITE).id] = config.sensors.imu_offset_m
+        imu = m.site(C.IMU_SITE).id
+        m.site_pos[imu] = config.sensors.imu_offset_m
+        # the compiler flagged the URDF's origin site as sharing the trunk's frame, and MuJoCo then copies the
+        # trunk's pose to it whatever `site_pos` says: clear the flag, or the IMU never leaves the origin
+        m.site_sameframe[imu] = 0
         dl = link_length_errors(config.sensors)
         for i, leg in enumerate(LEG_NAMES):
             m.body_pos[m.body(f"{leg}_calf").id, 2] -= dl[i, 0]
