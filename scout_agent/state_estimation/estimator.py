@@ -54,9 +54,18 @@ the mean, which is what integrates over the tick.
 
 IMU lever arm: the IMU sits off the trunk origin (`imu_offset_m`, a CAD value; sensors/suite.py); the
 accelerometer there reads ω̇ × r + ω × (ω × r) more than at the origin (≈ 0.2 m/s² in a trot's roll at 7 cm,
-an eighth of lunar g), which the estimator subtracts, with ω̇ from the difference of consecutive ticks' rates.
+an eighth of lunar g), which the estimator subtracts, with ω̇ from the difference of consecutive fresh rates over
+the time between them. (Until issue 23's legcal helper the simulated IMU never left the trunk origin, a MuJoCo
+compile flag, sim/aliengo.py, and this subtraction was the only lever arm there was: after a 15° turn at the start
+of a ramp walk the roll was 1.3° off and the height drifted 1 % of the distance.)
 Lost packets (`SensorTick.fresh` False): the last reading is held for propagation, no leg update; a fresh reading
-is integrated over its stamped interval less the time held.
+is integrated over its stamped interval less the time held. The held specific force at the base origin is the last
+fresh tick's (lever arm included); the lever arm's ω̇ then spans both ticks. Before, the held tick recomputed ω̇
+as 0 and the next fresh tick divided two ticks' change of rate by one: at a touchdown that subtracted 1.8 m/s² too
+much for 10 ms, a 2 cm/s velocity error the filter then blamed on its tilt and accelerometer bias, moving the
+height 5–7 cm in a second (a 10° ramp walk, noise seed 100, simulator truth). What the lost tick's own specific
+force was is unknown: the velocity variance grows by (σ·dt)², σ = `lost_tick_acc_std_mps2` (the RMS change of
+the tick's reading from one tick to the next in a trot), so the legs correct the velocity, not the tilt.
 
 Consistency (issue 23: the covariance must contain the true error; `psrmap evaluate` reports NEES and 3σ
 containment). Four error sources have no state in the 15-state filter; each widens the covariance by what it
@@ -132,6 +141,10 @@ class EstimatorConfig:
     # 2–5 cm where its error was 0.3–1 m (docs/results.md, "The map's heights at mission scale")
     odometry_height_std: float = 0.06
     slip_pos_std_m: float = 0.005  # horizontal position σ added per foot update the gate rejected [m]
+    # a lost packet's held IMU reading is off by the tick's change of specific force: its RMS in a trot, per base
+    # axis, is 0.11 / 0.05 / 0.35 m/s² (10° ramp, realistic sensors); the velocity variance grows by (σ·dt)² per
+    # lost tick ("Lost packets" in the module docstring)
+    lost_tick_acc_std_mps2: float = 0.35
     # leg odometry measures the base-frame velocity, which says nothing of heading; its updates leave heading
     # alone (a Schmidt update; "Heading" in the module docstring). False: the plain EKF update
     odometry_holds_heading: bool = True
@@ -394,6 +407,7 @@ class StateEstimator:
                 c.stance_settle_s,
                 c.foot_radius_m,
                 c.gate_chi2,
+                c.lost_tick_acc_std_mps2,
             ),
             (bool(tick.fresh), self._lever, has_prev, stand, c.odometry_holds_heading),
         )

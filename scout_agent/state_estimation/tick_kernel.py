@@ -57,7 +57,7 @@ def odometry_tick(
     imu: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
     normal_w: np.ndarray,
     leg_var: np.ndarray,
-    scalars: tuple[float, float, float, float, float, float, float, float, float],
+    scalars: tuple[float, float, float, float, float, float, float, float, float, float],
     flags: tuple[bool, bool, bool, bool, bool],
 ) -> tuple[float, float, int, int, int]:
     """One tick to the odometry update, in place; a lost packet's (not `fresh`) only its propagation on the held
@@ -68,19 +68,20 @@ def odometry_tick(
     stance: contact starts, settled, in use (written), the mid-stance mask to use; imu: the lever arm r, the last
     ω (lever-arm kernel's), the last fresh gyro reading (written), f_base (written: the specific force at the
     base origin). scalars: t, dt (the loop period), stamp_s, stamp_prev, held_s, gyro_age_s, settle_s,
-    foot_radius, gate_chi2; flags: fresh, lever arm, a previous fresh reading exists, standing, hold heading.
+    foot_radius, gate_chi2, lost_acc_std (estimator.py, "Lost packets"); flags: fresh, lever arm, a previous fresh reading exists, standing, hold heading.
     Returns (dt, stamp_prev, n_contact, n_settled, n_rejected)."""
     R, v, p, bg, ba, P, g, q = ekf
     acc, gyro, jq, jdq, contact = reading
-    t, dt, stamp, stamp_prev, held, age, settle_s, foot_radius, gate_chi2 = scalars
+    t, dt, stamp, stamp_prev, held, age, settle_s, foot_radius, gate_chi2, lost_acc_std = scalars
     fresh, lever, has_prev, stand, hold_heading = flags
     r_imu, w_prev, gyro_fresh, f_base = imu
     if not fresh:  # a lost packet: the held reading propagated, no measurement
-        if lever:
-            f_base[:] = kernels.imu_to_base(acc, gyro, bg, w_prev, r_imu, dt)
-        else:
+        if not lever:  # (with the lever arm: the last fresh tick's specific force at the origin, as held)
             f_base[:] = acc
         kernels.propagate(R, v, p, bg, ba, P, g, q, gyro, f_base, dt)
+        var = (lost_acc_std * dt) ** 2  # what the lost tick's own specific force may have added
+        for i in range(3, 6):
+            P[i, i] += var
         return dt, stamp_prev, 0, 0, 0
     if stamp == stamp:  # integrate over the stamped interval (less what was held)
         dt = min(max(stamp - stamp_prev - held, 0.2 * dt), 3.0 * dt)
@@ -92,8 +93,8 @@ def odometry_tick(
         for i in range(3):
             gyro_now[i] = gyro[i] + (gyro[i] - gyro_fresh[i]) * f
     gyro_fresh[:] = gyro
-    if lever:
-        f_base[:] = kernels.imu_to_base(acc, gyro, bg, w_prev, r_imu, dt)
+    if lever:  # ω̇ over the time since the last fresh rate (a lost packet in between: two ticks, not one)
+        f_base[:] = kernels.imu_to_base(acc, gyro, bg, w_prev, r_imu, since)
     else:
         f_base[:] = acc
     kernels.propagate(R, v, p, bg, ba, P, g, q, gyro, f_base, dt)

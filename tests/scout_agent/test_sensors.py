@@ -249,7 +249,9 @@ def test_the_simulated_imu_sits_at_its_mounting_offset():
     r = np.array(SensorConfig.realistic().imu_offset_m)
     reads = []
     for offset in ((0.0, 0.0, 0.0), tuple(r)):
-        sim = SimulatedAliengo(terrain, None, HardwareConfig(sensors=SensorConfig.realistic(imu_offset_m=offset)))
+        sim = SimulatedAliengo(
+            terrain, None, HardwareConfig(sensors=SensorConfig.realistic(imu_offset_m=offset))
+        )
         m, d = sim.model, sim.data
         d.qvel[3:6] = [0.3, 0.5, 2.0]  # trunk angular velocity, trunk frame [rad/s]
         mujoco.mj_forward(m, d)

@@ -141,6 +141,42 @@ def test_the_imu_lever_arm_is_removed():
     assert max(lever) > 0.1  # the lever arm's size here: an eighth of lunar g at its peak
 
 
+def test_a_lost_packet_neither_doubles_the_lever_arm_nor_hides_its_velocity_error():
+    """A lost packet holds the last reading (estimator.py, "Lost packets"): the held tick keeps the last specific
+    force at the base origin, the next fresh tick takes ω̇ over the two ticks since the last fresh rate (it used to
+    divide two ticks' change by one: twice the lever arm's ω̇ term, 0.1–0.2 m/s² here, 1.8 m/s² at a touchdown),
+    and the velocity variance grows by what the lost tick's own specific force may have been."""
+    from scout_agent.onboard.drivers import SensorTick
+    from scout_agent.state_estimation import EstimatorConfig, StateEstimator
+    from scout_agent.state_estimation.launch import LaunchPose
+
+    r = np.array([-0.016, -0.067, -0.006])
+    cfg = EstimatorConfig(imu_offset_m=tuple(r))
+    est = StateEstimator(LaunchPose(0, 0, 0, 0), np.array([0.0, 0.9, -1.8] * 4), cfg)
+    f0 = np.array([0.0, 0.0, 1.62])
+    dt, w_prev, errors, lost_var = 0.01, np.zeros(3), [], []
+    held = None
+    for k in range(1, 80):  # a trot-like roll oscillation, 1.4 Hz, 0.3 rad/s; every 7th packet lost
+        w = np.array([0.3 * math.sin(2 * math.pi * 1.4 * k * dt), 0.0, 0.05])
+        acc = f0 + np.cross((w - w_prev) / dt, r) + np.cross(w, np.cross(w, r))
+        w_prev = w
+        tick = SensorTick(
+            acc, w, np.zeros(12), np.zeros(12), np.zeros(12), 0.0, np.zeros(4), np.zeros(4, bool), k * dt
+        )
+        if k % 7 == 0 and held is not None:
+            before = est.ekf.P[3:6, 3:6].diagonal().copy()
+            est.update(k * dt, held._replace(fresh=False), dt)
+            lost_var.append(est.ekf.P[3:6, 3:6].diagonal() - before)
+            continue
+        est.update(k * dt, tick, dt)
+        held = tick
+        if k % 7 == 1 and k > 7:  # the fresh tick after a lost one
+            errors.append(np.linalg.norm(est._f_base - f0))
+    assert len(errors) >= 9 and max(errors) < 0.02  # was 0.1–0.2 m/s² (the ω̇ term doubled)
+    # the lost tick's specific force is unknown: the velocity variance grew by at least (σ·dt)² per axis
+    assert np.min(lost_var) >= 0.99 * (cfg.lost_tick_acc_std_mps2 * dt) ** 2
+
+
 def test_roll_and_pitch_are_observable(ramp_walk):
     _, rec = ramp_walk
     tilt = []
