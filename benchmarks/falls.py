@@ -63,8 +63,12 @@ def walk(job: dict) -> dict:
                              hazard_control=job["on"])  # fmt: skip
     if job.get("pilot"):
         top = {k: v for k, v in job["pilot"].items() if "." not in k}
-        senses = {k.split(".", 1)[1]: v for k, v in job["pilot"].items() if k.startswith("senses.")}
-        cfg = replace(cfg, pilot=replace(cfg.pilot, **top, senses=replace(cfg.pilot.senses, **senses)))
+        sub = {
+            part: replace(getattr(cfg.pilot, part), **{k.split(".", 1)[1]: v for k, v in job["pilot"].items()
+                                                       if k.startswith(part + ".")})
+            for part in ("senses", "gait", "friction")
+        }  # fmt: skip
+        cfg = replace(cfg, pilot=replace(cfg.pilot, **top, **sub))
     if job.get("controller"):
         cfg = replace(cfg, sim=replace(cfg.sim, controller=replace(cfg.sim.controller, **job["controller"])))
     world = build_world(cfg)
@@ -208,9 +212,12 @@ def _patch_unholdable(r: dict) -> bool:
 
 
 def _pilot_options(p: argparse.ArgumentParser, items: list[str], flag: str = "--pilot") -> dict:
-    """{field: value} from FIELD=VALUE items naming scalar PilotConfig fields or the reflex's as senses.FIELD
-    (`--controller`: scalar ControllerConfig fields)."""
+    """{field: value} from FIELD=VALUE items naming scalar PilotConfig fields, the reflex's as senses.FIELD,
+    the adaptive gait's as gait.FIELD or the friction estimate's as friction.FIELD (`--controller`: scalar
+    ControllerConfig fields)."""
+    from scout_agent.control.adaptation import GaitAdaptationConfig
     from scout_agent.control.controller import ControllerConfig
+    from scout_agent.control.friction_estimate import FrictionEstimateConfig
     from scout_agent.control.pilot import PilotConfig
     from scout_agent.control.reflex import ReflexConfig
 
@@ -220,6 +227,8 @@ def _pilot_options(p: argparse.ArgumentParser, items: list[str], flag: str = "--
     }
     if cls is PilotConfig:
         scalar |= {f"senses.{f.name}" for f in fields(ReflexConfig)}
+        scalar |= {f"gait.{f.name}" for f in fields(GaitAdaptationConfig)}
+        scalar |= {f"friction.{f.name}" for f in fields(FrictionEstimateConfig)}
     out: dict = {}
     for item in items:
         name, eq, text = item.partition("=")
@@ -255,7 +264,8 @@ def main() -> int:
         action="append",
         default=[],
         metavar="FIELD=VALUE",
-        help="a PilotConfig field for the walks with the hazard control (bool, int, float or none), repeatable",
+        help="a PilotConfig field for the walks with the hazard control (bool, int, float or none; senses.F, gait.F "
+        "and friction.F: the reflex's, adaptive gait's and friction estimate's), repeatable",
     )
     p.add_argument(
         "--controller",

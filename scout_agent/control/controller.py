@@ -202,8 +202,9 @@ def _trunk_wrench(
 ) -> None:
     """Stance bookkeeping, foothold plane and desired trunk wrench for one tick (compiled).
 
-    `gains` (17,): mass, gravity, inertia (3), kp_pos (3), kd_pos (3), kp_rot (3), kd_rot (3); `limits` (4,):
-    height (with the gait's offset), max_pos_err, terrain_tilt, early_contact (`ControllerConfig`). Updated in place: `ref` (3,)
+    `gains` (17,): mass, gravity, inertia (3), kp_pos (3), kd_pos (3), kp_rot (3), kd_rot (3); `limits` (5,):
+    height (with the gait's offset), max_pos_err, terrain_tilt, early_contact (`ControllerConfig`) and the trunk's
+    horizontal acceleration limit [m/s²] (`TrotController.accel_limit`, inf: none). Updated in place: `ref` (3,)
     (p_ref x, y and yaw_ref), footholds, liftoff, in_stance, prev_sched, sched_td_t. Filled: J (4, 3, 3), feet_w
     (4, 3) and `out` (15,): plane gradient (2), plane offset, unit normal (3), wrench (6: force, moment about the
     CoM, world), v_des (3)."""
@@ -236,6 +237,17 @@ def _trunk_wrench(
     # desired trunk motion
     yaw = np.arctan2(R[1, 0], R[0, 0])
     v_des = np.array([v_cmd * np.cos(yaw), v_cmd * np.sin(yaw), 0.0])
+    accel_limit = limits[4]
+    if accel_limit < np.inf:
+        # ask the ground for no more than it holds: the desired velocity stays within accel_limit / kd of the
+        # trunk's own, so the velocity loop brakes or pushes at most that hard, and the footholds (Raibert,
+        # `_joint_commands`) and the position reference follow the trunk where it goes
+        dvx, dvy = v_des[0] - vel[0], v_des[1] - vel[1]
+        dv = np.hypot(dvx, dvy)
+        lim = accel_limit / gains[8]
+        if dv > lim:
+            v_des[0] = vel[0] + dvx * (lim / dv)
+            v_des[1] = vel[1] + dvy * (lim / dv)
     v_des[2] = grad[0] * v_des[0] + grad[1] * v_des[1]
     ref[0] += v_des[0] * dt
     ref[1] += v_des[1] * dt
@@ -250,6 +262,11 @@ def _trunk_wrench(
     z_des = grad[0] * pos[0] + grad[1] * pos[1] + z0 + height / n[2]
     pos_err = np.array([ref[0] - pos[0], ref[1] - pos[1], z_des - pos[2]])
     F = mass * (gains[5:8] * pos_err + gains[8:11] * (v_des - vel))
+    if accel_limit < np.inf:
+        fh = np.hypot(F[0], F[1])
+        if fh > mass * accel_limit:
+            F[0] *= mass * accel_limit / fh
+            F[1] *= mass * accel_limit / fh
     F[2] += mass * gravity
 
     up = terrain_tilt * n
@@ -408,7 +425,9 @@ class TrotController:
         self._gains = np.array(
             [c.mass, c.gravity, *c.inertia, *c.kp_pos, *c.kd_pos, *c.kp_rot, *c.kd_rot], dtype=float
         )
-        self._limits = np.array([c.height, c.max_pos_err, c.terrain_tilt, c.early_contact], dtype=float)
+        self._limits = np.array(
+            [c.height, c.max_pos_err, c.terrain_tilt, c.early_contact, np.inf], dtype=float
+        )
         self._params = np.array(
             [
                 c.stance_kd,
@@ -432,6 +451,9 @@ class TrotController:
         self.yaw_rate_cmd = 0.0  # [rad/s]
         self.mu_feet: np.ndarray | None = None  # each foot's friction for the stance QP (None: its constant)
         self.height_offset = 0.0  # trunk height change from the adaptive gait [m] (negative: lower)
+        # the most horizontal acceleration the trunk controller asks of the ground [m/s²] (inf: none; the
+        # adaptive gait sets it from the felt friction, `adaptation.GaitSetting.accel_limit_mps2`)
+        self.accel_limit = np.inf
         self.terrain_tilt: float | None = None  # share of the foothold plane's tilt the trunk follows (None:
         # the config's); 0 keeps the trunk level, so on a slope its CoM stands over the middle of its feet
         self._initialized = False
@@ -562,6 +584,7 @@ class TrotController:
             self._ref[:2] += sway
         self._limits[0] = self.config.height + self.height_offset
         self._limits[2] = self.config.terrain_tilt if self.terrain_tilt is None else self.terrain_tilt
+        self._limits[4] = self.accel_limit
         _trunk_wrench(
             s.t,
             s.pos,

@@ -10,7 +10,10 @@ at least the largest ratio it bore. So, per foot:
 - slip event: the largest ρ_filtered of the stance so far is a candidate (the ratio at the event tick itself
   read 0.06 on a μ 0.14 patch: the foot creeps on at a lower ratio);
 - the foot lost its hold: the slip detector's ΔP in this stance grew past `lost_dp_m` (well past the 2 cm of
-  its slip event): μ̂ ← clip(candidate, `floor_mu`, μ̂) (never raised by a slip). A stance whose slip stayed
+  its slip event): μ̂ ← clip(candidate, `floor_mu`, μ̂) (never raised by a slip); where the candidate reached
+  the stance QP's cone for that foot (`at_cone`), the foot slid at the QP's own ask and the candidate says
+  nothing of the ground: μ̂ ← `lost_decay` · μ̂ too (else a foot the QP credits with the prior slides on at the
+  prior, its "observations" confirming the cone; off by default). A stance whose slip stayed
   below that is *creep*: MuJoCo's soft contact (like loose regolith) lets a loaded foot creep a few cm at
   ratios well inside its cone, and on holdable patches those creeping slips read μ̂ 0.05–0.1 below the truth
   and made 7 of 10 holdable walks stop (docs/results.md). Creep leaves μ̂ as it was (no recovery either);
@@ -18,6 +21,15 @@ at least the largest ratio it bore. So, per foot:
   capped at the prior: the estimate recovers over a few clean stances once the ground grips again.
 
 `area_mu` is the smallest of the four: the feet stand within 0.5 m of each other, on the same patch of ground.
+
+`proven` (4,) (read by `adaptation` only with its `qp_proven`, off by default) is what each foot has shown it holds where it stands now: the `proven_quantile` of the force
+ratios its last stance bore, when that stance ended without a slip (the first `proven_skip` of its ticks left
+out: the touchdown's impact reads any ratio); NaN after a stance that slipped, or before any. A foot whose own μ̂
+is still at the prior has felt nothing, but where another foot lost its hold it may stand on the same ground:
+the stance QP credits it with the area's estimate or what it proved, whichever is more (`adaptation`), not the
+prior. (Lunar seed 4 west: the fore feet lost their hold on a μ 0.18 patch, the hind feet followed them onto
+it credited with 0.6, the QP asked them for ratios 0.5–0.7, they slid 0.2–0.5 m a stance and the trunk rolled
+over, docs/results.md.)
 The estimate uses only the torques, encoders, contact flags, the slip detector and the controller's own
 plane — the robot's side of `signals.ProprioSample`.
 """
@@ -35,6 +47,7 @@ from scout_agent.robot.statics import leg_forces_from_torques
 __all__ = ["FrictionEstimate", "FrictionEstimateConfig"]
 
 _ZERO12 = np.zeros(12)
+_STANCE_TICKS = 256  # force ratios kept per stance (a trot's stance is ≈ 43 ticks, the sway crawl's 360)
 
 
 @dataclass(frozen=True)
@@ -45,6 +58,16 @@ class FrictionEstimateConfig:
     ratio_tau_s: float = 0.03  # low-pass of the force ratio within a stance [s]
     recover: float = 0.15  # share of the way back to the prior after each clean stance
     lost_dp_m: float = 0.05  # a stance's slip ΔP beyond this: the foot lost its hold (below: creep) [m]
+    # a foot that loses its hold while its largest ratio reached `at_cone` of the friction the stance QP gave it
+    # slid at the QP's own ask: the torques then say what the leg pushed, not what the ground held (lunar seed
+    # 4 west: a hind foot slid 0.4 m on μ 0.18 "bearing" 0.62–0.73, so μ̂ stayed at the prior 0.6 and the QP
+    # went on asking 0.6 of it). Its μ̂ then falls to `lost_decay` of what it was, at each such lost hold
+    # (1: off, the default: on the short 20° ramp with a μ 0.26 patch 0.7 left the scout sliding on the patch
+    # instead of backing off, docs/results.md "What the feet can hold")
+    at_cone: float = 0.9
+    lost_decay: float = 1.0
+    proven_quantile: float = 90.0  # percentile of a clean stance's force ratios a foot has proven it holds
+    proven_skip: float = 0.2  # share of a stance's first ticks left out of it (the touchdown)
 
 
 @njit(cache=True, nogil=True)
@@ -69,6 +92,9 @@ class FrictionEstimate:
         self._ratio = np.full(4, np.nan)  # filtered force ratio of the current stance
         self._held = np.zeros(4)  # largest filtered ratio borne in the current stance
         self._candidate = np.full(4, np.nan)  # the held ratio at this stance's slip event
+        self.proven = np.full(4, np.nan)  # ratio each foot held through its last clean stance (NaN: none)
+        self._stance_rho = np.empty((4, _STANCE_TICKS))  # this stance's force ratios, each foot
+        self._n_rho = [0, 0, 0, 0]
         self.observations = 0  # stances that lost their hold and set an estimate
         self.creeps = 0  # stances whose slip stayed creep
 
@@ -102,10 +128,11 @@ class FrictionEstimate:
         dp: tuple[float, ...],
         dt: float,
         forces_w: np.ndarray | None = None,
+        cone: np.ndarray | None = None,
     ) -> bool:
         """One tick; `dp` (4,): the slip detector's ΔP per foot this tick [m] (NaN where not settled);
-        `forces_w` as in `ratios` (feet out of `contact` may read anything there). True when a foot lost its
-        hold this tick."""
+        `forces_w` as in `ratios` (feet out of `contact` may read anything there); `cone` (4,): the friction
+        the stance QP gives each foot now (None: unknown). True when a foot lost its hold this tick."""
         c = self.config
         rho = self.ratios(q, tau, R, normal, forces_w)
         a = dt / (c.ratio_tau_s + dt) if dt > 0 else 1.0
@@ -116,13 +143,20 @@ class FrictionEstimate:
                 prev = self._ratio[i]
                 self._ratio[i] = r if prev != prev else prev + a * (r - prev)
                 self._held[i] = max(self._held[i], self._ratio[i])
+                n = self._n_rho[i]
+                self._stance_rho[i, n % _STANCE_TICKS] = r
+                self._n_rho[i] = n + 1
             if slip_event[i] and self._held[i] > 0:
                 # the largest ratio this stance bore before the event: where it started to slide (by the time
                 # the detector declares the slip, 2 cm later, a creeping foot bears less)
                 self._candidate[i] = self._held[i]
             cand = self._candidate[i]
             if cand == cand and dp[i] == dp[i] and dp[i] > c.lost_dp_m:
-                self.mu[i] = min(self.mu[i], max(c.floor_mu, float(cand)))
+                mu = min(self.mu[i], float(cand))
+                if cone is not None and c.lost_decay < 1.0 and cand >= c.at_cone * cone[i]:
+                    # it slid bearing what the QP gave it: the ratio is the QP's own ask, not the ground's
+                    mu = min(mu, c.lost_decay * self.mu[i])
+                self.mu[i] = max(c.floor_mu, mu)
                 self.observations += 1
                 self._candidate[i] = np.nan  # once per stance
                 lost = True
@@ -132,7 +166,16 @@ class FrictionEstimate:
                 elif not slipped[i]:
                     up = self.mu[i] + c.recover * (c.prior_mu - self.mu[i])
                     self.mu[i] = min(c.prior_mu, max(up, float(self._held[i])))
+                self.proven[i] = np.nan if slipped[i] else self._proven(i)
+                self._n_rho[i] = 0
                 self._ratio[i] = np.nan
                 self._held[i] = 0.0
                 self._candidate[i] = np.nan
         return lost
+
+    def _proven(self, i: int) -> float:
+        """The ratio foot i held through the stance that just ended (NaN: too few ticks to say)."""
+        c = self.config
+        n = min(self._n_rho[i], _STANCE_TICKS)
+        r = self._stance_rho[i, int(c.proven_skip * n) : n]
+        return float(np.percentile(r, c.proven_quantile)) if len(r) >= 5 else np.nan

@@ -383,17 +383,19 @@ class Pilot:
                 sl.dp,
                 dt,
                 est.foot_force_w,
+                self._cone_now(),
             )
             if lost:
                 f = self.controller.footholds
                 for i in np.flatnonzero(self.friction.mu < mu_before):
                     self.lost_spots.append((float(f[i, 0]), float(f[i, 1]), float(self.friction.mu[i])))
-            setting = self.adaptation.setting(self.friction.mu, grad)
+            setting = self.adaptation.setting(self.friction.mu, grad, self.friction.proven)
             if setting is not self.setting:
                 self.setting = setting
                 if c.cone_radius_m is None:
                     self.controller.set_friction(setting.qp_mu)
                 self.controller.height_offset = setting.height_offset_m
+                self.controller.accel_limit = setting.accel_limit_mps2
             if c.cone_radius_m is not None and self.lost_spots:
                 self.controller.set_friction(self._cone())
         if not c.reflex or self.mode != "walk" or self.reached:
@@ -440,6 +442,11 @@ class Pilot:
         if self.controller.hold:
             held |= planted
         return out._replace(slip=masked)
+
+    def _cone_now(self) -> np.ndarray:
+        """(4,) the friction the stance QP gives each foot now."""
+        mu = self.controller.mu_feet
+        return mu if mu is not None else np.full(4, self.controller.qp.config.mu)
 
     def _cone(self) -> np.ndarray:
         """(4,) each foot's friction for the stance QP from the holds lost within `cone_radius_m` of its foothold."""

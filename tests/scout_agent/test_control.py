@@ -228,3 +228,32 @@ def test_touchdowns_are_soft_at_lunar_g():
     peaks, fell = _touchdown_forces(None)
     assert not fell and len(peaks) > 20
     assert np.percentile(peaks, 50) < 45.0 and np.percentile(peaks, 90) < 54.0
+
+
+def _braking(accel_limit: float) -> float:
+    """Trot 4 s at 0.2 m/s on flat μ 0.7 ground, then command −0.1 m/s: the trunk's largest deceleration over
+    any 0.2 s of the next second [m/s²], from the simulator's trunk velocity (ground truth)."""
+    from scout_agent.loop import SimConfig, SimulatedScout
+    from scout_agent.sim.terrain import make_ramps
+
+    scout = SimulatedScout(make_ramps(RampConfig(slope_deg=0.0)), config=SimConfig(), start=(0.6, 0.0, 0.0))
+    scout.robot.controller.accel_limit = accel_limit
+    vx = []
+    while scout.t < 5.0:
+        _, truth = scout.step(0.2 if scout.t < 4.0 else -0.1, 0.0)
+        if scout.t >= 4.0:
+            vx.append(float(truth.base.vel[0]))
+        assert not scout.fell
+    v = np.array(vx)
+    k = int(round(0.2 / scout.control_dt))
+    return float(np.max((v[:-k] - v[k:]) / 0.2))
+
+
+def test_the_trunk_brakes_no_harder_than_its_acceleration_limit():
+    """Where a foot lost its hold the adaptive gait limits the trunk's horizontal acceleration
+    (`TrotController.accel_limit`): a step in the speed command then brakes the trunk at about that limit
+    (ground truth), where without it the velocity loop brakes at kd·Δv, several times more."""
+    free = _braking(np.inf)
+    limited = _braking(0.15)
+    assert free > 0.5
+    assert limited < 0.3 and limited < 0.5 * free

@@ -114,6 +114,64 @@ def test_friction_estimate_feeds_the_gait_only_where_the_margin_is_small():
     assert np.allclose(area.qp_mu, 0.85 * 0.3)
 
 
+def test_where_a_hold_was_lost_the_other_feet_get_what_they_proved_not_the_prior():
+    # the options (off by default): cones from what each foot proved, a felt acceleration limit
+    a = GaitAdaptation(replace(GaitAdaptation().config, qp_proven=True, accel_share=0.7))
+    grad = np.array([np.tan(np.radians(10.0)), 0.0])
+    proven = np.array([np.nan, 0.2, 0.5, np.nan])
+    # nothing felt: every cone at the constant, whatever the feet proved, and no acceleration limit
+    calm = a.setting(np.full(4, 0.6), grad, proven)
+    assert np.all(calm.qp_mu == 0.6) and calm.accel_limit_mps2 == np.inf
+    # foot 0 lost its hold at 0.3: it keeps 0.85 μ̂; the others the area's 0.85 · 0.3 or what they proved
+    felt = a.setting(np.array([0.3, 0.6, 0.6, 0.6]), grad, proven)
+    assert felt.qp_mu == pytest.approx([0.255, 0.255, 0.5, 0.255])
+    # and the trunk asks for no more acceleration than the felt margin holds (at least the floor)
+    c = a.config
+    assert felt.accel_limit_mps2 == pytest.approx(
+        max(c.accel_floor_mps2, 1.62 * (c.accel_share * 0.3 - np.tan(np.radians(10.0)))), rel=1e-3
+    )
+    default = GaitAdaptation().setting(np.array([0.3, 0.6, 0.6, 0.6]), grad, proven)
+    assert default.qp_mu == pytest.approx([0.255, 0.6, 0.6, 0.6]) and default.accel_limit_mps2 == np.inf
+
+
+def test_a_foot_that_slides_at_its_cone_lowers_its_estimate_with_lost_decay():
+    lost_dp = FrictionEstimateConfig().lost_dp_m
+
+    def slide(est: _Ratios, cone: float) -> None:
+        # foot 2 bears 0.62 (what a QP crediting it with 0.6 asks), slips and slides on past lost_dp_m
+        for _ in range(5):
+            est.rho = np.array([0.1, 0.1, 0.62, 0.1])
+            est.update(*_args(), cone=np.full(4, cone))
+        est.rho = np.array([0.1, 0.1, 0.62, 0.1])
+        est.update(*_args(event=(2,), slipped=(2,), dp=0.021), cone=np.full(4, cone))
+        est.update(*_args(slipped=(2,), dp=2 * lost_dp), cone=np.full(4, cone))
+
+    # by default the ratio it bore (0.62, above the prior) leaves μ̂ at the prior
+    est = _Ratios()
+    slide(est, 0.6)
+    assert est.mu[2] == FrictionEstimateConfig().prior_mu and est.observations == 1
+    # with lost_decay it slid at its cone: μ̂ falls to 0.7 of the prior, and at the next such slide further
+    est = _Ratios(replace(FrictionEstimateConfig(), lost_decay=0.7))
+    slide(est, 0.6)
+    assert est.mu[2] == pytest.approx(0.42)
+    est.update(*_args(end=(2,), slipped=(2,), dp=np.nan))
+    slide(est, 0.85 * 0.42)
+    assert est.mu[2] == pytest.approx(0.7 * 0.42)
+    # a foot that slid well inside its cone keeps its candidate only (what it bore says what the ground held)
+    est = _Ratios(replace(FrictionEstimateConfig(), lost_decay=0.7))
+    slide(est, 1.0)
+    assert est.mu[2] == pytest.approx(0.6)
+
+
+def _args(event=(), end=(), slipped=(), dp=np.nan):
+    """`FrictionEstimate.update`'s arguments for a standing robot with these flags (foot 2's dp)."""
+    flags = lambda idx: tuple(i in idx for i in range(4))  # noqa: E731
+    z = np.zeros(12)
+    dps = (np.nan, np.nan, dp, np.nan)
+    return (z, z, np.eye(3), np.ones(4, bool), np.array([0.0, 0.0, 1.0]), flags(event), flags(end),
+            flags(slipped), dps, 0.01)  # fmt: skip
+
+
 def test_detour_goes_around_hazards_or_says_there_is_none():
     bounds = (0.0, 0.0, 10.0, 10.0)
     cfg = DetourConfig()
@@ -167,6 +225,27 @@ def test_friction_estimate_tells_creep_from_a_lost_hold():
     assert np.all(est.mu[1:] == FrictionEstimateConfig().prior_mu)
     # once per stance: sliding on does not count again
     assert not _tick(est, (0.2, 0.1, 0.1, 0.1), slipped=(0,), dp=(2 * lost_dp, 0.0, 0.0, 0.0))
+
+
+def test_a_clean_stance_proves_the_ratio_it_held_and_a_slipped_one_proves_nothing():
+    est = _Ratios()
+    assert np.all(np.isnan(est.proven))
+    # foot 1 lands with an impact (first ticks 0.9), then bears 0.1–0.3 and lifts off without a slip
+    stance = [0.9, 0.9] + [0.1, 0.15, 0.2, 0.25, 0.3] * 2
+    for r in stance:
+        _tick(est, (0.1, r, 0.1, 0.1))
+    _tick(est, (0.1, 0.2, 0.1, 0.1), end=(1,))
+    c = FrictionEstimateConfig()
+    held = np.array(stance + [0.2])
+    expect = np.percentile(held[int(c.proven_skip * len(held)) :], c.proven_quantile)
+    assert est.proven[1] == pytest.approx(expect) and expect < 0.35  # the touchdown's 0.9 left out
+    assert np.isnan(est.proven[0])  # its stance has not ended
+    # its next stance slips: it proved nothing there
+    for r in (0.1, 0.2, 0.3):
+        _tick(est, (0.1, r, 0.1, 0.1))
+    _tick(est, (0.1, 0.3, 0.1, 0.1), event=(1,), slipped=(1,), dp=(0.0, 0.021, 0.0, 0.0))
+    _tick(est, (0.1, 0.3, 0.1, 0.1), end=(1,), slipped=(1,), dp=(0.0, 0.03, 0.0, 0.0))
+    assert np.isnan(est.proven[1])
 
 
 def _line_pilot(cfg: PilotConfig) -> Pilot:
