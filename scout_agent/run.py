@@ -382,6 +382,15 @@ def run_scout(
         "zaru": {"updates": robot.estimator.zaru_updates, "refused": robot.estimator.zaru_refused}
         if scout.config.state_source == "estimate"
         else None,
+        # the legs' climb bias the revisited footholds calibrated (state_estimation/climb_calibration.py)
+        "climb_calibration": {
+            "bias_pct": round(100 * robot.estimator.climb.bias, 3),
+            "std_pct": round(100 * robot.estimator.climb.std, 3),
+            "pairs": robot.estimator.climb.samples,
+            "refused": robot.estimator.climb.refused,
+        }
+        if scout.config.state_source == "estimate"
+        else None,
         "final_xy": [float(pos[0]), float(pos[1])],
         "distance_m": round(tally.distance, 3),
         "mean_speed_mps": round(tally.distance / walked, 4) if walked > 0 else 0.0,

@@ -33,6 +33,11 @@ and the localizer's heading reaches it through the covariance), position (integr
 error), and the accelerometer's horizontal bias, which the filter cannot tell from a tilt while the robot walks
 straight (a 1 mg bias is a 0.35° tilt error under lunar gravity). `psrmap evaluate` reports the drift.
 
+The legs' climb: their kinematics' calibration residuals (joint zero offsets, link lengths) turn the odometry's
+velocity about the base y axis, and the height climbs or sinks by a fraction of the distance that neither the IMU
+nor a standstill observes; a hind foot stepping where a front foot stood does (climb_calibration.py), and the
+odometry update turns the calibrated bias back (leg_odometry.odometry_rows).
+
 Heading: a stance foot measures the base velocity in the base frame, Rᵀv, which is the same whatever the heading
 (turn R and v together about gravity). The EKF's update, linearised at an estimate that moves between ticks (the
 trot's wobble), nonetheless finds heading information there: its heading σ shrank and a slip on a slope, the feet
@@ -100,6 +105,7 @@ from scout_agent.robot import constants as C
 
 from . import kernels
 from .bias_temperature import GyroTempco
+from .climb_calibration import ClimbCalibration, ClimbCalibrationConfig
 from .ekf import ErrorStateEKF, NoiseConfig
 from .launch import LaunchPose
 from .standstill import StandstillConfig, ZeroRateWindow
@@ -145,6 +151,8 @@ class EstimatorConfig:
     # axis, is 0.11 / 0.05 / 0.35 m/s² (10° ramp, realistic sensors); the velocity variance grows by (σ·dt)² per
     # lost tick ("Lost packets" in the module docstring)
     lost_tick_acc_std_mps2: float = 0.35
+    # the legs' climb bias, calibrated where a hind foot steps on a front foot's foothold (climb_calibration.py)
+    climb: ClimbCalibrationConfig = field(default_factory=ClimbCalibrationConfig)
     # leg odometry measures the base-frame velocity, which says nothing of heading; its updates leave heading
     # alone (a Schmidt update; "Heading" in the module docstring). False: the plain EKF update
     odometry_holds_heading: bool = True
@@ -255,6 +263,7 @@ class StateEstimator:
         self.rejected = 0  # stance-foot updates refused by the gate (slips, impacts)
         self.launch = launch
         self.anchored = False  # the height has been anchored to the launch ground once all feet stood on it
+        self.climb = ClimbCalibration(c.climb)  # the legs' climb bias from revisited footholds
         self.estimate = self._estimate(np.zeros(3))
 
     def _specific_force(self, tick: SensorTick, dt: float) -> np.ndarray:
@@ -408,6 +417,7 @@ class StateEstimator:
                 c.foot_radius_m,
                 c.gate_chi2,
                 c.lost_tick_acc_std_mps2,
+                self.climb.bias,
             ),
             (bool(tick.fresh), self._lever, has_prev, stand, c.odometry_holds_heading),
         )
@@ -451,6 +461,8 @@ class StateEstimator:
         any_contact = n_contact > 0
         fb = self.feet.buffers()[0]
         self.rejected += n_rejected
+        # the feet in use this tick (their kinematics are fresh): their footholds calibrate the legs' climb
+        self.climb.stance_tick(self._use, fb, e.R, e.p, self._normal_w)
         self._inflate(tick, dt, n_rejected)
         if not self.anchored and n_settled >= 2:
             # settled feet stand on the launch ground: the one height the mission knows (its survey)

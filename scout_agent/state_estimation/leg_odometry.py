@@ -59,22 +59,27 @@ def odometry_rows(
     gyro: np.ndarray,
     normal_b: np.ndarray,
     foot_radius: float,
+    climb_bias: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray]:
     """The filter's velocity update from the feet in `use` (4,) bool: stacked residuals z − h (3k,) and the
     Jacobian H (3k, 15): `stance_velocity_measurements` of `feet` (positions, velocities, angular velocities,
     base frame) with the ground normal `normal_b` (3,), base frame, less the EKF's predicted measurement at the
-    estimate R, v, bg (`kernels.velocity_rows_many`)."""
+    estimate R, v, bg (`kernels.velocity_rows_many`). `climb_bias` [rad ≈ m/m]: the legs' calibrated climb
+    (climb_calibration.py), turned back about the base y axis (z_z − c·z_x for small c)."""
     z, rc = stance_velocity_measurements(feet[0], feet[1], feet[2], gyro, normal_b, foot_radius)
     k = 0
     for i in range(4):
         k += use[i]
     rows = np.empty((k, 3))
     zu = np.empty((k, 3))
+    cb, sb = np.cos(climb_bias), np.sin(climb_bias)
     m = 0
     for i in range(4):
         if use[i]:
             rows[m] = rc[i]
-            zu[m] = z[i]
+            zu[m, 0] = cb * z[i, 0] + sb * z[i, 2]
+            zu[m, 1] = z[i, 1]
+            zu[m, 2] = cb * z[i, 2] - sb * z[i, 0]
             m += 1
     h, H = velocity_rows_many(R, v, bg, rows)
     return (zu - h).reshape(3 * k), H
