@@ -157,3 +157,35 @@ def test_the_gyro_tempco_is_learnt_from_windows_at_different_temperatures():
     off = GyroTempco(0.0)  # an ideal IMU: nothing to learn, no slope
     off.add(20.0, b0, np.ones(3))
     assert np.all(off.slope()[0] == 0.0) and np.all(off.slope()[1] == 0.0)
+
+
+def test_a_pauses_windows_share_one_creep_draw_and_their_average_keeps_its_variance():
+    # the stance creeps as a whole over a pause (one draw, 1.6e-4 rad/s rms measured per pause on the 100 m
+    # field): fusing a pause's windows must not shrink that draw's variance as if each had its own
+    c = StandstillConfig()
+    n = c.creep_windows
+    fused = 1.0 / (n / c.zaru_var(3.0))  # n windows fused as independent measurements
+    assert fused >= c.creep_std_rad_s**2
+    assert fused == pytest.approx(c.zaru_var(3.0, 0.0) / n)
+    one = replace(c, creep_windows=1).zaru_var(3.0)
+    assert c.zaru_var(3.0) - one == pytest.approx((n - 1) * c.creep_std_rad_s**2)
+
+    # and synthetic pauses: each window reads bias + the pause's creep draw + its own white noise and kinematic
+    # error; the filter's variance after the pause must hold the error (normalised error² near 1), where
+    # counting the creep once per window (as before) is overconfident
+    def nees(cfg: StandstillConfig) -> float:
+        rng = np.random.default_rng(7)
+        own = np.sqrt(cfg.gyro_density**2 / 3.0 + 2.0 * cfg.kin_std_rad**2 / 9.0)  # per window, 3 s
+        out = []
+        for _ in range(2000):
+            b, bh, P = rng.normal(0.0, 5e-4), 0.0, (5e-4) ** 2  # the prior holds the bias
+            creep = rng.normal(0.0, cfg.creep_std_rad_s)
+            for _k in range(n):
+                k = P / (P + cfg.zaru_var(3.0))
+                bh += k * (b + creep + rng.normal(0.0, own) - bh)
+                P *= 1.0 - k
+            out.append((bh - b) ** 2 / P)
+        return float(np.mean(out))
+
+    assert 0.85 < nees(c) < 1.15
+    assert nees(replace(c, creep_windows=1)) > 1.25
