@@ -3,9 +3,10 @@
 The legs' kinematics carry the residuals of the robot's calibration (joint zero offsets, link lengths; realistic
 sensors: 0.3° and 1 mm, sensors/joints.py and sensors/suite.py). Each leg's odometry then turns the base's
 velocity a little about the base's y axis, and the fused velocity climbs or sinks by their mean: −0.5…+0.8 % of
-the distance on the ramps' noise seeds (docs/results.md, "The legs' climb bias"). Nothing the IMU or a standstill
-sees tells that mean apart from a sloping ground: the feet-plane's tilt at rest is a different combination of the
-same errors (the thigh offsets move the feet fore and aft, not up), and gravity fixes only the trunk's tilt.
+the distance on the ramps' noise seeds (docs/results.md, "The ramps' heights with realistic sensors"). Nothing the
+IMU or a standstill sees tells that mean apart from a sloping ground: the feet-plane's tilt at rest is a different
+combination of the same errors (the thigh offsets move the feet fore and aft, not up), and gravity fixes only the
+trunk's tilt.
 
 What does show it is the ground itself, walked twice. In a trot the hind foot lands within a few centimetres of
 where the front foot on its side stood about a body length earlier. The ground has not moved, so the two footholds'
