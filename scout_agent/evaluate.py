@@ -406,6 +406,7 @@ def evaluate_run(cfg: ScoutRunConfig, res: float = DEFAULT_RES_M, progress: bool
         "hazard_stops": summary["hazard_stops"],
         "standstills": summary["standstills"],
         "zaru": summary["zaru"],
+        "climb_calibration": summary["climb_calibration"],
         "detour_m": summary["detour_m"],
         "gave_up": summary["gave_up"],
         "friction_estimate": summary["friction_estimate"],

@@ -94,6 +94,10 @@ def test_evaluate_prints_one_json_object_with_the_figures(capsys):
     assert 0 < res["drift_xy_pct"] < 5 and abs(res["drift_z_m"]) < 0.05
     assert res["elevation_rmse_exact_m"] <= res["elevation_rmse_m"] + 0.01
     assert res["cot_whole_run"] == pytest.approx(res["cot_whole_run_truth"], rel=0.1)
+    # the legs' climb calibration (climb_calibration.py): pairs of revisited footholds fused within 12 s, its σ
+    # below the prior's 0.6 %
+    cal = res["climb_calibration"]
+    assert cal["pairs"] > 5 and 0 < cal["std_pct"] < 0.6 and abs(cal["bias_pct"]) < 3
 
 
 def test_evaluate_rejects_a_bad_resolution():
