@@ -89,8 +89,11 @@ def _step_world(height_m: float) -> World:
 
 def test_contact_trigger_stops_at_a_step_the_legs_run_into_and_backs_off():
     # a 15 cm step across the testbed at x = 2.5: the legs hit its face, a force the feet's torques do not
-    # explain (the estimators' non-foot contact)
+    # explain (the estimators' non-foot contact). The front-foot slip trigger is off here: the step's face reads
+    # as a wall to the front feet's own slope, and a front foot slipping on its edge stops the scout there too
+    # (on main 266b8fb, 0.16 m before the step, 'slip' only)
     cfg = ScoutRunConfig(scene="ramps", sim_seconds=16.0)
+    cfg = replace(cfg, pilot=replace(cfg.pilot, senses=replace(cfg.pilot.senses, front_slip_margin=None)))
     s, hazard = _walk(cfg, _step_world(0.15))
     assert not s["fell"] and s["hazard_stops"]
     stop = s["hazard_stops"][0]
