@@ -19,7 +19,7 @@ foot still sinking in excluded: in the first 0.1 s of stance its centre still mo
 through the four latest footholds (on a 20° ramp, taking it vertical biased the climb rate by ≈ 9 mm/s).
 
 Tuning: the process noise is the IMU datasheet's (BMI088) densities ×3 (covers the tick averaging and model
-error), bias walks ×10 the sensor model's (the filter must not be over-confident in its biases); the initial
+error), bias walks ×10 the sensor model's (the filter must not be over-confident in its biases; the gyro's z offset ×3, so the standstills it averages are kept: ekf.py); the initial
 gyro-bias σ is 5e-4 rad/s, ≈ 4.5× what the power-on calibration leaves (1.1e-4 rad/s, sensors/imu.py). It was
 0.01 rad/s, and then a sliding foot, whose leg odometry disagrees with the gripping foot's across a 0.5 m lever
 arm exactly like a turn the gyro does not see, moved the yaw-rate bias, which integrated into heading: 2–3°
