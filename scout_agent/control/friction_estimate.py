@@ -13,7 +13,7 @@ at least the largest ratio it bore. So, per foot:
   its slip event): μ̂ ← clip(candidate, `floor_mu`, μ̂) (never raised by a slip); where the candidate reached
   the stance QP's cone for that foot (`at_cone`), the foot slid at the QP's own ask and the candidate says
   nothing of the ground: μ̂ ← `lost_decay` · μ̂ too (else a foot the QP credits with the prior slides on at the
-  prior, its "observations" confirming the cone; off by default). A stance whose slip stayed
+  prior, its "observations" confirming the cone). A stance whose slip stayed
   below that is *creep*: MuJoCo's soft contact (like loose regolith) lets a loaded foot creep a few cm at
   ratios well inside its cone, and on holdable patches those creeping slips read μ̂ 0.05–0.1 below the truth
   and made 7 of 10 holdable walks stop (docs/results.md). Creep leaves μ̂ as it was (no recovery either);
@@ -62,10 +62,11 @@ class FrictionEstimateConfig:
     # slid at the QP's own ask: the torques then say what the leg pushed, not what the ground held (lunar seed
     # 4 west: a hind foot slid 0.4 m on μ 0.18 "bearing" 0.62–0.73, so μ̂ stayed at the prior 0.6 and the QP
     # went on asking 0.6 of it). Its μ̂ then falls to `lost_decay` of what it was, at each such lost hold
-    # (1: off, the default: on the short 20° ramp with a μ 0.26 patch 0.7 left the scout sliding on the patch
-    # instead of backing off, docs/results.md "What the feet can hold")
+    # (1: off. On main 669f4d2, with the pilot's slide mode, 0.7 took the falls matrices from 7 to 3 of 30
+    # (lunar) and 2 to 1 of 50 (ramps); before the slide mode it left the scout sliding on the short 20° ramp's
+    # μ 0.26 patch instead of backing off, docs/results.md "What the feet can hold")
     at_cone: float = 0.9
-    lost_decay: float = 1.0
+    lost_decay: float = 0.7
     proven_quantile: float = 90.0  # percentile of a clean stance's force ratios a foot has proven it holds
     proven_skip: float = 0.2  # share of a stance's first ticks left out of it (the touchdown)
 

@@ -149,19 +149,20 @@ def test_a_foot_that_slides_at_its_cone_lowers_its_estimate_with_lost_decay():
         est.update(*_args(event=(2,), slipped=(2,), dp=0.021), cone=np.full(4, cone))
         est.update(*_args(slipped=(2,), dp=2 * lost_dp), cone=np.full(4, cone))
 
-    # by default the ratio it bore (0.62, above the prior) leaves μ̂ at the prior
-    est = _Ratios()
+    # without lost_decay the ratio it bore (0.62, above the prior) leaves μ̂ at the prior
+    est = _Ratios(replace(FrictionEstimateConfig(), lost_decay=1.0))
     slide(est, 0.6)
     assert est.mu[2] == FrictionEstimateConfig().prior_mu and est.observations == 1
-    # with lost_decay it slid at its cone: μ̂ falls to 0.7 of the prior, and at the next such slide further
-    est = _Ratios(replace(FrictionEstimateConfig(), lost_decay=0.7))
+    # with it (0.7, the default) it slid at its cone: μ̂ falls to 0.7 of the prior, at the next such slide further
+    est = _Ratios()
+    assert est.config.lost_decay == 0.7
     slide(est, 0.6)
     assert est.mu[2] == pytest.approx(0.42)
     est.update(*_args(end=(2,), slipped=(2,), dp=np.nan))
     slide(est, 0.85 * 0.42)
     assert est.mu[2] == pytest.approx(0.7 * 0.42)
     # a foot that slid well inside its cone keeps its candidate only (what it bore says what the ground held)
-    est = _Ratios(replace(FrictionEstimateConfig(), lost_decay=0.7))
+    est = _Ratios()
     slide(est, 1.0)
     assert est.mu[2] == pytest.approx(0.6)
 
