@@ -105,10 +105,15 @@ def replay(path: Path, hold_m: float) -> None:
     end = float(F[-1, 0])
     at = [*np.arange(30.0, end, 25.0), end]
     for method in ("track", "walk"):
-        final, z2 = _replay(method, F, raw, at, dem, hold_m)
+        final, z2, var = _replay(method, F, raw, at, dem, hold_m)
         e = final - F[:, 5]
         print(f"{method:9s} hold {hold_m:4.0f} m: footholds' height error {np.sqrt(np.mean(e**2)):.3f} m RMS, mean "
               f"{e.mean():+.3f}; fixes' normalised error² {np.mean(z2):.2f} ({len(z2)} fixes)")  # fmt: skip
+        ok = np.isfinite(var)
+        if ok.any():  # the footholds' vertical σ as published (`PoseFix.height_profile_var`)
+            print(f"{'':9s} stated σ: median {np.sqrt(np.median(var[ok])):.3f} m (5–95 % "
+                  f"{np.sqrt(np.percentile(var[ok], 5)):.3f}–{np.sqrt(np.percentile(var[ok], 95)):.3f}); "
+                  f"footholds' normalised error² {np.mean(e[ok] ** 2 / var[ok]):.2f}")  # fmt: skip
     ht = HeightTrack()
     for k in range(len(F)):
         ht.add(np.array([[F[k, 2], F[k, 3], raw[k]]]), F[k, 0], F[k, 6])
@@ -122,11 +127,13 @@ def replay(path: Path, hold_m: float) -> None:
 
 def _replay(method, F, raw, at, dem, hold_m):
     """Footholds' heights after the fixes at distances `at` and the held samples' corrections; the fixes'
-    normalised errors²."""
+    normalised errors²; `walk`: each foothold's vertical variance as published (the last whole-walk fix's
+    posterior at its distance walked, + the DEM's bias; NaN for `track`)."""
     ht = HeightTrack()
     C_ = 0.0  # the corrections so far
     P, last = 0.3**2, 0.0  # `track`: the filter's height variance, the last fix's distance
     final = raw.copy()
+    var_out = np.full(len(F), np.nan)
     z2, hist = [], []
     k = 0
     for s_fix in at:
@@ -141,6 +148,8 @@ def _replay(method, F, raw, at, dem, hold_m):
                 continue
             held = F[:k, 0] > s_fix - hold_m
             final[:k][held] = raw[:k][held] + C_ + ht.last_profile(F[:k, 0][held] - s_fix)
+            assert ht.last_profile_var is not None
+            var_out[:k][held] = ht.last_profile_var(F[:k, 0][held] - s_fix) + 0.03**2
             corr, var = fix.dz, fix.var_m2 + 0.03**2
             ht.shift(np.zeros(3), np.array([0.0, 0.0, corr]), 0.0)
         else:
@@ -165,7 +174,7 @@ def _replay(method, F, raw, at, dem, hold_m):
         C_ += corr
         last = s_fix
     final[k:] = raw[k:] + C_
-    return final, np.array(z2)
+    return final, np.array(z2), var_out
 
 
 def main(argv: list[str] | None = None) -> int:

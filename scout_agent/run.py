@@ -442,13 +442,14 @@ def _localize_and_report(
     to `on_fix` (the learnt height drift the tick took off is dead reckoning, not a fix)."""
     p0, P0 = estimator.ekf.p.copy(), estimator.position_covariance()
     fixes = localizer.report.fixes
-    localizer.height_profile = None
+    localizer.height_profile = localizer.height_profile_var = None
     step()
     if localizer.report.fixes != fixes:
         change = estimator.ekf.p - p0
         change[2] += localizer.drift_step_m
         var_after = _position_variances(estimator.position_covariance())
-        on_fix(PoseFix(change, _position_variances(P0), var_after, localizer.height_profile))
+        on_fix(PoseFix(change, _position_variances(P0), var_after, localizer.height_profile,
+                       localizer.height_profile_var))  # fmt: skip
 
 
 def _r4(v: float) -> float:

@@ -81,6 +81,9 @@ class HeightTrack:
         # the last fix's datum along the walk behind it: distance before the newest foothold (≤ 0) [m] -> the
         # reference's height minus the estimate's there [m], in the frame the fix was computed in
         self.last_profile: Callable[[np.ndarray], np.ndarray] | None = None
+        # ... and its posterior variance there [m²] (hindsight: the walk's evidence on both sides of a foothold
+        # knows its datum better than the fix knew the datum at the newest one)
+        self.last_profile_var: Callable[[np.ndarray], np.ndarray] | None = None
 
     def __len__(self) -> int:
         return self._n
@@ -128,6 +131,7 @@ class HeightTrack:
         theta, cov, m, (knot_m, n_knots) = got
         self.rate_var = float(cov[1, 1])
         self.last_profile = partial(_profile, theta[: 2 + n_knots].copy(), knot_m)
+        self.last_profile_var = partial(_profile_var, cov, knot_m)
         return HeightFix(float(theta[0]), float(cov[0, 0]), m, rate=float(theta[1]))
 
     def profile(
@@ -207,8 +211,9 @@ class HeightTrack:
             theta = cho_solve(N, A.T @ (W * yv))
             u = np.abs(yv - A @ theta) / np.sqrt(scale)
             wr = np.where(u <= c.huber_k, 1.0, c.huber_k / np.maximum(u, 1e-12))
-        cov = cho_solve(N, np.eye(n_u)[:, :2])[:2]  # (d, c)'s covariance
-        return theta, cov, m, (c.knot_m, n_knots)
+        k = 2 + n_knots
+        cov = cho_solve(N, np.eye(n_u)[:, :k])[:k]  # (d, c, W's increments)' covariance
+        return theta, 0.5 * (cov + cov.T), m, (c.knot_m, n_knots)
 
 
 def _profile(theta: np.ndarray, knot_m: float, rel: np.ndarray) -> np.ndarray:
@@ -216,6 +221,14 @@ def _profile(theta: np.ndarray, knot_m: float, rel: np.ndarray) -> np.ndarray:
     n_knots = len(theta) - 2
     rel = np.clip(np.asarray(rel, dtype=float), -n_knots * knot_m, 0.0)
     return theta[0] + theta[1] * rel + _walk_rows(rel, knot_m, n_knots) @ theta[2:]
+
+
+def _profile_var(cov: np.ndarray, knot_m: float, rel: np.ndarray) -> np.ndarray:
+    """The posterior variance of `_profile` at distances `rel` ≤ 0 [m²]: aᵀ·cov·a with a = (1, rel, W's rows)."""
+    n_knots = len(cov) - 2
+    rel = np.clip(np.asarray(rel, dtype=float), -n_knots * knot_m, 0.0)
+    a = np.c_[np.ones_like(rel), rel, _walk_rows(rel, knot_m, n_knots)]
+    return np.maximum(np.einsum("ij,jk,ik->i", a, cov, a), 0.0)
 
 
 def _walk_rows(rel: np.ndarray, knot_m: float, n_knots: int) -> np.ndarray:

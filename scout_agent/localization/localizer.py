@@ -191,6 +191,13 @@ class LocalizerReport:
         }
 
 
+def _plus(
+    f: Callable[[np.ndarray], np.ndarray] | None, c: float
+) -> Callable[[np.ndarray], np.ndarray] | None:
+    """x -> f(x) + c (None without f)."""
+    return None if f is None else (lambda x: f(x) + c)
+
+
 def _sigma_xy(P: np.ndarray) -> float:
     """σ of the position along its worst horizontal direction [m] (the larger eigenvalue of P[6:8, 6:8])."""
     a, b, d = float(P[6, 6]), float(P[6, 7]), float(P[7, 7])
@@ -259,6 +266,9 @@ class Localizer:
         # the datum along the walk behind the last fused DEM fix (`HeightTrack.last_profile`), for the mapper's
         # held samples (holding.PoseFix.height_profile); the run loop takes it with the fix
         self.height_profile: Callable[[np.ndarray], np.ndarray] | None = None
+        # ... and its variance there with the DEM's vertical bias (holding.PoseFix.height_profile_var): the
+        # held footholds' vertical σ, what the map's height layer states and the others' height fixes add
+        self.height_profile_var: Callable[[np.ndarray], np.ndarray] | None = None
         self.heights = (
             HeightTrack(config.height_track)
             if config.height_track is not None and isinstance(dem, DemReference)
@@ -420,6 +430,7 @@ class Localizer:
                          float(chi2.ppf(1.0 - self.config.gate_p, 1)))  # fmt: skip
         if up.accepted:
             self.height_profile = self.heights.last_profile  # computed in the frame before this correction
+            self.height_profile_var = _plus(self.heights.last_profile_var, src.datum_m**2)
             self._shift(before, float(up.correction[3]))
             self.report.fused["dem_height"] += 1
             self._height_at["dem"] = self.walked_m

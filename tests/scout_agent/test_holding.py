@@ -168,3 +168,28 @@ def test_a_fix_that_states_the_walks_datum_keeps_the_samples_younger_than_hold_m
         left[with_profile] = (held_before, mapper.held.pending)
     assert left[False][0] > 0 and left[False][1] == 0, left
     assert left[True][1] == left[True][0], left  # nothing 30 m old: all stay for the next fix
+
+
+def test_a_fix_that_states_the_walks_datum_variance_sets_the_held_footholds_vertical_sigma() -> None:
+    """With `PoseFix.height_profile_var` the held footholds' vertical σ (the `height` layer's) is that datum's
+    posterior σ at each one's distance walked, not the filter's σ when it stood there smoothed by the fix's
+    gain; without it the smoothed σ stays (here 0.10 m at the walk's start, where the profile states 0.05 m)."""
+    sig = {}
+    for with_var in (False, True):
+        acc = CellAccumulator(RES)
+        held = HeldSamples(acc, HoldConfig(hold_m=30.0))
+        local = LocalMap(RES)
+        _walk(held, local, 0.0, 20.0, lambda x: 0.1)
+        profile_var = (lambda rel: 0.03**2 + 0.002**2 * np.asarray(rel) ** 2) if with_var else None
+        held.correct(PoseFix(np.array([0.0, 0.0, -0.1]), np.array([0.01, 0.01, SIGMA0_M2 + Q_M2_PER_M * 20.0]),
+                             np.array([0.01, 0.01, 0.03**2]), lambda rel: np.full(np.shape(rel), -0.1),
+                             profile_var))  # fmt: skip
+        list(held.chunks())
+        local.merge(acc.flush())
+        cells = local.cells("height")
+        x = (cells["ix"] + 0.5) * RES
+        sig[with_var] = (x, layer_derived("height", "sigma", cells))
+    x, s = sig[True]
+    want = np.sqrt(0.03**2 + 0.002**2 * (x - 19.95) ** 2)
+    assert np.allclose(s, want, atol=0.004), np.c_[x, s, want][::10]
+    assert np.abs(sig[False][1] - want).max() > 0.04, np.c_[x, sig[False][1], want][::10]
