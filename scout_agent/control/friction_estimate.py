@@ -20,6 +20,17 @@ at least the largest ratio it bore. So, per foot:
 - stance ended without a slip: μ̂ ← max(μ̂ + `recover` · (prior − μ̂), the largest settled ρ of that stance),
   capped at the prior: the estimate recovers over a few clean stances once the ground grips again.
 
+A floor from the ground's side: the trunk's accelerometer says what all the feet together bore. Its specific
+force f (world) times the mass is the sum of the ground's forces on the feet (the legs' own accelerations
+average out over a gait cycle), so the ratio ρ_G = |f̄_t| / f̄_n of its low-passed mean (`ground_tau_s`, about a
+trot cycle) along the foothold plane's normal is the ratio the ground bore under the stance feet together: where
+they all stand on one patch, its μ is at least ρ_G (standing, ρ_G ≈ tan θ; sliding, ρ_G ≈ μ). A lost hold never
+takes a foot's μ̂ below `ground_share` · ρ_G. Without it `lost_decay` compounds: a foot whose cone the decay
+lowered below what the slope asks slides at that cone again, stance after stance, and its μ̂ spirals to the floor
+while the others' stay (lunar seed 6 east: a hind foot at μ̂ 0.02 for 15 s on μ 0.16 ground while ρ_G read
+0.1–0.26; the stance QP then asked all the tangential force of its diagonal partner, which slid, and the trunk
+rolled over them, docs/results.md "The ground's side").
+
 `area_mu` is the smallest of the four: the feet stand within 0.5 m of each other, on the same patch of ground.
 
 `proven` (4,) (read by `adaptation` only with its `qp_proven`, off by default) is what each foot has shown it holds where it stands now: the `proven_quantile` of the force
@@ -36,6 +47,7 @@ plane — the robot's side of `signals.ProprioSample`.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -67,6 +79,10 @@ class FrictionEstimateConfig:
     # μ 0.26 patch instead of backing off, docs/results.md "What the feet can hold")
     at_cone: float = 0.9
     lost_decay: float = 0.7
+    # the ground-side floor (None: off): a lost hold leaves μ̂ at least ground_share · ρ_G, ρ_G the ratio of the
+    # accelerometer's specific force low-passed over ground_tau_s along the foothold plane's normal
+    ground_share: float | None = 0.9
+    ground_tau_s: float = 0.7
     proven_quantile: float = 90.0  # percentile of a clean stance's force ratios a foot has proven it holds
     proven_skip: float = 0.2  # share of a stance's first ticks left out of it (the touchdown)
 
@@ -84,6 +100,13 @@ def _force_ratios(f: np.ndarray, fn: np.ndarray, normal: np.ndarray, min_normal_
     return out
 
 
+@njit(cache=True, nogil=True)
+def _low_pass_rotated(f: np.ndarray, R: np.ndarray, v: np.ndarray, a: float) -> None:
+    """f ← f + a · (R v − f), in place (compiled: numpy's matmul and arithmetic cost ≈ 8 µs a tick)."""
+    for j in range(3):
+        f[j] += a * (R[j, 0] * v[0] + R[j, 1] * v[1] + R[j, 2] * v[2] - f[j])
+
+
 class FrictionEstimate:
     """`update(sample, slip_events, stance_end, slipped, normal, dt)` once per tick; `mu` (4,) per foot."""
 
@@ -96,12 +119,28 @@ class FrictionEstimate:
         self.proven = np.full(4, np.nan)  # ratio each foot held through its last clean stance (NaN: none)
         self._stance_rho = np.empty((4, _STANCE_TICKS))  # this stance's force ratios, each foot
         self._n_rho = [0, 0, 0, 0]
+        self._force = np.zeros(3)  # low-passed specific force, world (∝ the ground's force on all feet)
         self.observations = 0  # stances that lost their hold and set an estimate
         self.creeps = 0  # stances whose slip stayed creep
 
     @property
     def area_mu(self) -> float:
         return float(self.mu.min())
+
+    def ground_ratio(self, normal: np.ndarray) -> float:
+        """ρ_G: |f̄_t| / f̄_n of the low-passed specific force along `normal` (0 before any reading or with no
+        normal part): the friction ratio the ground bore under all stance feet together."""
+        f = self._force
+        fn = float(f[0] * normal[0] + f[1] * normal[1] + f[2] * normal[2])
+        if fn <= 0.0:
+            return 0.0
+        t0, t1, t2 = f[0] - fn * normal[0], f[1] - fn * normal[1], f[2] - fn * normal[2]
+        return math.sqrt(t0 * t0 + t1 * t1 + t2 * t2) / fn
+
+    def feel_ground(self, imu_acc: np.ndarray, R: np.ndarray, dt: float) -> None:
+        """Low-pass the accelerometer's specific force `imu_acc` (base frame), rotated into the world by `R`."""
+        a = dt / (self.config.ground_tau_s + dt) if dt > 0 else 1.0
+        _low_pass_rotated(self._force, R, np.asarray(imu_acc, dtype=float), a)
 
     def ratios(
         self,
@@ -130,11 +169,15 @@ class FrictionEstimate:
         dt: float,
         forces_w: np.ndarray | None = None,
         cone: np.ndarray | None = None,
+        imu_acc: np.ndarray | None = None,
     ) -> bool:
         """One tick; `dp` (4,): the slip detector's ΔP per foot this tick [m] (NaN where not settled);
         `forces_w` as in `ratios` (feet out of `contact` may read anything there); `cone` (4,): the friction
-        the stance QP gives each foot now (None: unknown). True when a foot lost its hold this tick."""
+        the stance QP gives each foot now (None: unknown); `imu_acc` (3,): the accelerometer's specific force, base
+        frame (None: no ground-side floor). True when a foot lost its hold this tick."""
         c = self.config
+        if imu_acc is not None and c.ground_share is not None:
+            self.feel_ground(imu_acc, R, dt)
         rho = self.ratios(q, tau, R, normal, forces_w)
         a = dt / (c.ratio_tau_s + dt) if dt > 0 else 1.0
         lost = False
@@ -157,6 +200,9 @@ class FrictionEstimate:
                 if cone is not None and c.lost_decay < 1.0 and cand >= c.at_cone * cone[i]:
                     # it slid bearing what the QP gave it: the ratio is the QP's own ask, not the ground's
                     mu = min(mu, c.lost_decay * self.mu[i])
+                if imu_acc is not None and c.ground_share is not None:
+                    # never below what the ground was seen to bear under all the feet together
+                    mu = max(mu, min(float(self.mu[i]), c.ground_share * self.ground_ratio(normal)))
                 self.mu[i] = max(c.floor_mu, mu)
                 self.observations += 1
                 self._candidate[i] = np.nan  # once per stance

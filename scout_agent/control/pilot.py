@@ -384,6 +384,7 @@ class Pilot:
                 dt,
                 est.foot_force_w,
                 self._cone_now(),
+                sample.imu_acc,
             )
             if lost:
                 f = self.controller.footholds

@@ -556,3 +556,72 @@ def test_on_a_patch_too_slippery_to_back_up_the_scout_slides_through_with_the_gr
     # truth: the scout ended below the patch (x 5.175 on), at the goal, reached after the detour from where it
     # came to rest
     assert s["final_xy"][0] > 5.175 and s["reached_goal"] and modes[3] == "walk"
+
+
+def test_a_lost_hold_never_takes_the_estimate_below_what_the_ground_bore_under_all_feet():
+    # the accelerometer's specific force tilted by atan 0.2 from the plane's normal: the ground bore a ratio of 0.2
+    # under the feet together (a robot standing on a slope of tan θ = 0.2, or sliding on μ 0.2)
+    imu = 1.62 * np.array([0.2, 0.0, 1.0])
+    lost_dp = FrictionEstimateConfig().lost_dp_m
+
+    def slide(est: _Ratios, cone: float, imu_acc) -> None:
+        # foot 2 slides bearing its cone, stance after stance (the QP's ask: `lost_decay`'s case)
+        for _ in range(100):  # 1 s of readings: the low-pass (0.7 s) settles
+            est.rho = np.array([0.1, 0.1, cone, 0.1])
+            est.update(*_args(), cone=np.full(4, cone), imu_acc=imu_acc)
+        est.update(*_args(event=(2,), slipped=(2,), dp=0.021), cone=np.full(4, cone), imu_acc=imu_acc)
+        est.update(*_args(slipped=(2,), dp=2 * lost_dp), cone=np.full(4, cone), imu_acc=imu_acc)
+        est.update(*_args(end=(2,), slipped=(2,), dp=np.nan), imu_acc=imu_acc)
+
+    est = _Ratios()
+    assert est.ground_ratio(np.array([0.0, 0.0, 1.0])) == 0.0  # nothing read yet
+    for _ in range(8):
+        slide(est, 0.85 * est.mu[2], imu)
+    assert est.ground_ratio(np.array([0.0, 0.0, 1.0])) == pytest.approx(0.2, abs=1e-3)
+    # 0.6 → 0.42 → 0.294 → 0.206 → then held at 0.9 · 0.2, not on down to the floor
+    assert est.mu[2] == pytest.approx(0.9 * 0.2, abs=1e-3)
+    # without the accelerometer (or with the floor off) the decay compounds to the estimate's floor
+    off = _Ratios(replace(FrictionEstimateConfig(), ground_share=None))
+    blind = _Ratios()
+    for _ in range(8):
+        slide(off, 0.85 * off.mu[2], imu)
+        slide(blind, 0.85 * blind.mu[2], None)
+    assert off.mu[2] == pytest.approx(0.6 * 0.7**8) and blind.mu[2] == pytest.approx(off.mu[2])
+    # the floor never raises an estimate above what it was: a foot already below it stays where it was
+    low = _Ratios()
+    low.mu[2] = 0.1
+    slide(low, 0.85 * 0.1, imu)
+    assert low.mu[2] == pytest.approx(0.1)
+
+
+def test_the_ground_side_ratio_from_the_accelerometer_matches_the_feet_forces_in_truth():
+    # walking up and down the short 15° ramp (μ 0.7): the low-passed specific force's ratio along the ramp's
+    # normal against the same low-pass of the simulator's summed foot forces, and on the ramps against tan 15°
+    # (walking steadily, the ground bears what holds the robot on the slope)
+    from scout_agent.estimators.pipeline import quat_to_matrix
+
+    alpha = np.radians(15.0)
+    est, truth_f = FrictionEstimate(), np.zeros(3)
+    rows = []
+
+    def on_tick(sample, gt, robot):
+        nonlocal truth_f
+        dt = 0.01
+        est.feel_ground(sample.imu_acc, quat_to_matrix(sample.base.quat), dt)
+        a = dt / (est.config.ground_tau_s + dt)
+        truth_f = truth_f + a * (gt.foot_force_world.sum(axis=0) - truth_f)
+        x = float(gt.base.pos[0])
+        slope = 1 if 1.4 < x < 2.2 else (-1 if 3.6 < x < 5.4 else 0)  # the middle of the up / down ramp
+        if slope and gt.t > 3.0:
+            n = np.array([-np.sin(alpha) * slope, 0.0, np.cos(alpha)])
+            fn = truth_f @ n
+            rows.append((est.ground_ratio(n), float(np.linalg.norm(truth_f - fn * n) / fn)))
+        return None
+
+    s = run_scout(ScoutRunConfig(scene="ramps", slope_deg=15.0, ramp=SHORT, sim_seconds=30.0), on_tick=on_tick,
+                  progress=False)  # fmt: skip
+    assert not s["fell"] and len(rows) > 200
+    imu, true = np.array(rows).T
+    assert np.median(np.abs(imu - true)) < 0.03
+    assert np.median(true) == pytest.approx(np.tan(alpha), abs=0.06)
+    assert np.median(imu) == pytest.approx(np.tan(alpha), abs=0.06)
