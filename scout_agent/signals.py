@@ -46,7 +46,7 @@ class ProprioSample(NamedTuple):
     contact: np.ndarray  # (4,) bool, foot contact flags (foot pressure sensors with hysteresis, or torques)
     foot_pressure: np.ndarray  # (4,) 1-D foot pressure sensor readings [N]
     joint_energy_j: float  # Σ|τ·q̇|dt over this tick, integrated by the drivers at every physics step [J]
-    imu_acc: np.ndarray  # (3,) accelerometer specific force, base frame, tick mean [m/s²]
+    imu_acc: np.ndarray  # (3,) accelerometer specific force at the base origin (lever arm removed), base frame, tick mean [m/s²]
     imu_gyro: np.ndarray  # (3,) gyroscope angular velocity, base frame, tick mean [rad/s]
     base: BaseState  # base state as the robot knows it: the state estimate (exact only with state "exact")
     foot_pos_des_base: np.ndarray  # (4, 3) controller's desired foot positions, base frame [m]

@@ -119,7 +119,9 @@ class OnboardSoftware:
             contact=tick.contact,
             foot_pressure=tick.foot_pressure,
             joint_energy_j=tick.joint_energy_j,
-            imu_acc=tick.imu_acc,
+            # at the base origin, as the estimator moved it (the IMU's lever arm removed: the estimators' GIA and
+            # non-foot force compare it with the feet's forces); the raw reading when the estimate is not run
+            imu_acc=tick.imu_acc if exact is not None else self.estimator.specific_force_base.copy(),
             imu_gyro=tick.imu_gyro,
             base=base,
             foot_pos_des_base=out.foot_pos_des_base,

@@ -266,6 +266,12 @@ class StateEstimator:
         self.climb = ClimbCalibration(c.climb)  # the legs' climb bias from revisited footholds
         self.estimate = self._estimate(np.zeros(3))
 
+    @property
+    def specific_force_base(self) -> np.ndarray:
+        """The last tick's specific force at the base origin (the IMU's less its lever arm), base frame [m/s²];
+        a view the next tick overwrites."""
+        return self._f_base
+
     def _specific_force(self, tick: SensorTick, dt: float) -> np.ndarray:
         """The specific force at the base origin: the IMU's, less its lever arm (ω̇ × r + ω × (ω × r))."""
         if not self._lever:

@@ -144,3 +144,45 @@ def test_a_slipping_stance_gives_a_slip_event_no_foothold_and_no_stability_sampl
     assert ticks[0].giim == pytest.approx(0.0, abs=1e-12)
     assert layers["elevation"]["n"].sum() == sum(len(e.footholds) for e in ticks)
     assert layers["contacts"]["nonfoot"].sum() == 0
+
+
+def _standing(q: np.ndarray, extra_n: float, n_ticks: int = 60):
+    """Four feet planted, the legs' torques holding the weight plus `extra_n` [N] more downward push than the
+    IMU's specific force explains (an external force on something other than the feet), at joint angles `q`."""
+    J = jacobians(q)
+    forces = np.zeros((4, 3))
+    forces[:, 2] = (MASS * G + extra_n) / 4
+    tau = -np.einsum("lji,lj->li", J, forces).reshape(12)
+    planted = np.ones(4, dtype=bool)
+    pos_b = np.column_stack([NOMINAL, np.full(4, GROUND_Z + R_FOOT - BASE[2])])
+    for k in range(n_ticks):
+        yield (
+            ProprioSample(
+                t=k * DT, q=q.copy(), dq=np.zeros(12), tau=tau, contact=planted, foot_pressure=forces[:, 2].copy(),
+                joint_energy_j=0.0, imu_acc=np.array([0.0, 0.0, G]), imu_gyro=np.zeros(3),
+                base=BaseState(BASE.copy(), np.array([1.0, 0, 0, 0]), np.zeros(3), np.zeros(3)),
+                foot_pos_des_base=pos_b, foot_vel_des_base=np.zeros((4, 3)), stance_planned=planted,
+                phase=np.zeros(4),
+            ),
+            pos_b,
+            np.zeros((4, 3)),
+        )  # fmt: skip
+
+
+def test_a_force_the_feet_do_not_explain_is_a_non_foot_contact_unless_a_leg_stands_at_a_joint_limit():
+    # 30 N the torques show and the IMU does not: flagged after the warm-up
+    pipe, feet = make()
+    ticks = run(pipe, feet, _standing(HOME_Q, 30.0))
+    assert ticks[-1].nonfoot_force_n == pytest.approx(30.0, rel=0.02) and ticks[-1].nonfoot
+    # the same with a stance leg's knee at its stop (a hind leg stretched into a hollow): the limit bears torque
+    # the motor's current does not show, the foot's force is not known, and nothing is flagged
+    q = HOME_Q.copy()
+    q[8] = -0.65  # RL calf, range ends at −0.6458
+    pipe, feet = make()
+    ticks = run(pipe, feet, _standing(q, 30.0))
+    assert ticks[-1].nonfoot_force_n == pytest.approx(30.0, rel=0.02)
+    assert not any(e.nonfoot for e in ticks)
+    # 0.1 rad off the stop the torques are trusted again
+    q[8] = -0.75
+    pipe, feet = make()
+    assert run(pipe, feet, _standing(q, 30.0))[-1].nonfoot

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from scout_agent.estimators.pipeline import quat_to_matrix
 from scout_agent.loop import SimulatedScout
 from scout_agent.mapping import Mapper, MapperConfig
 from scout_agent.run import ScoutRunConfig, run_scout
@@ -52,3 +53,24 @@ def test_normal_walking_flags_no_non_foot_contact():
         ScoutRunConfig(scene="ramps", slope_deg=15.0, sim_seconds=12), on_tick=on_tick, progress=False
     )
     assert not s["fell"] and not flagged
+
+
+def test_the_sample_carries_the_specific_force_at_the_trunk_origin_not_at_the_imu():
+    # the realistic IMU sits 7 cm off the trunk origin; the estimators compare the specific force with the feet's
+    # forces, so the sample carries it at the origin (the estimator's lever arm removed). Truth: the origin's
+    # acceleration over each tick (its velocity's change) less gravity, in the trunk frame
+    rows = []
+    prev: dict = {}
+
+    def on_tick(sample, truth, robot):
+        b = truth.base
+        R = quat_to_matrix(b.quat)
+        if prev:
+            f_true = (b.vel - prev["v"]) / (truth.t - prev["t"]) - np.array([0.0, 0.0, -1.62])
+            rows.append((truth.t, np.linalg.norm(sample.imu_acc - 0.5 * (R + prev["R"]).T @ f_true)))
+        prev.update(t=truth.t, v=b.vel.copy(), R=R)
+
+    run_scout(ScoutRunConfig(scene="ramps", slope_deg=0.0, sim_seconds=6.0), on_tick=on_tick, progress=False)
+    err = np.array([e for t, e in rows if t > 1.0])
+    # at the IMU's own place (before): 90th percentile 0.19 m/s²; at the origin 0.10 (noise, bias, scale)
+    assert np.percentile(err, 90) < 0.14
