@@ -25,6 +25,7 @@ from scout_agent.control.swing import swing_point_into
 from scout_agent.robot import constants as C
 from scout_agent.robot import kinematics as K
 from scout_agent.robot.kinematics import leg_ik, leg_kinematics
+from scout_agent.robot.statics import leg_gravity_torques
 
 _NOMINAL_FEET = K.fk(C.HOME_Q)  # (4, 3) base frame
 _NOMINAL_FEET[:, 2] = 0.0
@@ -65,6 +66,11 @@ class ControllerConfig:
     # one-tick impact of 50-60 N at a lunar weight of 33 N on every step, unequal between the diagonal's feet on
     # uneven ground (docs/results.md, "The trot's touchdowns")
     land_share: float = 0.4
+    # standing (the gait frozen, `hold`): the joints also hold the legs' own weight (`statics.leg_gravity_torques`).
+    # Off: left to the ground, each leg's weight (2.9 kg, outboard of its hip ab/ad axis) squeezes its foot with
+    # ≈ 0.4 N, but holding it did not lessen the stance's yaw creep (the feet slide down their own ground facets:
+    # docs/results.md, "Why a standing robot's feet creep"; `benchmarks/stand_creep.py --leg-gravity`)
+    stand_leg_gravity: bool = False
 
 
 class RobotState(NamedTuple):
@@ -464,6 +470,7 @@ class TrotController:
         self._frozen_at: float | None = None  # the gait time it stopped at [s]
         self._stand_feet: np.ndarray | None = None  # (4, 3) centred feet, base frame, when it froze [m]
         self._stand_centre = np.zeros(3)  # their centre then, base frame [m]
+        self._tau_g = np.empty(12)  # the legs' gravity torques while standing [N·m]
         self.corrections_followed = 0  # ticks whose estimate correction moved the kept points
 
     def set_command(self, forward_speed: float, yaw_rate: float) -> None:
@@ -487,6 +494,12 @@ class TrotController:
         # the feet turned by θ in the base frame (2-D Kabsch, closed form): the trunk turned by −θ over them
         theta = np.arctan2(float(np.sum(f0[:, 0] * f2[:, 1] - f0[:, 1] * f2[:, 0])), float(np.sum(f0 * f2)))
         self._ref[2] = np.arctan2(s.R[1, 0], s.R[0, 0]) + theta
+
+    def _add_leg_gravity(self, s: RobotState, tau: np.ndarray) -> None:
+        """Standing: add the torques that hold the legs' own links (the estimate's gravity direction) to `tau`."""
+        g_base = s.R[2] * -self.config.gravity  # Rᵀ (0, 0, −g)
+        leg_gravity_torques(np.ascontiguousarray(s.q, dtype=float), g_base, self._tau_g)
+        tau += self._tau_g
 
     @property
     def standing(self) -> bool:
@@ -647,4 +660,6 @@ class TrotController:
             pos_des_b,
             vel_des_b,
         )
+        if self._frozen_at is not None and self.config.stand_leg_gravity:
+            self._add_leg_gravity(s, tau)
         return ControlOutput(tau, q_des, kp, kd, pos_des_b, vel_des_b, sched, phase, forces)

@@ -19,7 +19,9 @@ settled feet (`StateEstimator.update(..., standing=True)`, the controller's gait
   never by a χ² gate (a unit whose bias is larger than the filter believes would be locked out for good);
   **the stance creeping as a whole**: MuJoCo's soft contacts (like loose regolith) let loaded feet creep, and
   the stance then turns in the world with the trunk on it, which no leg kinematics sees and the gyro reads as
-  bias. Measured against the simulator's truth (100 m field, seed 31, realistic sensors): steady over a pause,
+  bias (each foot slides down its own facet of the ground under its vertical load; the ground holds no net torque
+  and no standing force distribution cancels the slides: docs/results.md, "Why a standing robot's feet creep").
+  Measured against the simulator's truth (100 m field, seed 31, realistic sensors): steady over a pause,
   0.0–4.6e-4 rad/s from one pause to the next (1.6e-4 rms per pause once the windows' white noise is taken
   out), level ground or not (0.84° and 0.43° slopes read 3e-4 and 4e-4 off), the same whatever the filter's
   bias error (an injected ±3e-4 rad/s changed nothing). It is one draw per standstill shared by its windows
