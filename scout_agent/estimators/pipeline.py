@@ -20,7 +20,9 @@ ones (CoT, GIIM, GIAM, non-foot contacts) at the CoM projection. `record(est, ac
 Non-foot contacts (calf, thigh or body on the ground) are detected proprioceptively as the force the feet do
 not explain: f_ext = m·(a_GIA,feet − a_GIA,imu) (torque-estimated foot forces vs accelerometer), low-pass
 filtered; above
-`nonfoot_threshold_n` the tick is flagged and counted in the `contacts` layer of the CoM cell.
+`nonfoot_threshold_n` the tick is flagged and counted in the `contacts` layer of the CoM cell. The accelerometer's
+specific force is the trunk origin's (`ProprioSample.imu_acc`: the state estimator removed the IMU's lever arm), and
+nothing is flagged while a leg in contact stands at a joint limit (the limit's torque is not in the motor's).
 """
 
 from __future__ import annotations
