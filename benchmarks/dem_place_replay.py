@@ -13,8 +13,15 @@ the walk and the share of 0.2 s samples inside the 3σ ellipse; `--fixes none` i
 window` the build before `trail.py` (the likelihood's moments over a window sized by the filter's σ, the last
 100 m of track, covariance × the footholds shared).
 
+`--verbose` prints each fix against the truth (the estimate's true error, the fix's posterior and σ, the information
+λ it adds per direction, the correction); `--prior-scale` multiplies the recorded filter's covariance (what a tighter
+filter would make of the same fixes). `bound` is what the DEM can say at all about the recorded route: the σ of a
+rigid shift of the true footholds against the noise-free DEM's gradient (Fisher information), the whole route and
+each 25 m piece.
+
     python benchmarks/dem_place_replay.py record /tmp/s33.npz --seed 33
-    python benchmarks/dem_place_replay.py replay /tmp/s33.npz --seed 33 --draws 6 [--fixes trail|window|none]
+    python benchmarks/dem_place_replay.py replay /tmp/s33.npz --draws 6 [--fixes trail|window|none] [--verbose]
+    python benchmarks/dem_place_replay.py bound /tmp/s33.npz
 """
 
 from __future__ import annotations
@@ -29,6 +36,7 @@ import numpy as np
 from scout_agent import evaluate as evaluate_module
 from scout_agent.localization import DemReference, LocalizerConfig, match_track, match_trail
 from scout_agent.localization.localizer import _due_feet, search_config
+from scout_agent.localization.trail import bin_trail
 from scout_agent.robot import constants as C
 from scout_agent.run import ScoutRunConfig
 from scout_agent.sim.dem import OrbitalDemConfig, orbital_dem
@@ -103,12 +111,33 @@ def _psd(M: np.ndarray) -> np.ndarray:
     return V @ np.diag(np.maximum(w, 0.0)) @ V.T
 
 
-def replay(path: str, draws: int, fixes: str, every_m: float = 25.0, first_m: float = 30.0) -> list[dict]:
+def _fix_line(w: float, truth: np.ndarray, fix, P: np.ndarray, corr: np.ndarray | None) -> str:
+    """One accepted or refused fix against the truth: the estimate's true (x, y, heading) error (truth minus
+    estimate), the fix's posterior mean and σ, the prior's σ, the information the DEM added per direction of
+    the prior's whitened space (λ: the DEM cut the variance along it by 1 + λ), the posterior's normalised
+    error² against the truth (3 dof), and the correction fused."""
+    head = f"w {w:6.1f} m  true {truth[0]:+.2f} {truth[1]:+.2f} m {np.degrees(truth[2]):+.2f}°"
+    if not fix.ok:
+        return f"{head}  {fix.reason} (gain {fix.gain_nats:.2f} nats)"
+    Lp = np.linalg.cholesky(P)
+    lam = np.linalg.eigvalsh(Lp.T @ np.linalg.inv(fix.cov) @ Lp)
+    sp = np.sqrt(np.diag(fix.posterior_cov))
+    pe = fix.posterior - truth
+    nees = float(pe @ np.linalg.solve(fix.posterior_cov, pe))
+    sc = np.sqrt(np.diag(P))
+    c = "gated" if corr is None else f"{corr[0]:+.2f} {corr[1]:+.2f} m {np.degrees(corr[2]):+.2f}°"
+    return (f"{head}  posterior {fix.posterior[0]:+.2f} {fix.posterior[1]:+.2f} m {np.degrees(fix.posterior[2]):+.2f}° "
+            f"σ {sp[0]:.2f} {sp[1]:.2f} m {np.degrees(sp[2]):.2f}° (prior σ {sc[0]:.2f} {sc[1]:.2f} m "
+            f"{np.degrees(sc[2]):.2f}°)  λ {' '.join(f'{x:.2f}' for x in lam)}  nees {nees:.1f}  correction {c}")  # fmt: skip
+
+
+def replay(path: str, draws: int, fixes: str, every_m: float = 25.0, first_m: float = 30.0,
+           prior_scale: float = 1.0, verbose: bool = False) -> list[dict]:  # fmt: skip
     d = np.load(path)
     feet, poses, seed = d["feet"], d["poses"], int(d["seed"])
     terrain = make_lunar(LunarConfig(seed=seed, size_m=float(d["field_m"])))
     t, w, est_xy, est_yaw = poses[:, 0], poses[:, 1], poses[:, 2:4], poses[:, 4]
-    true_xy, true_yaw, P_dr = poses[:, 5:7], poses[:, 7], poses[:, 8:].reshape(-1, 3, 3)
+    true_xy, true_yaw, P_dr = poses[:, 5:7], poses[:, 7], poses[:, 8:].reshape(-1, 3, 3) * prior_scale
     tf, wf, foot_xy, foot_z = feet[:, 0], feet[:, 1], feet[:, 2:4], feet[:, 4]
     lc = LocalizerConfig()
     rows = []
@@ -138,6 +167,8 @@ def replay(path: str, draws: int, fixes: str, every_m: float = 25.0, first_m: fl
                 fix = match_trail(pts, wf[sel], ref, P, est, new_from, lc.dem_trail)
                 reasons[fix.reason] += 1
                 if not fix.ok:
+                    if verbose:
+                        print(f"  draw {draw} " + _fix_line(w[i], np.r_[-e, -ey], fix, P, None))
                     continue
                 assert fix.offset is not None and fix.cov is not None
                 z, Rm = fix.offset, fix.cov
@@ -157,9 +188,13 @@ def replay(path: str, draws: int, fixes: str, every_m: float = 25.0, first_m: fl
             S = P + Rm
             if float(z @ np.linalg.solve(S, z)) > 16.27:
                 reasons["gate"] += 1
+                if verbose and fixes == "trail":
+                    print(f"  draw {draw} " + _fix_line(w[i], np.r_[-e, -ey], fix, P, None))
                 continue
             K = P @ np.linalg.inv(S)
             corr = K @ z
+            if verbose and fixes == "trail":
+                print(f"  draw {draw} " + _fix_line(w[i], np.r_[-e, -ey], fix, P, corr))
             turn = _turn(corr[2])
             R, shift, dyaw = turn @ R, est + turn @ (shift - est) + corr[:2], dyaw + corr[2]
             P_k, k, new_from = (np.eye(3) - K) @ P, i, w[i]
@@ -167,6 +202,49 @@ def replay(path: str, draws: int, fixes: str, every_m: float = 25.0, first_m: fl
                      "yaw_error_max_deg": round(max(yaw_err), 2), "inside_3sigma_frac": round(float(np.mean(inside)), 3),
                      "walked_m": round(float(w[-1]), 1), "fixes": dict(reasons)})  # fmt: skip
     return rows
+
+
+def bound(path: str, samples_per_bin: tuple[float, ...] = (8.0, 4.0, 2.0), segment_m: float = 25.0) -> dict:
+    """What the DEM can say at all about the recorded route: the Fisher information of a rigid shift (dx, dy) of
+    the true footholds (binned per metre, as the trail fix bins them) against the noise-free DEM's gradient, each
+    bin's σ the DEM's stated noise with the sub-pixel relief × `samples_per_bin` (the bins per independent DEM
+    sample; the trail fix uses 8), the datum a line in the distance walked, profiled out: the σ of the
+    whole route's shift along and across the route, and of each `segment_m` piece on its own datum line."""
+    d = np.load(path)
+    feet, seed, field_m = d["feet"], int(d["seed"]), float(d["field_m"])
+    terrain = make_lunar(LunarConfig(seed=seed, size_m=field_m))
+    clean = orbital_dem(
+        terrain, replace(OrbitalDemConfig(), seed=seed, noise_m=0.0, bias_z_m=0.0, bias_xy_m=0.0)
+    )
+    cfg = OrbitalDemConfig()
+    bins, s = bin_trail(feet[:, 5:8], feet[:, 1], LocalizerConfig().dem_trail.bin_m)
+    eps = 0.05
+    G = np.column_stack([(clean.height(bins[:, 0] + eps, bins[:, 1]) - clean.height(bins[:, 0] - eps, bins[:, 1])) / (2 * eps),
+                         (clean.height(bins[:, 0], bins[:, 1] + eps) - clean.height(bins[:, 0], bins[:, 1] - eps)) / (2 * eps)])  # fmt: skip
+    along = bins[-1, :2] - bins[0, :2]
+    along /= np.linalg.norm(along)
+    across = np.array([-along[1], along[0]])
+
+    def info(m: np.ndarray) -> np.ndarray:
+        A = np.column_stack([np.ones(int(m.sum())), s[m] - s[m].mean()])
+        Gp = G[m] - A @ np.linalg.lstsq(A, G[m], rcond=None)[0]
+        return Gp.T @ Gp
+
+    var0 = cfg.noise_m**2 + DemReference(clean).subpixel_m ** 2
+    out: dict = {"bins": len(bins), "grad_rms_along": round(float(np.sqrt(np.mean((G @ along) ** 2))), 3),
+                 "grad_rms_across": round(float(np.sqrt(np.mean((G @ across) ** 2))), 3)}  # fmt: skip
+    for spb in samples_per_bin:
+        C = np.linalg.inv(info(np.ones(len(s), bool)) / (var0 * spb))
+        out[f"route_sigma_m_spb{spb:g}"] = {"along": round(float(np.sqrt(along @ C @ along)), 2),
+                                            "across": round(float(np.sqrt(across @ C @ across)), 2)}  # fmt: skip
+    seg = []
+    for a0 in np.arange(0.0, float(s.max()), segment_m):
+        m = (s >= a0) & (s < a0 + segment_m)
+        if m.sum() >= 8:
+            lam = np.linalg.eigvalsh(info(m) / (var0 * samples_per_bin[0]))
+            seg.append(round(float(1.0 / np.sqrt(max(lam.max(), 1e-12))), 1))
+    out[f"segment_best_sigma_m_spb{samples_per_bin[0]:g}"] = seg
+    return out
 
 
 def main() -> None:
@@ -181,11 +259,23 @@ def main() -> None:
     p.add_argument("rec")
     p.add_argument("--draws", type=int, default=6)
     p.add_argument("--fixes", choices=("trail", "window", "none"), default="trail")
+    p.add_argument(
+        "--prior-scale",
+        type=float,
+        default=1.0,
+        help="multiply the recorded filter's (x, y, heading) covariance by this (what a tighter filter would do)",
+    )
+    p.add_argument("--verbose", action="store_true", help="each fix against the truth")
+    b = sub.add_parser("bound")
+    b.add_argument("rec")
     a = ap.parse_args()
+    if a.cmd == "bound":
+        print(json.dumps(bound(a.rec)))
+        return
     if a.cmd == "record":
         print(json.dumps(record(a.out, a.seed, a.field, a.sim_seconds)))
         return
-    rows = replay(a.rec, a.draws, a.fixes)
+    rows = replay(a.rec, a.draws, a.fixes, prior_scale=a.prior_scale, verbose=a.verbose)
     for row in rows:
         print(json.dumps(row))
     print(json.dumps({k: round(float(np.mean([row[k] for row in rows])), 3)
