@@ -17,8 +17,9 @@ at least the largest ratio it bore. So, per foot:
   below that is *creep*: MuJoCo's soft contact (like loose regolith) lets a loaded foot creep a few cm at
   ratios well inside its cone, and on holdable patches those creeping slips read μ̂ 0.05–0.1 below the truth
   and made 7 of 10 holdable walks stop (docs/results.md). Creep leaves μ̂ as it was (no recovery either);
-- stance ended without a slip: μ̂ ← max(μ̂ + `recover` · (prior − μ̂), the largest settled ρ of that stance),
-  capped at the prior: the estimate recovers over a few clean stances once the ground grips again.
+- stance ended without a slip: μ̂ ← max(μ̂ + `recover` · (prior − μ̂), what that stance proved it held —
+  `proven` below, its ratios past the touchdown; `recover_proven` False: the largest filtered ρ, touchdown
+  included), capped at the prior: the estimate recovers over a few clean stances once the ground grips again.
 
 A floor from the ground's side: the trunk's accelerometer says what all the feet together bore. Its specific
 force f (world) times the mass is the sum of the ground's forces on the feet (the legs' own accelerations
@@ -83,6 +84,10 @@ class FrictionEstimateConfig:
     # accelerometer's specific force low-passed over ground_tau_s along the foothold plane's normal
     ground_share: float | None = 0.9
     ground_tau_s: float = 0.7
+    # a clean stance raises μ̂ to at least what it proved it held (`proven`: its ratios past the touchdown) rather
+    # than the largest ratio it bore (False: the largest, touchdown included — on lunar seed 6 east a hind foot's
+    # μ̂ went 0.04 → 0.53 on μ 0.16 ground after one such stance, the QP then asked 0.45 of it and it slid 0.3 m)
+    recover_proven: bool = True
     proven_quantile: float = 90.0  # percentile of a clean stance's force ratios a foot has proven it holds
     proven_skip: float = 0.2  # share of a stance's first ticks left out of it (the touchdown)
 
@@ -210,10 +215,13 @@ class FrictionEstimate:
             if stance_end[i]:
                 if slipped[i] and self._candidate[i] == self._candidate[i]:
                     self.creeps += 1
-                elif not slipped[i]:
-                    up = self.mu[i] + c.recover * (c.prior_mu - self.mu[i])
-                    self.mu[i] = min(c.prior_mu, max(up, float(self._held[i])))
                 self.proven[i] = np.nan if slipped[i] else self._proven(i)
+                if not slipped[i]:
+                    up = self.mu[i] + c.recover * (c.prior_mu - self.mu[i])
+                    held = float(self._held[i])
+                    if c.recover_proven:
+                        held = float(self.proven[i]) if self.proven[i] == self.proven[i] else 0.0
+                    self.mu[i] = min(c.prior_mu, max(up, held))
                 self._n_rho[i] = 0
                 self._ratio[i] = np.nan
                 self._held[i] = 0.0

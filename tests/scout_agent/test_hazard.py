@@ -647,3 +647,24 @@ def test_the_ground_side_ratio_from_the_accelerometer_matches_the_feet_forces_in
     assert np.median(np.abs(imu - true)) < 0.03
     assert np.median(true) == pytest.approx(np.tan(alpha), abs=0.06)
     assert np.median(imu) == pytest.approx(np.tan(alpha), abs=0.06)
+
+
+def test_a_clean_stance_raises_the_estimate_to_what_it_proved_not_to_its_touchdown_impact():
+    # foot 2 (μ̂ 0.1 after a lost hold) lands with a one-tick impact reading 0.6, then bears 0.12 to the end of
+    # a stance without a slip: it proved 0.12, not 0.6
+    def stance(est: _Ratios) -> None:
+        for k in range(45):
+            _tick(est, [0.1, 0.1, 0.6 if k == 0 else 0.12, 0.1])
+        _tick(est, [0.1, 0.1, 0.12, 0.1], end=(2,))
+
+    est = _Ratios()
+    est.mu[2] = 0.1
+    stance(est)
+    c = est.config
+    assert est.proven[2] == pytest.approx(0.12)
+    assert est.mu[2] == pytest.approx(0.1 + c.recover * (c.prior_mu - 0.1))  # the recovery step, not 0.6
+    # with the largest ratio it bore (the earlier rule) one stance took it back to the prior
+    old = _Ratios(replace(FrictionEstimateConfig(), recover_proven=False))
+    old.mu[2] = 0.1
+    stance(old)
+    assert old.mu[2] == pytest.approx(c.prior_mu)
