@@ -409,7 +409,7 @@ class Pilot:
             tan_front = self.tracks.front_tan()
             if tan_front == tan_front:
                 front = self.friction.area_mu - tan_front
-        felt = self.senses.feel(t, est, R, margin, lost, front)
+        felt = self.senses.feel(t, est, R, margin, lost, front, self.controller.footholds)
         if felt is None:
             return None
         self._stop(felt, x, y)

@@ -24,7 +24,15 @@ Four triggers, each from the scout's own estimates (`estimators.TickEstimates`) 
   slows down and walks on.
 - **margin**: GIIM below `min_giim_rad` or GIAM below `min_giam` on at least `margin_share` of the ticks
   of the last `margin_window_s` (single ticks dip to zero: the IMU's GIA sees the trunk's own jolts).
-- **contact**: a non-foot contact flagged by the estimators on `contact_ticks` consecutive ticks.
+- **contact**: the legs met an obstacle they cannot walk over, either of:
+  - a non-foot contact flagged by the estimators on `contact_ticks` consecutive ticks;
+  - (`face_rise_m`, None switches it off) a foot touched down at least `face_rise_m` above its own previous
+    foothold and steeper than `face_tan` from it: its swing ran into a face (a step or a rock's side) it cannot
+    step onto, and the next feet climb the face until the trunk pitches over them. Against truth on a 20 cm
+    step across the path (`tests/scout_agent/test_hazard.py`) the front feet touched the face at 7–10 cm with
+    0.02–0.04 m of progress (tan 2–3.5) 0.9 s before the trot flipped over them; the steepest such rise on
+    lunar seeds 3 and 5 east and a 25° ramp was tan 0.54 (≥ 0.06 m rises only with 0.13–0.16 m of stride).
+    Felt at the foothold on the face.
 - **attitude**: the estimated trunk tilt from vertical beyond `max_tilt_deg`.
 
 `Senses.feel(...)` returns the triggers that fired this tick (empty when none) and where: the slip
@@ -61,6 +69,8 @@ class ReflexConfig:
     margin_window_s: float = 0.5
     margin_share: float = 0.6
     contact_ticks: int = 5
+    face_rise_m: float | None = 0.06  # a touchdown this far above the foot's previous foothold [m] ...
+    face_tan: float = 1.5  # ... and this steep from it (56°): the swing met a face, not walkable ground
     max_tilt_deg: float = 40.0
 
 
@@ -83,6 +93,7 @@ class Senses:
         self._margin: deque[tuple[float, bool]] = deque()
         self._margin_low = 0  # ticks in `_margin` whose margin was low
         self._contact_run = 0
+        self._footholds = np.full((4, 3), np.nan)  # each foot's last foothold (map frame, estimated) [m]
 
     def reset(self) -> None:
         """Forget the recent history (after a stop: what follows is a new walk)."""
@@ -90,6 +101,25 @@ class Senses:
         self._margin.clear()
         self._margin_low = 0
         self._contact_run = 0
+        self._footholds[:] = np.nan
+
+    def _face(self, footholds: np.ndarray) -> tuple[float, float] | None:
+        """Where a foot's new foothold rose onto a face (`face_rise_m`, `face_tan`), else None."""
+        c = self.config
+        prev = self._footholds
+        if np.array_equal(footholds, prev):
+            return None
+        hit = None
+        for i in range(4):
+            p, q = footholds[i], prev[i]
+            if p[0] == q[0] and p[1] == q[1] and p[2] == q[2]:
+                continue
+            rise = float(p[2] - q[2])  # NaN (no previous foothold) compares False
+            if c.face_rise_m is not None and rise >= c.face_rise_m:
+                if rise >= c.face_tan * math.hypot(float(p[0] - q[0]), float(p[1] - q[1])) and hit is None:
+                    hit = (float(p[0]), float(p[1]))
+            prev[i] = p
+        return hit
 
     def first_slip_t(self) -> float | None:
         return self._slips[0][0] if self._slips else None
@@ -102,9 +132,11 @@ class Senses:
         ground_margin: float,
         hold_lost: bool = False,
         front_margin: float = math.inf,
+        footholds: np.ndarray | None = None,
     ) -> Felt | None:
         """`hold_lost`: a stance foot lost its hold this tick (`FrictionEstimate.update` returned True);
-        `front_margin`: μ̂ − tan of the front feet's own slope (inf: unknown)."""
+        `front_margin`: μ̂ − tan of the front feet's own slope (inf: unknown); `footholds`: the controller's
+        (4, 3) footholds (map frame, estimated), for the face trigger."""
         c = self.config
         reasons: list[str] = []
         x = y = math.nan
@@ -145,8 +177,11 @@ class Senses:
             if full and self._margin_low >= c.margin_share * len(self._margin):
                 reasons.append("margin")
             self._contact_run = self._contact_run + 1 if est.nonfoot else 0
-            if self._contact_run >= c.contact_ticks:
+            face = self._face(footholds) if footholds is not None else None
+            if self._contact_run >= c.contact_ticks or face is not None:
                 reasons.append("contact")
+                if face is not None and x != x:
+                    x, y = face
             cx, cy = est.com_xy
         else:
             cx = cy = math.nan

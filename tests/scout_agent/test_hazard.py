@@ -89,19 +89,24 @@ def _step_world(height_m: float) -> World:
     return World(t, FrictionMap(), np.array([[0.6, 0.0], [5.2, 0.0]]), (0.6, 0.0, 0.0))
 
 
-def test_at_a_step_only_the_feet_touch_and_the_contact_trigger_stays_quiet():
-    # a 15 cm step across the testbed at x = 2.5. The simulator's truth: no leg or trunk touches it, only the
-    # feet. Before the estimators took the IMU's specific force at the trunk origin, the IMU's 7 cm lever arm in
-    # the pitch of climbing read as 20+ N of force the feet did not explain, and this test took that "contact"
-    # for the legs running into the step's face. The scout still stops there (its stability margin), and backs off
-    cfg = ScoutRunConfig(scene="ramps", sim_seconds=16.0)
-    cfg = replace(cfg, pilot=replace(cfg.pilot, senses=replace(cfg.pilot.senses, front_slip_margin=None)))
-    s, hazard = _walk(cfg, _step_world(0.15))
-    assert not s["fell"] and s["nonfoot_contact_ticks"] == 0
-    assert s["hazard_stops"] and all("contact" not in stop["reason"] for stop in s["hazard_stops"])
-    assert 1.8 < s["hazard_stops"][0]["x"] < 2.7
-    assert s["final_xy"][0] < 2.2  # backed off the step
-    assert hazard["contact"].sum() == 0
+def test_contact_trigger_stops_where_a_foot_meets_a_step_face_and_backs_off_before_the_trot_flips():
+    # a 20 cm step across the testbed at x = 2.5, higher than the trot's 8 cm swing clears. The simulator's truth:
+    # the feet touch its face (no leg or trunk does before the stop) and, without the face trigger, the front feet
+    # climb the face until the trot pitches over them and falls (attitude). With it the first front foot that
+    # touches down on the face, 0.06+ m above its last foothold with little progress, stops the scout there: a
+    # 'contact' hazard at the face, and the scout backs off. (Before the estimators took the IMU's specific
+    # force at the trunk origin, its 7 cm lever arm read 20+ N of "non-foot contact" at a 15 cm step.)
+    base = ScoutRunConfig(scene="ramps", sim_seconds=16.0)
+    base = replace(base, pilot=replace(base.pilot, senses=replace(base.pilot.senses, front_slip_margin=None)))
+    blind = replace(base, pilot=replace(base.pilot, senses=replace(base.pilot.senses, face_rise_m=None)))
+    s0, _ = _walk(blind, _step_world(0.20))
+    assert s0["fell"]  # the scene is a real hazard for this trot
+    s, hazard = _walk(base, _step_world(0.20))
+    assert not s["fell"] and s["hazard_stops"]
+    stop = s["hazard_stops"][0]
+    assert stop["reason"] == "contact" and 2.2 < stop["x"] < 2.6  # at the foothold on the face (x 2.5)
+    assert s["final_xy"][0] < 2.0  # backed off the step
+    assert hazard["contact"].sum() >= 1
 
 
 def test_contact_trigger_fires_on_a_run_of_flagged_ticks_and_not_on_a_shorter_one():
