@@ -409,7 +409,9 @@ class Pilot:
             tan_front = self.tracks.front_tan()
             if tan_front == tan_front:
                 front = self.friction.area_mu - tan_front
-        felt = self.senses.feel(t, est, R, margin, lost, front, self.controller.footholds)
+        felt = self.senses.feel(
+            t, est, R, margin, lost, front, self.controller.footholds, self.controller.liftoff
+        )
         if felt is None:
             return None
         self._stop(felt, x, y)

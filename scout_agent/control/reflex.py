@@ -26,8 +26,8 @@ Four triggers, each from the scout's own estimates (`estimators.TickEstimates`) 
   of the last `margin_window_s` (single ticks dip to zero: the IMU's GIA sees the trunk's own jolts).
 - **contact**: the legs met an obstacle they cannot walk over, either of:
   - a non-foot contact flagged by the estimators on `contact_ticks` consecutive ticks;
-  - (`face_rise_m`, None switches it off) a foot touched down at least `face_rise_m` above its own previous
-    foothold and steeper than `face_tan` from it: its swing ran into a face (a step or a rock's side) it cannot
+  - (`face_rise_m`, None switches it off) a foot touched down at least `face_rise_m` above where its swing
+    lifted off and steeper than `face_tan` from there: its swing ran into a face (a step or a rock's side) it cannot
     step onto, and the next feet climb the face until the trunk pitches over them. Against truth on a 20 cm
     step across the path (`tests/scout_agent/test_hazard.py`) the front feet touched the face at 7–10 cm with
     0.02–0.04 m of progress (tan 2–3.5) 0.9 s before the trot flipped over them; the steepest such rise on
@@ -69,7 +69,7 @@ class ReflexConfig:
     margin_window_s: float = 0.5
     margin_share: float = 0.6
     contact_ticks: int = 5
-    face_rise_m: float | None = 0.06  # a touchdown this far above the foot's previous foothold [m] ...
+    face_rise_m: float | None = 0.06  # a touchdown this far above its swing's liftoff point [m] ...
     face_tan: float = 1.5  # ... and this steep from it (56°): the swing met a face, not walkable ground
     max_tilt_deg: float = 40.0
 
@@ -103,8 +103,10 @@ class Senses:
         self._contact_run = 0
         self._footholds[:] = np.nan
 
-    def _face(self, footholds: np.ndarray) -> tuple[float, float] | None:
-        """Where a foot's new foothold rose onto a face (`face_rise_m`, `face_tan`), else None."""
+    def _face(self, footholds: np.ndarray, liftoff: np.ndarray) -> tuple[float, float] | None:
+        """Where a foot's new foothold rose onto a face from where its swing lifted off (`face_rise_m`,
+        `face_tan`), else None. From the liftoff, not the previous foothold: a foot that slid down its stance
+        would otherwise 'rise' by the slide."""
         c = self.config
         prev = self._footholds
         if np.array_equal(footholds, prev):
@@ -114,11 +116,14 @@ class Senses:
             p, q = footholds[i], prev[i]
             if p[0] == q[0] and p[1] == q[1] and p[2] == q[2]:
                 continue
-            rise = float(p[2] - q[2])  # NaN (no previous foothold) compares False
-            if c.face_rise_m is not None and rise >= c.face_rise_m:
-                if rise >= c.face_tan * math.hypot(float(p[0] - q[0]), float(p[1] - q[1])) and hit is None:
-                    hit = (float(p[0]), float(p[1]))
             prev[i] = p
+            if q[0] != q[0]:  # the first foothold seen since a reset: no swing to judge yet
+                continue
+            o = liftoff[i]
+            rise = float(p[2] - o[2])
+            if c.face_rise_m is not None and rise >= c.face_rise_m and hit is None:
+                if rise >= c.face_tan * math.hypot(float(p[0] - o[0]), float(p[1] - o[1])):
+                    hit = (float(p[0]), float(p[1]))
         return hit
 
     def first_slip_t(self) -> float | None:
@@ -133,10 +138,11 @@ class Senses:
         hold_lost: bool = False,
         front_margin: float = math.inf,
         footholds: np.ndarray | None = None,
+        liftoff: np.ndarray | None = None,
     ) -> Felt | None:
         """`hold_lost`: a stance foot lost its hold this tick (`FrictionEstimate.update` returned True);
-        `front_margin`: μ̂ − tan of the front feet's own slope (inf: unknown); `footholds`: the controller's
-        (4, 3) footholds (map frame, estimated), for the face trigger."""
+        `front_margin`: μ̂ − tan of the front feet's own slope (inf: unknown); `footholds`, `liftoff`: the
+        controller's (4, 3) footholds and its swings' liftoff points (map frame, estimated), for the face trigger."""
         c = self.config
         reasons: list[str] = []
         x = y = math.nan
@@ -177,7 +183,7 @@ class Senses:
             if full and self._margin_low >= c.margin_share * len(self._margin):
                 reasons.append("margin")
             self._contact_run = self._contact_run + 1 if est.nonfoot else 0
-            face = self._face(footholds) if footholds is not None else None
+            face = self._face(footholds, liftoff) if footholds is not None and liftoff is not None else None
             if self._contact_run >= c.contact_ticks or face is not None:
                 reasons.append("contact")
                 if face is not None and x != x:
