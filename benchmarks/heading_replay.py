@@ -15,6 +15,7 @@ terms stay as walked). The pauses stay where the walk made them: a shorter budge
 
     python benchmarks/heading_replay.py record /tmp/h31.npz --field 100 --route direct --seed 31 --localize on
     python benchmarks/heading_replay.py replay /tmp/h31.npz [--walk-z 3e-6] [--creep 1.6e-4] [--creep-windows 2]
+        [--hold-heading]
 """
 
 from __future__ import annotations
@@ -104,8 +105,11 @@ def windows_against_truth(path: str) -> list[dict]:
     return out
 
 
-def replay(path: str, walk_z: float, ss: StandstillConfig, recorded_walk_z: float) -> dict:
-    """The heading error over the recorded walk with these settings (module docstring)."""
+def replay(
+    path: str, walk_z: float, ss: StandstillConfig, recorded_walk_z: float, hold_heading: bool = False
+) -> dict:
+    """The heading error over the recorded walk with these settings (module docstring). `hold_heading`: the
+    zero-rate windows correct the offset only, not the heading (a Schmidt update of heading)."""
     d = np.load(path)
     tk, win = d["tick"], d["win"]
     t = tk[:, T]
@@ -142,8 +146,14 @@ def replay(path: str, walk_z: float, ss: StandstillConfig, recorded_walk_z: floa
             K = P[:, 1] / S
             nu = float(win[k, 5]) - b
             b += K[1] * nu
-            acc_new += K[0] * nu
-            P = P - np.outer(K, P[1, :])
+            if hold_heading:  # Schmidt (gain [0, k]): P <- A P A' + k^2 R e2 e2', A = diag(1, 1 - k)
+                k1 = K[1]
+                P[0, 1] *= 1.0 - k1
+                P[1, 0] = P[0, 1]
+                P[1, 1] = (1.0 - k1) ** 2 * P[1, 1] + k1 * k1 * (S - P[1, 1])
+            else:
+                acc_new += K[0] * nu
+                P = P - np.outer(K, P[1, :])
         e[i] = e_rec[i] - acc_rec + acc_new
     walking = t < t[-1] - 5.0
     return {"yaw_error_max_deg": round(float(np.degrees(np.abs(e[walking]).max())), 2),
@@ -164,9 +174,14 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--recorded-walk-z", type=float, default=NoiseConfig().gyro_bias_walk_z)
     ap.add_argument("--creep", type=float, default=StandstillConfig().creep_std_rad_s)
     ap.add_argument("--creep-windows", type=int, default=StandstillConfig().creep_windows)
+    ap.add_argument(
+        "--hold-heading", action="store_true", help="the windows correct the offset, not the heading"
+    )
     a = ap.parse_args(argv[1:])
     ss = replace(StandstillConfig(), creep_std_rad_s=a.creep, creep_windows=a.creep_windows)
-    out = replay(a.path, a.walk_z, ss, a.recorded_walk_z) | {"windows": windows_against_truth(a.path)}
+    out = replay(a.path, a.walk_z, ss, a.recorded_walk_z, a.hold_heading) | {
+        "windows": windows_against_truth(a.path)
+    }
     print(json.dumps(out, indent=1))
     return 0
 

@@ -519,8 +519,12 @@ class StateEstimator:
         H = np.zeros((3, 15))
         H[:, 9:12] = np.eye(3)
         var = ss.zaru_var(span, win.turned_rad)
-        keep = e.update(z - e.bg, H, np.full(3, var))  # no χ² gate: a bias larger than believed
-        if not keep[0]:  # (the feet check above refuses a slip; a gate would lock a big bias out)
+        keep = e.update(
+            z - e.bg, H, np.full(3, var), hold_heading=ss.zaru_holds_heading
+        )  # no χ² gate: a bias
+        if not keep[
+            0
+        ]:  # larger than believed (the feet check above refuses a slip; a gate would lock it out)
             self.zaru_refused += 1
             return
         self.zaru_updates += 1

@@ -189,3 +189,35 @@ def test_a_pauses_windows_share_one_creep_draw_and_their_average_keeps_its_varia
 
     assert 0.85 < nees(c) < 1.15
     assert nees(replace(c, creep_windows=1)) > 1.25
+
+
+def test_a_zero_rate_window_corrects_the_offset_and_leaves_the_heading_as_it_was() -> None:
+    """`StandstillConfig.zaru_holds_heading`: after a minute of walking with an offset error the filter's heading
+    and z offset are correlated; the window's update (as the estimator makes it) moves the offset toward the
+    window and shrinks its variance, but turns neither the heading nor its variance (the window's innovation is
+    mostly the pause's creep, which the walk never integrated)."""
+    from scout_agent.state_estimation.ekf import ErrorStateEKF
+
+    ss = StandstillConfig()
+    assert ss.zaru_holds_heading
+    g = np.array([0.0, 0.0, -1.62])
+    ekf = ErrorStateEKF(np.eye(3), np.zeros(3), np.zeros(3), g)
+    for _ in range(6000):  # 60 s at 100 Hz, still: heading and the z offset become correlated
+        ekf.propagate(np.zeros(3), -g, 0.01)
+    cross = ekf.P[2, 11] / np.sqrt(ekf.P[2, 2] * ekf.P[11, 11])
+    assert cross < -0.5  # the heading's error is the offset's integral: strongly correlated
+    yaw0, var_h0, var_b0 = np.arctan2(ekf.R[1, 0], ekf.R[0, 0]), ekf.heading_variance(), ekf.P[11, 11]
+    z = np.array([0.0, 0.0, 2e-4])  # the window read 2e-4 rad/s more than the filter's offset
+    H = np.zeros((3, 15))
+    H[:, 9:12] = np.eye(3)
+    var = ss.zaru_var(3.0)
+    ekf.update(z - ekf.bg, H, np.full(3, var), hold_heading=ss.zaru_holds_heading)
+    assert 0.0 < ekf.bg[2] < 2e-4 and ekf.P[11, 11] < 0.9 * var_b0
+    assert np.arctan2(ekf.R[1, 0], ekf.R[0, 0]) == pytest.approx(yaw0, abs=1e-9)
+    assert ekf.heading_variance() == pytest.approx(var_h0, rel=1e-6)
+    # the plain update would have turned the heading by the correlation's share of the innovation
+    plain = ErrorStateEKF(np.eye(3), np.zeros(3), np.zeros(3), g)
+    for _ in range(6000):
+        plain.propagate(np.zeros(3), -g, 0.01)
+    plain.update(z - plain.bg, H, np.full(3, var))
+    assert abs(np.arctan2(plain.R[1, 0], plain.R[0, 0]) - yaw0) > 1e-3
