@@ -90,12 +90,13 @@ class StandstillConfig:
     # 6–9e-3 rad twists: leg compliance, feet rolling and creeping)
     gate_chi2: float = 16.3  # the gravity update's χ²(3) gate at p = 0.001 (the trunk accelerating)
     level_std_mps2: float = 0.05  # gravity update's σ per axis: tick noise 0.017 m/s² + the trunk's sway
-    # the zero-rate update corrects the offset, not the heading (a Schmidt update of heading): through the
-    # filter's heading-offset correlation each window's innovation, mostly the pause's creep, turned into a
-    # heading correction as if it were offset the walk had integrated (seed 35 at 100 m: -2.14° of a -3.32°
-    # error; replayed with the heading held, 3.26° -> 1.23° at most; docs/results.md, "Why a standing robot's
-    # feet creep")
-    zaru_holds_heading: bool = True
+    # True: the zero-rate update corrects the offset, not the heading (a Schmidt update of heading). Through the
+    # filter's heading-offset correlation each window's innovation, mostly the pause's creep, turns into a heading
+    # correction as if it were offset the walk had integrated (seed 35 at 100 m: -2.14° of a -3.32° error).
+    # Replayed on two recorded walks it helped (3.26 -> 1.23°, 1.24 -> 1.16°), walked again it did not (seed 35
+    # 3.32 -> 3.22°, seed 33 4.18° and a fall -> 5.75° and a give-up): off (docs/results.md, "Why a standing
+    # robot's feet creep")
+    zaru_holds_heading: bool = False
     min_walk_s: float = 10.0  # at least this long between two pauses [s]
     timeout_s: float = 10.0  # give a pause up this long past its length (windows refused: rocking, slips) [s]
 
