@@ -53,6 +53,7 @@ class ProprioSample(NamedTuple):
     foot_vel_des_base: np.ndarray  # (4, 3) controller's desired foot velocities, base frame [m/s]
     stance_planned: np.ndarray  # (4,) bool, the gait schedule puts the leg in stance
     phase: np.ndarray  # (4,) gait phase of each leg in [0, 1)
+    fresh: bool = True  # False: the hardware's packet was lost and the readings repeat the last ones
 
 
 class GroundTruth(NamedTuple):

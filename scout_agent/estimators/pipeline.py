@@ -18,11 +18,12 @@ ones (CoT, GIIM, GIAM, non-foot contacts) at the CoM projection. `record(est, ac
 `CellAccumulator` with the layer statistics of docs/design.md.
 
 Non-foot contacts (calf, thigh or body on the ground) are detected proprioceptively as the force the feet do
-not explain: f_ext = m·(a_GIA,feet − a_GIA,imu) (torque-estimated foot forces vs accelerometer), low-pass
-filtered; above
-`nonfoot_threshold_n` the tick is flagged and counted in the `contacts` layer of the CoM cell. The accelerometer's
-specific force is the trunk origin's (`ProprioSample.imu_acc`: the state estimator removed the IMU's lever arm), and
-nothing is flagged while a leg in contact stands at a joint limit (the limit's torque is not in the motor's).
+not explain (`nonfoot.UnexplainedForce`: the whole robot's inverse dynamics, legs and rotors included, at the
+accelerations the accelerometer, gyro and joint drivers report, less each counted foot's force from its leg's
+rows), low-pass filtered; above `nonfoot_threshold_n` the tick is flagged and counted in the `contacts` layer of
+the CoM cell. The accelerometer's specific force is the trunk origin's (`ProprioSample.imu_acc`: the state
+estimator removed the IMU's lever arm), and nothing is flagged while a leg in contact stands at a joint limit, nor
+`nonfoot_limit_hold_s` after (the limit's torque is not in the motor's); the limit is watched every tick.
 """
 
 from __future__ import annotations
@@ -33,6 +34,7 @@ from dataclasses import dataclass, field
 from typing import Any, NamedTuple, Protocol
 
 import numpy as np
+import pinocchio as pin
 from numba import njit
 
 from scout_agent.errors import ScoutConfigError
@@ -43,6 +45,7 @@ from scout_agent.signals import ProprioSample
 
 from .cot import CotConfig, CotMeter
 from .elevation import terrain_normal
+from .nonfoot import UnexplainedForce
 from .slip import SlipConfig, SlipDetector, SlipTick
 from .stability import _EPS_N, _face_margins, margins_fast, order_ccw_xy
 
@@ -191,6 +194,9 @@ class EstimatorPipeline:
         self._q_lo = np.tile(lo + c.nonfoot_limit_margin_rad, 4)  # (12,) joints nearer their end than this:
         self._q_hi = np.tile(hi - c.nonfoot_limit_margin_rad, 4)  # at the limit
         self._t_limit = -math.inf  # a leg in contact was at a joint limit then [s]
+        model = getattr(kinematics, "model", None)
+        self._unexplained = UnexplainedForce(model if isinstance(model, pin.Model) else None)
+        self._resid = np.zeros(3)  # this tick's unexplained force, world [N] (zeros: none computed)
 
     def _jacobians(self, q: np.ndarray) -> np.ndarray:
         """The legs' Jacobians at `q`: from this tick's kinematics pass when it computed them, else anew."""
@@ -220,9 +226,11 @@ class EstimatorPipeline:
 
         # foot sphere centres (4, 3), world [m]; ground forces on the feet from their joint torques (4, 3),
         # world [N], zero off contact
-        fw, f_w = _world_feet_and_forces(
-            feet_b, rot, s.base.pos, self._jacobians(s.q), s.tau, _ZERO12, s.contact
-        )
+        jac = self._jacobians(s.q)
+        fw, f_w = _world_feet_and_forces(feet_b, rot, s.base.pos, jac, s.tau, _ZERO12, s.contact)
+        resid = self._unexplained.update(s, rot, jac)  # None: nothing new to difference (lost packet)
+        if _leg_at_limit(s.q, self._q_lo, self._q_hi, s.contact):
+            self._t_limit = s.t
         r, m = c.foot_radius_m, c.mass_kg
 
         # footholds: slip layer n at touchdown, events at the same foothold, elevation at the end of the stance
@@ -239,6 +247,8 @@ class EstimatorPipeline:
         # The support points are the ground points (sphere centres − r·n̂); shifting the CoM by +r·n̂ instead
         # is the same geometry and copies nothing.
         alpha = dt / (c.nonfoot_tau_s + dt) if dt > 0 else 1.0
+        if resid is None:
+            alpha, resid = 0.0, self._resid  # the low-pass holds
         core = self._core
         self._reorder = _tick_core(
             fw,
@@ -247,6 +257,7 @@ class EstimatorPipeline:
             s.base.pos,
             self._com_b,
             s.imu_acc,
+            resid,
             s.contact,
             st.settled,
             self._normal,
@@ -305,22 +316,11 @@ class EstimatorPipeline:
             footholds=footholds,
             nonfoot=f_ext > c.nonfoot_threshold_n
             and s.t - self._t0 >= c.nonfoot_warmup_s
-            and not self._at_limit(s),
+            and s.t - self._t_limit > c.nonfoot_limit_hold_s,
             nonfoot_force_n=f_ext,
             foot_force_w=f_w,
             **extra,
         )
-
-    def _at_limit(self, s: ProprioSample) -> bool:
-        """A leg in contact has (or had, within `nonfoot_limit_hold_s`) a joint at its range's end: its torques
-        do not give its foot's force, and the non-foot force is not known."""
-        q = s.q
-        near = (q < self._q_lo) | (q > self._q_hi)
-        if True in near.tolist():
-            legs = near.reshape(4, 3).any(axis=1) & np.asarray(s.contact, dtype=bool)
-            if True in legs.tolist():
-                self._t_limit = s.t
-        return s.t - self._t_limit <= self.config.nonfoot_limit_hold_s
 
     def _gia(self, s: ProprioSample, rot: np.ndarray, f_w: np.ndarray) -> list[float]:
         """The GIA the margins used (world), for the evaluation's extra margin variants: `_tick_core`'s."""
@@ -362,6 +362,16 @@ class EstimatorPipeline:
 
 
 @njit(cache=True, nogil=True)
+def _leg_at_limit(q: np.ndarray, q_lo: np.ndarray, q_hi: np.ndarray, contact: np.ndarray) -> bool:
+    """A leg in contact has a joint within the margin of its range's end: its motor's torque then does not give
+    its foot's force (the limit bears the rest), and the non-foot force is not known."""
+    for j in range(12):
+        if (q[j] < q_lo[j] or q[j] > q_hi[j]) and contact[j // 3]:
+            return True
+    return False
+
+
+@njit(cache=True, nogil=True)
 def _gia_of(
     rot: np.ndarray, imu_acc: np.ndarray, f_w: np.ndarray, mass: float, from_forces: bool, out: np.ndarray
 ) -> None:
@@ -381,6 +391,7 @@ def _tick_core(
     pos: np.ndarray,
     com_b: np.ndarray,
     imu_acc: np.ndarray,
+    resid: np.ndarray,
     contact: np.ndarray,
     settled: tuple,
     normal: np.ndarray,
@@ -402,9 +413,9 @@ def _tick_core(
     order as the Python it replaced): settled contact points summed per stance (`fh_sum`, `fh_n`), each
     foot's latest stance point (`last_foot`, `known`) and, when a foot became known or touched down
     (`reorder`), their CCW order about their centroid (`order`: indices, count last; stable on ties, as
-    Python's sort); the CoM; the GIA from the foot forces and from the IMU; the margins over the ordered
-    footholds about CoM + r·n̂; the non-foot force's low-pass (`f_ext`, in place). `out`: CoM (3), GIIM, GIAM,
-    |f_ext|, CoM + r·n̂ (3), 0. Returns False (the order is current)."""
+    Python's sort); the CoM; the GIA (from the IMU, or the foot forces); the margins over the ordered
+    footholds about CoM + r·n̂; the low-pass of the force the feet do not explain (`resid`, world: `f_ext`, in
+    place). `out`: CoM (3), GIIM, GIAM, |f_ext|, CoM + r·n̂ (3), 0. Returns False (the order is current)."""
     for i in range(4):
         if settled[i]:
             fh_sum[i, 0] += fw[i, 0]
@@ -443,11 +454,8 @@ def _tick_core(
     com_x = pos[0] + rot[0, 0] * c0 + rot[0, 1] * c1 + rot[0, 2] * c2
     com_y = pos[1] + rot[1, 0] * c0 + rot[1, 1] * c1 + rot[1, 2] * c2
     com_z = pos[2] + rot[2, 0] * c0 + rot[2, 1] * c1 + rot[2, 2] * c2
-    gia_f = np.empty(3)
-    gia_i = np.empty(3)
-    _gia_of(rot, imu_acc, f_w, mass, True, gia_f)
-    _gia_of(rot, imu_acc, f_w, mass, False, gia_i)
-    gia = gia_f if gia_from_forces else gia_i
+    gia = np.empty(3)
+    _gia_of(rot, imu_acc, f_w, mass, gia_from_forces, gia)
     gx, gy, gz = com_x + r * normal[0], com_y + r * normal[1], com_z + r * normal[2]
     giim, giam = math.nan, math.nan
     k = order[4]
@@ -461,7 +469,7 @@ def _tick_core(
             )
         giim, giam = _face_margins(pts, gx, gy, gz, gia[0], gia[1], gia[2], eps)
     for j in range(3):
-        f_ext[j] += alpha * (mass * (gia_f[j] - gia_i[j]) - f_ext[j])
+        f_ext[j] += alpha * (resid[j] - f_ext[j])
     out[0], out[1], out[2] = com_x, com_y, com_z
     out[3], out[4] = giim, giam
     out[5] = math.sqrt(f_ext[0] * f_ext[0] + f_ext[1] * f_ext[1] + f_ext[2] * f_ext[2])

@@ -128,6 +128,7 @@ class OnboardSoftware:
             foot_vel_des_base=out.foot_vel_des_base,
             stance_planned=out.stance_planned,
             phase=out.phase,
+            fresh=tick.fresh,
         )
 
     def take_exact_state(self, state: RobotState) -> None:

@@ -10,13 +10,14 @@ import pytest
 
 from scout_agent.cells import CellAccumulator
 from scout_agent.estimators import EstimatorPipeline, PipelineConfig, margins, record
-from scout_agent.robot.constants import HOME_Q
+from scout_agent.robot.constants import HOME_Q, TOTAL_MASS
 from scout_agent.robot.kinematics import jacobians
+from scout_agent.robot.statics import leg_gravity_torques
 from scout_agent.signals import BaseState, ProprioSample
 
 DT = 0.01
 G = 1.62
-MASS = 20.0
+MASS = TOTAL_MASS  # the robot's (the non-foot force comes from its dynamics model)
 R_FOOT = 0.0265
 GROUND_Z = 0.1
 BASE = np.array([0.5, -0.3, 0.45])
@@ -146,19 +147,22 @@ def test_a_slipping_stance_gives_a_slip_event_no_foothold_and_no_stability_sampl
     assert layers["contacts"]["nonfoot"].sum() == 0
 
 
-def _standing(q: np.ndarray, extra_n: float, n_ticks: int = 60):
-    """Four feet planted, the legs' torques holding the weight plus `extra_n` [N] more downward push than the
-    IMU's specific force explains (an external force on something other than the feet), at joint angles `q`."""
+def _standing(q: np.ndarray, extra_n: float, n_ticks: int = 60, t0: float = 0.0):
+    """Four feet planted, the legs' torques holding the robot's weight (and their own links') plus `extra_n` [N]
+    more downward push than the IMU's specific force explains (an external force on something other than the
+    feet), at joint angles `q`."""
     J = jacobians(q)
     forces = np.zeros((4, 3))
     forces[:, 2] = (MASS * G + extra_n) / 4
-    tau = -np.einsum("lji,lj->li", J, forces).reshape(12)
+    tau_g = np.zeros(12)
+    leg_gravity_torques(q, np.array([0.0, 0.0, -G]), tau_g)
+    tau = tau_g - np.einsum("lji,lj->li", J, forces).reshape(12)
     planted = np.ones(4, dtype=bool)
     pos_b = np.column_stack([NOMINAL, np.full(4, GROUND_Z + R_FOOT - BASE[2])])
     for k in range(n_ticks):
         yield (
             ProprioSample(
-                t=k * DT, q=q.copy(), dq=np.zeros(12), tau=tau, contact=planted, foot_pressure=forces[:, 2].copy(),
+                t=t0 + k * DT, q=q.copy(), dq=np.zeros(12), tau=tau, contact=planted, foot_pressure=forces[:, 2].copy(),
                 joint_energy_j=0.0, imu_acc=np.array([0.0, 0.0, G]), imu_gyro=np.zeros(3),
                 base=BaseState(BASE.copy(), np.array([1.0, 0, 0, 0]), np.zeros(3), np.zeros(3)),
                 foot_pos_des_base=pos_b, foot_vel_des_base=np.zeros((4, 3)), stance_planned=planted,
@@ -186,3 +190,25 @@ def test_a_force_the_feet_do_not_explain_is_a_non_foot_contact_unless_a_leg_stan
     q[8] = -0.75
     pipe, feet = make()
     assert run(pipe, feet, _standing(q, 30.0))[-1].nonfoot
+
+
+def test_a_joint_limit_reached_before_the_force_rose_still_holds_the_flag_off():
+    # a stance knee at its stop while the unexplained force is small, then off the stop as 30 N arrive: the
+    # limit's torque may still be in the low-passed force, so nothing is flagged for `nonfoot_limit_hold_s` after
+    # the knee left the stop (the limit is watched every tick, not only once the force is above the threshold)
+    q = HOME_Q.copy()
+    q[8] = -0.65
+    pipe, feet = make()
+    hold = pipe.config.nonfoot_limit_hold_s
+    at_stop = run(pipe, feet, _standing(q, 0.0, n_ticks=40))
+    assert not any(e.nonfoot for e in at_stop)
+    t_left = 40 * DT
+    after = run(pipe, feet, _standing(HOME_Q, 30.0, n_ticks=40, t0=t_left))
+    assert after[-1].nonfoot_force_n == pytest.approx(30.0, rel=0.02)
+    flagged = [e.t for e in after if e.nonfoot]
+    assert flagged and min(flagged) >= t_left - DT + hold - 1e-9  # the last tick at the stop, + hold
+    # without the stop the same force is flagged as soon as its low-pass passes 20 N (≈ 0.06 s)
+    pipe, feet = make()
+    run(pipe, feet, _standing(HOME_Q, 0.0, n_ticks=40))
+    flagged = [e.t for e in run(pipe, feet, _standing(HOME_Q, 30.0, n_ticks=40, t0=t_left)) if e.nonfoot]
+    assert flagged and min(flagged) < t_left + 0.1
