@@ -22,6 +22,16 @@ each 25 m piece.
     python benchmarks/dem_place_replay.py record /tmp/s33.npz --seed 33
     python benchmarks/dem_place_replay.py replay /tmp/s33.npz --draws 6 [--fixes trail|window|none] [--verbose]
     python benchmarks/dem_place_replay.py bound /tmp/s33.npz
+    python benchmarks/dem_place_replay.py split /tmp/s33.npz [--along-k 0.004] [--odo-scale 0.003]
+
+`split` says where a dead-reckoned walk's position error comes from: the error along and across the route beside
+the filter's σ there, and the same error with every step of the estimate turned by the true heading error
+(what the walk would have been with a perfect heading: the rest is the legs' along-track scale and sideways
+slip). `--along-k K` (replay and split) re-derives the recorded filter's covariance with K instead of its
+odometry scale term (`EstimatorConfig.odometry_scale_std`, recorded at `--recorded-k`): the term adds
+2 k²·d·|v|dt along the velocity and nothing else depends on it without a fix, so it is rebuilt from the
+recorded estimate's steps and replaced. `--odo-scale S` shortens every dead-reckoned step by the share S (an
+along-track calibration of the leg odometry).
 """
 
 from __future__ import annotations
@@ -48,8 +58,10 @@ POSE_EVERY_S = 0.2
 XY_YAW = [6, 7, 2]  # the error state's x, y and base-z rotation (heading on level ground)
 
 
-def record(out: str, seed: int, field_m: float, sim_seconds: float | None = None) -> dict:
-    cfg = ScoutRunConfig(scene="lunar", seed=seed, field_m=field_m, route="direct", localize="off",
+def record(
+    out: str, seed: int, field_m: float, sim_seconds: float | None = None, route: str = "direct"
+) -> dict:
+    cfg = ScoutRunConfig(scene="lunar", seed=seed, field_m=field_m, route=route, localize="off",
                          sim_seconds=sim_seconds)  # fmt: skip
     feet, poses = [], []
     st = {"since": np.full(4, np.inf), "taken": np.zeros(4, bool), "due": np.zeros(4, bool), "walked": 0.0,
@@ -131,13 +143,86 @@ def _fix_line(w: float, truth: np.ndarray, fix, P: np.ndarray, corr: np.ndarray 
             f"{np.degrees(sc[2]):.2f}°)  λ {' '.join(f'{x:.2f}' for x in lam)}  nees {nees:.1f}  correction {c}")  # fmt: skip
 
 
+def _along_term(est_xy: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """(n, 3, 3) the odometry scale term's contribution to the (x, y, heading) covariance at each sample, for
+    k = 1: Σ 2·d·Δd·u uᵀ over the samples so far (Δd the distance the estimate walked between two samples, u
+    the direction it moved; the filter adds it every tick along the velocity, whose sway this leaves out)."""
+    dp = np.diff(est_xy, axis=0)
+    n = np.maximum(np.hypot(*dp.T), 1e-12)
+    u = dp / n[:, None]
+    q = 2.0 * w[:-1] * np.diff(w)
+    Q = np.zeros((len(w), 3, 3))
+    Q[1:, :2, :2] = np.cumsum(q[:, None, None] * u[:, :, None] * u[:, None, :], axis=0)
+    return Q
+
+
+def _adjusted(poses: np.ndarray, along_k: float | None, odo_scale: float, recorded_k: float, crab_deg: float = 0.0
+              ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """The recorded estimate's (x, y) and (x, y, heading) covariance, its steps shortened by `odo_scale` and
+    turned by `crab_deg`, and its odometry scale term re-derived with `along_k` instead of `recorded_k` (None: as
+    recorded)."""
+    est_xy, w, P = poses[:, 2:4].copy(), poses[:, 1], poses[:, 8:].reshape(-1, 3, 3).copy()
+    if odo_scale or crab_deg:
+        steps = np.diff(est_xy, axis=0) @ ((1.0 - odo_scale) * _turn(np.radians(crab_deg))).T
+        est_xy = est_xy[0] + np.vstack([np.zeros((1, 2)), np.cumsum(steps, 0)])
+    if along_k is not None:
+        P += (along_k**2 - recorded_k**2) * _along_term(poses[:, 2:4], w)
+        P = np.array([_psd(M) for M in P])
+    return est_xy, P
+
+
+def split(path: str, along_k: float | None = None, odo_scale: float = 0.0, recorded_k: float = 0.01,
+          crab_deg: float = 0.0) -> dict:  # fmt: skip
+    """Where the dead-reckoned walk's error comes from (module doc, `split`): along and across the route (the
+    line from its start to its end) with the filter's σ, the same with a perfect heading, the NEES."""
+    d = np.load(path)
+    poses = d["poses"]
+    t, w, yaw, true_xy, true_yaw = poses[:, 0], poses[:, 1], poses[:, 4], poses[:, 5:7], poses[:, 7]
+    est_xy, P = _adjusted(poses, along_k, odo_scale, recorded_k, crab_deg)
+    dyaw = (true_yaw - yaw + np.pi) % (2 * np.pi) - np.pi
+    steps = np.diff(est_xy, axis=0)
+    c, s = np.cos(dyaw[:-1]), np.sin(dyaw[:-1])
+    turned = np.column_stack([c * steps[:, 0] - s * steps[:, 1], s * steps[:, 0] + c * steps[:, 1]])
+    e = est_xy - true_xy
+    e_head = est_xy[0] + np.vstack([np.zeros((1, 2)), np.cumsum(turned, 0)]) - true_xy  # perfect heading
+    u = true_xy[-1] - true_xy[0]
+    u /= np.linalg.norm(u)
+    n = np.array([-u[1], u[0]])
+    sig = lambda v: np.sqrt(np.einsum("i,nij,j->n", v, P[:, :2, :2], v))  # noqa: E731
+    nees = np.einsum("ni,nij,nj->n", e, np.linalg.inv(P[:, :2, :2]), e)
+    rows = []
+    for q in np.linspace(0, len(t) - 1, 8).astype(int)[1:]:
+        rows.append({"walked_m": round(float(w[q]), 1), "along_m": round(float(e[q] @ u), 2),
+                     "along_sigma_m": round(float(sig(u)[q]), 2), "across_m": round(float(e[q] @ n), 2),
+                     "across_sigma_m": round(float(sig(n)[q]), 2), "perfect_heading_along_m": round(float(e_head[q] @ u), 2),
+                     "perfect_heading_across_m": round(float(e_head[q] @ n), 2),
+                     "yaw_deg": round(float(np.degrees(dyaw[q])), 2), "yaw_sigma_deg": round(float(np.degrees(np.sqrt(P[q, 2, 2]))), 2),
+                     "nees": round(float(nees[q]), 2)})  # fmt: skip
+    far = np.argmax(np.abs(e @ u))
+    # the legs' along-track excess and crab angle that best explain the perfect-heading walk: the truth's way
+    # from its start ≈ a·C + b·J·C with C the perfect-heading steps summed (J a quarter turn), a + ib =
+    # (1 − excess)·e^{i·crab}: what `EstimatorConfig.odometry_calibration` takes off the legs' velocity
+    C = np.vstack([np.zeros((1, 2)), np.cumsum(turned, 0)])
+    A = np.column_stack([C.ravel(), (C @ np.array([[0.0, 1.0], [-1.0, 0.0]])).ravel()])
+    (a, b), *_ = np.linalg.lstsq(A, (true_xy - true_xy[0]).ravel(), rcond=None)
+    return {"rows": rows, "odometry_excess_pct": round(float(100 * (1 - np.hypot(a, b))), 3),
+            "odometry_crab_deg": round(float(np.degrees(np.arctan2(b, a))), 3), "pos_error_max_m": round(float(np.hypot(*e.T).max()), 2),
+            "perfect_heading_error_max_m": round(float(np.hypot(*e_head.T).max()), 2),
+            "along_max_m": round(float((e @ u)[far]), 2), "along_pct_of_walk": round(float(100 * (e @ u)[-1] / w[-1]), 3),
+            "nees_pos_mean": round(float(nees.mean()), 3), "inside_3sigma_frac": round(float(np.mean(nees <= 11.83)), 3),
+            "nees_along_mean": round(float(np.mean((e @ u) ** 2 / sig(u) ** 2)), 3),
+            "nees_yaw_mean": round(float(np.mean(dyaw**2 / P[:, 2, 2])), 3)}  # fmt: skip
+
+
 def replay(path: str, draws: int, fixes: str, every_m: float = 25.0, first_m: float = 30.0,
-           prior_scale: float = 1.0, verbose: bool = False) -> list[dict]:  # fmt: skip
+           prior_scale: float = 1.0, verbose: bool = False, along_k: float | None = None,
+           odo_scale: float = 0.0, recorded_k: float = 0.01, crab_deg: float = 0.0) -> list[dict]:  # fmt: skip
     d = np.load(path)
     feet, poses, seed = d["feet"], d["poses"], int(d["seed"])
     terrain = make_lunar(LunarConfig(seed=seed, size_m=float(d["field_m"])))
-    t, w, est_xy, est_yaw = poses[:, 0], poses[:, 1], poses[:, 2:4], poses[:, 4]
-    true_xy, true_yaw, P_dr = poses[:, 5:7], poses[:, 7], poses[:, 8:].reshape(-1, 3, 3) * prior_scale
+    t, w, est_yaw = poses[:, 0], poses[:, 1], poses[:, 4]
+    est_xy, P_dr = _adjusted(poses, along_k, odo_scale, recorded_k, crab_deg)
+    true_xy, true_yaw, P_dr = poses[:, 5:7], poses[:, 7], P_dr * prior_scale
     tf, wf, foot_xy, foot_z = feet[:, 0], feet[:, 1], feet[:, 2:4], feet[:, 4]
     lc = LocalizerConfig()
     rows = []
@@ -255,6 +340,7 @@ def main() -> None:
     r.add_argument("--seed", type=int, required=True)
     r.add_argument("--field", type=float, default=100.0)
     r.add_argument("--sim-seconds", type=float, default=None, help="stop after this much (default: the walk)")
+    r.add_argument("--route", default="direct", help="the lunar route (direct, west, east)")
     p = sub.add_parser("replay")
     p.add_argument("rec")
     p.add_argument("--draws", type=int, default=6)
@@ -268,14 +354,32 @@ def main() -> None:
     p.add_argument("--verbose", action="store_true", help="each fix against the truth")
     b = sub.add_parser("bound")
     b.add_argument("rec")
+    sp = sub.add_parser("split")
+    sp.add_argument("rec")
+    for q in (p, sp):
+        q.add_argument("--along-k", type=float, default=None,
+                       help="re-derive the recorded filter's covariance with this odometry scale σ [per metre]")  # fmt: skip
+        q.add_argument(
+            "--recorded-k", type=float, default=0.01, help="the odometry scale σ the walk ran with"
+        )
+        q.add_argument(
+            "--odo-scale", type=float, default=0.0, help="shorten every dead-reckoned step by this share"
+        )
+        q.add_argument(
+            "--crab-deg", type=float, default=0.0, help="turn every dead-reckoned step by this [deg]"
+        )
     a = ap.parse_args()
+    if a.cmd == "split":
+        print(json.dumps(split(a.rec, a.along_k, a.odo_scale, a.recorded_k, a.crab_deg), indent=1))
+        return
     if a.cmd == "bound":
         print(json.dumps(bound(a.rec)))
         return
     if a.cmd == "record":
-        print(json.dumps(record(a.out, a.seed, a.field, a.sim_seconds)))
+        print(json.dumps(record(a.out, a.seed, a.field, a.sim_seconds, a.route)))
         return
-    rows = replay(a.rec, a.draws, a.fixes, prior_scale=a.prior_scale, verbose=a.verbose)
+    rows = replay(a.rec, a.draws, a.fixes, prior_scale=a.prior_scale, verbose=a.verbose, along_k=a.along_k,
+                  odo_scale=a.odo_scale, recorded_k=a.recorded_k, crab_deg=a.crab_deg)  # fmt: skip
     for row in rows:
         print(json.dumps(row))
     print(json.dumps({k: round(float(np.mean([row[k] for row in rows])), 3)

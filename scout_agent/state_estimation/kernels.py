@@ -292,12 +292,13 @@ def inflate(
 ) -> tuple[float, float, float, float, float, float, float, float, float, float, float]:
     """`StateEstimator._inflate`'s arithmetic in place on P and bg (the same operations in the same order; the
     docstring there says what each term is). `coef`: the squared σ's (g-sensitivity, accelerometer tempco,
-    odometry scale, odometry height, gyro scale, slip). `state` (the estimator's `Inflation`) in, and out: temp0, gyro_temp0, dtemp_prev,
+    odometry scale, odometry height, gyro scale, slip, odometry crab). `state` (the estimator's `Inflation`) in, and out: temp0, gyro_temp0, dtemp_prev,
     gyro_dtemp_prev, temp_prev, du2_peak, bias_heading_rad, walked_m, turn_net_rad, turn_peak_rad,
     heading_var_prev. `speed` = hypot(vx, vy), from Python's math.hypot (numba's differs in the last bit)."""
     temp0, gyro_temp0, dtemp_prev, gyro_dtemp_prev, temp_prev, du2_peak = state[0:6]
     bias_heading, walked, turn_net, turn_peak, hv_prev = state[6:11]
     gs2, acc2, scale2, height2, gscale2, slip2 = coef[0], coef[1], coef[2], coef[3], coef[4], coef[5]
+    crab2 = coef[6]
     d2 = d2g = 0.0
     if temp == temp:
         if temp0 != temp0:
@@ -328,6 +329,12 @@ def inflate(
         P[7, 7] += q * uy * uy
         P[6, 7] += q * ux * uy
         P[7, 6] += q * ux * uy
+        if crab2 > 0.0:  # the legs' sideways counterpart: across the velocity
+            q = 2.0 * crab2 * walked * speed * dt
+            P[6, 6] += q * uy * uy
+            P[7, 7] += q * ux * ux
+            P[6, 7] -= q * ux * uy
+            P[7, 6] -= q * ux * uy
         if anchored:
             P[8, 8] += height2 * speed * dt
         walked += speed * dt

@@ -60,12 +60,17 @@ def odometry_rows(
     normal_b: np.ndarray,
     foot_radius: float,
     climb_bias: float = 0.0,
+    excess: float = 0.0,
+    crab_rad: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray]:
     """The filter's velocity update from the feet in `use` (4,) bool: stacked residuals z − h (3k,) and the
     Jacobian H (3k, 15): `stance_velocity_measurements` of `feet` (positions, velocities, angular velocities,
     base frame) with the ground normal `normal_b` (3,), base frame, less the EKF's predicted measurement at the
     estimate R, v, bg (`kernels.velocity_rows_many`). `climb_bias` [rad ≈ m/m]: the legs' calibrated climb
-    (climb_calibration.py), turned back about the base y axis (z_z − c·z_x for small c)."""
+    (climb_calibration.py), turned back about the base y axis (z_z − c·z_x for small c). `excess` (share) and
+    `crab_rad`: the legs' along-track excess and crab angle, calibrated on a surveyed course
+    (`EstimatorConfig.odometry_calibration`): the horizontal part is scaled by 1 − excess and turned by the crab
+    about the base z axis."""
     z, rc = stance_velocity_measurements(feet[0], feet[1], feet[2], gyro, normal_b, foot_radius)
     k = 0
     for i in range(4):
@@ -73,12 +78,14 @@ def odometry_rows(
     rows = np.empty((k, 3))
     zu = np.empty((k, 3))
     cb, sb = np.cos(climb_bias), np.sin(climb_bias)
+    gc, gs = (1.0 - excess) * np.cos(crab_rad), (1.0 - excess) * np.sin(crab_rad)
     m = 0
     for i in range(4):
         if use[i]:
             rows[m] = rc[i]
-            zu[m, 0] = cb * z[i, 0] + sb * z[i, 2]
-            zu[m, 1] = z[i, 1]
+            zx = cb * z[i, 0] + sb * z[i, 2]
+            zu[m, 0] = gc * zx - gs * z[i, 1]
+            zu[m, 1] = gs * zx + gc * z[i, 1]
             zu[m, 2] = cb * z[i, 2] - sb * z[i, 0]
             m += 1
     h, H = velocity_rows_many(R, v, bg, rows)

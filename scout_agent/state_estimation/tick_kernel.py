@@ -57,7 +57,7 @@ def odometry_tick(
     imu: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
     normal_w: np.ndarray,
     leg_var: np.ndarray,
-    scalars: tuple[float, float, float, float, float, float, float, float, float, float, float],
+    scalars: tuple[float, float, float, float, float, float, float, float, float, float, float, float, float],
     flags: tuple[bool, bool, bool, bool, bool],
 ) -> tuple[float, float, int, int, int]:
     """One tick to the odometry update, in place; a lost packet's (not `fresh`) only its propagation on the held
@@ -68,11 +68,26 @@ def odometry_tick(
     stance: contact starts, settled, in use (written), the mid-stance mask to use; imu: the lever arm r, the last
     ω (lever-arm kernel's), the last fresh gyro reading (written), f_base (written: the specific force at the
     base origin). scalars: t, dt (the loop period), stamp_s, stamp_prev, held_s, gyro_age_s, settle_s,
-    foot_radius, gate_chi2, lost_acc_std (estimator.py, "Lost packets"), climb_bias (climb_calibration.py); flags: fresh, lever arm, a previous fresh reading exists, standing, hold heading.
+    foot_radius, gate_chi2, lost_acc_std (estimator.py, "Lost packets"), climb_bias (climb_calibration.py), the
+    legs' along-track excess and crab angle (`EstimatorConfig.odometry_calibration`); flags: fresh, lever arm, a previous fresh reading exists, standing, hold heading.
     Returns (dt, stamp_prev, n_contact, n_settled, n_rejected)."""
     R, v, p, bg, ba, P, g, q = ekf
     acc, gyro, jq, jdq, contact = reading
-    t, dt, stamp, stamp_prev, held, age, settle_s, foot_radius, gate_chi2, lost_acc_std, climb = scalars
+    (
+        t,
+        dt,
+        stamp,
+        stamp_prev,
+        held,
+        age,
+        settle_s,
+        foot_radius,
+        gate_chi2,
+        lost_acc_std,
+        climb,
+        excess,
+        crab,
+    ) = scalars
     fresh, lever, has_prev, stand, hold_heading = flags
     r_imu, w_prev, gyro_fresh, f_base = imu
     if not fresh:  # a lost packet: the held reading propagated, no measurement
@@ -106,7 +121,9 @@ def odometry_tick(
     n_rejected = 0
     if n_use:
         n_b = np.dot(R.T, normal_w)  # numpy's `R.T @ n` (the same BLAS call on the transposed view)
-        residual, H = odometry_rows(use, R, v, bg, (fb, fv, fw), gyro_now, n_b, foot_radius, climb)
+        residual, H = odometry_rows(
+            use, R, v, bg, (fb, fv, fw), gyro_now, n_b, foot_radius, climb, excess, crab
+        )
         keep = kernels.update(
             R,
             v,
