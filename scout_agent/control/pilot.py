@@ -151,6 +151,12 @@ class PilotConfig:
     # crawl switched in at the stop, under a trunk still moving; braking first as here, 22 of 30; 7 without)
     back_crawl: bool = False
     back_max_yaw_rate: float = FollowerConfig.max_yaw_rate  # [rad/s] while backing off
+    # ... and where the felt margin m = μ̂ − tan θ̂ is below the adaptive gait's `margin_full`, at most
+    # `back_min_yaw_rate` + (back_max_yaw_rate − back_min_yaw_rate) · m / margin_full (None: the full rate
+    # everywhere). Turning a trot asks its feet for sideways force the ground it just slipped on does not give:
+    # on lunar seed 3 east (μ 0.235 on 21–26°) the reverse follower swung the heading ±40° at 0.5 rad/s for
+    # 25 s, the trunk sliding forward at each swing, and fell in the third slide (docs/results.md, issue 24)
+    back_min_yaw_rate: float | None = 0.1
     back_speed: float = 0.1  # [m/s], trotting (a crawl back-off fell in 4 of 4 ramp walks where this one fell in 2); no velocity loop: on ground that slips, pushing harder slides
     held_before_s: float = 1.0
     backoff_min_m: float = 0.4
@@ -177,6 +183,13 @@ class PilotConfig:
     slide_brake_mps2: float = 0.2
     slide_end_mps: float = 0.05
     max_slides: int = 3  # slides after one stop before the scout goes around from where it rests
+    # a slide that comes to rest with the fore feet on ground that holds and the hind feet on ground that does not
+    # (both fore feet's μ̂ at least `ahead_gap` above both hind feet's) rests at the far
+    # edge of what it slid on: the held ground is ahead, so it goes around from there instead of backing off
+    # across the patch again (None: always back off inside the hazard's radius). Lunar seed 3 east slid 3.5 s
+    # through a μ 0.235 patch on 21–26° until its fore feet stood on μ 0.7 (μ̂ 0.41 / 0.44, hind 0.13 / 0.17),
+    # then backed off up the patch for 25 s and fell (docs/results.md, issue 24)
+    ahead_gap: float | None = 0.15
 
 
 def _forward(s: RobotState, yaw: float) -> float:
@@ -242,6 +255,9 @@ class Pilot:
         self._slide_since: float | None = None  # carried forward since (back) / at rest since (slide) [s]
         self._fwd_min = math.inf  # the slowest forward speed of this back-off [m/s]
         self._slides = 0  # slides since the last stop
+        # walking out of a hazard it slid through to ground that holds (`ahead_gap`): (x, y, radius) of that
+        # hazard; inside that radius a slip alone (the hind feet still on it) does not stop the scout again
+        self._walk_out: tuple[float, float, float] | None = None
 
     @property
     def done(self) -> bool:
@@ -295,6 +311,17 @@ class Pilot:
         margin = self.setting.margin if self.setting is not None else math.inf
         return max(c.brake_min_mps2, c.brake_share * C.LUNAR_G * margin) if c.brake_share else math.inf
 
+    def turn_limit(self) -> float:
+        """The most the back-off (or a walk out of a hazard it slid through) may turn [rad/s]: the full
+        `back_max_yaw_rate` where the felt margin is at least the adaptive gait's `margin_full`, falling linearly
+        to `back_min_yaw_rate` at no margin."""
+        c = self.config
+        if c.back_min_yaw_rate is None or self.setting is None:
+            return c.back_max_yaw_rate
+        u = min(1.0, max(0.0, self.setting.margin / c.gait.margin_full))
+        lo = min(c.back_min_yaw_rate, c.back_max_yaw_rate)
+        return lo + (c.back_max_yaw_rate - lo) * u
+
     def _settled(self, s: RobotState) -> bool:
         """A stand at a stop has lasted long enough: `stand_s`, and with `settle_rate_rps` set, until the trunk's
         estimated roll and pitch rates stayed below it for `settle_quiet_s` (or `stand_max_s` passed)."""
@@ -329,6 +356,9 @@ class Pilot:
             self.reached = self.follower.reached
             if self.setting is not None:
                 v *= self.setting.speed_scale
+            if self._walk_out is not None:  # still on the hazard it slid through: turn as a back-off does
+                lim = self.turn_limit()
+                w = min(lim, max(-lim, w))
             if self.controller.gait.config == self.config.crawl:
                 v = min(v, self.config.crawl_speed)
             elif self._wish == self.config.slip_gait:
@@ -341,6 +371,8 @@ class Pilot:
                 self._set_mode("slide", s.t)
                 return self._slide(s, yaw), 0.0
             v, w = self._back.command(s.pos[:2], yaw, s.vel[:2], dt)
+            lim = self.turn_limit()
+            w = min(lim, max(-lim, w))
             if self._wish == self.config.slip_gait:
                 v = max(v, -self.config.slip_gait_speed)
             if self._back.reached or s.t - self._t_mode > self.config.back_timeout_s:
@@ -399,6 +431,10 @@ class Pilot:
                 self.controller.accel_limit = setting.accel_limit_mps2
             if c.cone_radius_m is not None and self.lost_spots:
                 self.controller.set_friction(self._cone())
+        if self._walk_out is not None:
+            hx, hy, r = self._walk_out
+            if self.mode != "walk" or math.hypot(x - hx, y - hy) > r:
+                self._walk_out = None  # out of it
         if not c.reflex or self.mode != "walk" or self.reached:
             return None
         self._wish = c.crawl if self._near_hazard(x, y) else c.trot
@@ -413,6 +449,10 @@ class Pilot:
             t, est, R, margin, lost, front, self.controller.footholds, self.controller.liftoff
         )
         if felt is None:
+            return None
+        if self._walk_out is not None and felt.reasons == ("slip",):
+            # walking out of a hazard it slid through (`ahead_gap`): the hind feet still on it slip, as felt
+            self.senses.forget_slips()
             return None
         self._stop(felt, x, y)
         return felt
@@ -501,6 +541,7 @@ class Pilot:
         self._t_held = (t0 if t0 is not None else felt.t) - self.config.held_before_s
         self.senses.reset()
         self.tracks.reset()
+        self._walk_out = None
         c = self.config
         grad, _ = self.controller.plane()
         steep = math.degrees(math.atan(math.hypot(float(grad[0]), float(grad[1]))))
@@ -543,12 +584,24 @@ class Pilot:
         self._slide_since = None
         hx, hy = self.hazards[-1]
         x, y = float(s.pos[0]), float(s.pos[1])
-        if math.hypot(x - hx, y - hy) > self._radius(hx, hy) or self._slides >= c.max_slides:
+        past = math.hypot(x - hx, y - hy) > self._radius(hx, hy)
+        ahead = not past and self.held_ahead()
+        if past or self._slides >= c.max_slides or ahead:
             self._back_len = 0.0
+            if ahead:
+                self._walk_out = (hx, hy, self._radius(hx, hy))
             self._go_around(s.pos[:2], s.t)
         else:
             self._start_back(s.pos[:2], s.t, yaw)
         return 0.0
+
+    def held_ahead(self) -> bool:
+        """The fore feet stand on ground that holds and the hind feet on ground that does not (`ahead_gap`)."""
+        gap = self.config.ahead_gap
+        if gap is None:
+            return False
+        mu = self.friction.mu
+        return bool(min(mu[0], mu[1]) >= max(mu[2], mu[3]) + gap)
 
     def _start_back(self, pos: np.ndarray, t: float, yaw: float = math.nan) -> None:
         c = self.config

@@ -105,6 +105,10 @@ class Senses:
         self._footholds[:] = np.nan
         self._footholds_key = b""
 
+    def forget_slips(self) -> None:
+        """Forget the recent slip events only (slips already accounted for: the pilot walking out of a hazard)."""
+        self._slips.clear()
+
     def _face(self, footholds: np.ndarray, liftoff: np.ndarray) -> tuple[float, float] | None:
         """Where a foot's new foothold rose onto a face from where its swing lifted off (`face_rise_m`,
         `face_tan`), else None. From the liftoff, not the previous foothold: a foot that slid down its stance

@@ -3,12 +3,14 @@ the friction estimate, the adaptive gait and the detour search as units."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
-from scout_agent.control.adaptation import GaitAdaptation
+from scout_agent.control.adaptation import GaitAdaptation, GaitSetting
 from scout_agent.control.controller import RobotState, TrotController
 from scout_agent.control.detour import DetourConfig, plan_detour
 from scout_agent.control.friction_estimate import FrictionEstimate, FrictionEstimateConfig
@@ -673,3 +675,86 @@ def test_a_clean_stance_raises_the_estimate_to_what_it_proved_not_to_its_touchdo
     old.mu[2] = 0.1
     stance(old)
     assert old.mu[2] == pytest.approx(c.prior_mu)
+
+
+def _setting_with_margin(margin: float) -> GaitSetting:
+    return GaitSetting(
+        speed_scale=1.0, height_offset_m=0.0, qp_mu=np.full(4, 0.6), accel_limit_mps2=math.inf, margin=margin
+    )
+
+
+def test_a_back_off_turns_no_faster_than_the_felt_margin_allows():
+    # the reverse follower turned the trot at 0.5 rad/s on a μ 0.235 patch on 21–26° (lunar seed 3 east), swinging
+    # the heading ±40° for 25 s: where the felt margin is gone it turns at most back_min_yaw_rate, where it is at
+    # least the adaptive gait's margin_full at the full back_max_yaw_rate
+    cfg = PilotConfig()
+    assert cfg.back_min_yaw_rate is not None  # on by default
+    rates = {}
+    for margin in (-0.1, 0.05, 0.3):
+        pilot = _line_pilot(cfg)
+        pilot.setting = _setting_with_margin(margin)
+        pilot._stop(Felt(2.0, 0.5, 0.0, ("slip",), 3), 0.3, 0.0)
+        pilot.trail = [(0.0, -1.0, 0.6), (0.5, -0.5, 0.6), (1.0, 0.0, 0.6)]  # the way in, 0.6 m to the side
+        pilot.command(_rocking_state(2.1, 0.0, 0.3), 0.01)
+        assert pilot.mode == "back"
+        _, w = pilot.command(_rocking_state(2.11, 0.0, 0.3), 0.01)
+        rates[margin] = abs(w)
+    u = 0.05 / cfg.gait.margin_full
+    assert rates[-0.1] == pytest.approx(cfg.back_min_yaw_rate)
+    assert rates[0.05] == pytest.approx(
+        cfg.back_min_yaw_rate + (cfg.back_max_yaw_rate - cfg.back_min_yaw_rate) * u
+    )
+    assert rates[0.3] == pytest.approx(cfg.back_max_yaw_rate)  # the heading error saturates the full rate
+
+
+def _sample_at(t: float, x: float) -> SimpleNamespace:
+    """The parts of a `ProprioSample` the pilot's reflex reads without estimates: the time and the base pose."""
+    return SimpleNamespace(
+        t=t, base=SimpleNamespace(pos=np.array([x, 0.0, 0.33]), quat=np.array([1.0, 0, 0, 0]))
+    )
+
+
+def test_a_slide_that_rests_with_the_fore_feet_on_held_ground_walks_out_ahead_instead_of_backing_off():
+    # lunar seed 3 east: the slide carried the scout through a μ 0.235 patch until its fore feet stood on μ 0.7
+    # (their μ̂ 0.41 / 0.44, the hind feet's 0.13 / 0.17); backing off up the patch again fell. Resting so, inside
+    # the hazard's radius, it plans its detour from there (walking out ahead), and while still inside that radius a
+    # slip alone (the hind feet on the patch) does not stop it again; anything else, or a slip past it, does
+    cfg = PilotConfig()
+    assert cfg.ahead_gap is not None
+    for mu, mode in (((0.45, 0.42, 0.12, 0.2), "walk"), ((0.45, 0.3, 0.12, 0.2), "back")):
+        pilot = _line_pilot(cfg)
+        pilot._stop(Felt(2.0, 1.0, 0.0, ("slip",), 3), 0.8, 0.0)
+        pilot.trail = [(0.0, -1.0, 0.0), (1.0, 0.8, 0.0)]
+        dt, t = 0.01, 2.0
+        pilot.command(_moving_state(t, 0.8, 0.2), dt)
+        t += cfg.stop_s + dt
+        pilot.command(_moving_state(t, 0.9, 0.2), dt)
+        assert pilot.mode == "slide"
+        pilot.friction.mu[:] = mu
+        while pilot.mode == "slide" and t < 4.0:  # at rest 0.6 m past the hazard: inside its 1.2 m radius
+            t += dt
+            pilot.command(_moving_state(t, 1.6, 0.0), dt)
+        assert pilot.mode == mode
+    pilot = _line_pilot(cfg)
+    pilot._stop(Felt(2.0, 1.0, 0.0, ("slip",), 3), 0.8, 0.0)
+    pilot.trail = [(0.0, -1.0, 0.0), (1.0, 0.8, 0.0)]
+    pilot.command(_moving_state(2.0, 0.8, 0.2), 0.01)
+    pilot.command(_moving_state(2.06, 0.9, 0.2), 0.01)
+    pilot.friction.mu[:] = (0.45, 0.42, 0.12, 0.2)
+    t = 2.06
+    while pilot.mode == "slide":
+        t += 0.01
+        pilot.command(_moving_state(t, 1.6, 0.0), 0.01)
+    assert pilot.mode == "walk" and pilot.follower.points[0][0] == pytest.approx(1.6)
+    fired: list[tuple[str, ...]] = []
+    pilot.senses.feel = lambda t, *a, **k: Felt(t, 1.7, 0.0, fired[-1], 1)  # type: ignore[method-assign]
+    fired.append(("slip",))
+    assert pilot.feel(_sample_at(t + 0.1, 1.7), None) is None and pilot.mode == "walk"  # inside: walks on
+    fired.append(("slip", "margin"))
+    assert pilot.feel(_sample_at(t + 0.2, 1.75), None) is not None and pilot.mode == "stop"
+    # a second walk-out: a slip past the radius (2.2 + 0.1 m from the hazard at x 1.0) stops it
+    pilot = _line_pilot(cfg)
+    pilot._walk_out = (1.0, 0.0, 1.2)
+    fired.append(("slip",))
+    pilot.senses.feel = lambda t, *a, **k: Felt(t, 2.3, 0.0, fired[-1], 1)  # type: ignore[method-assign]
+    assert pilot.feel(_sample_at(5.0, 2.3), None) is not None and pilot.mode == "stop"
