@@ -11,8 +11,9 @@ control tick, splits the change of the heading error ψ_est − ψ_true into:
 - the measurement updates that turned the heading: `zaru` (standstill zero-rate updates, through the
   heading–bias covariance), `grav` (the standstill's gravity update), `odo` (leg odometry), `other` (pose fixes
   of the localizer, between the estimator's ticks).
-Prints the run's evaluate figures, the budget at the largest heading error and at the end, and each standstill's
-gyro-z bias error before and after it. Evaluation only: it reads the simulator's sensor model and truth, which the
+Prints the run's evaluate figures, the budget at the largest heading error and at the end, each standstill's
+gyro-z bias error before and after it with what the walk before it and the standstill itself added to the heading
+error, and each pose fix of the localizer with the heading error and σ before and after it. Evaluation only: it reads the simulator's sensor model and truth, which the
 robot's software never does.
 """
 
@@ -51,13 +52,7 @@ class HeadingBudget:
     def attach(self, scout) -> None:
         self.scout = scout
         est, ekf, acc = scout.robot.estimator, scout.robot.estimator.ekf, self._acc
-        propagate, ekf_update, est_update = ekf.propagate, ekf.update, est.update
-
-        def prop(gyro, f, dt):
-            y0 = heading(ekf.R)
-            out = propagate(gyro, f, dt)
-            acc["prop"] += _wrap(heading(ekf.R) - y0)
-            return out
+        ekf_update, est_update = ekf.update, est.update
 
         def update(residual, H, noise_var, gate_chi2=None, hold_heading=False):
             y0 = heading(ekf.R)
@@ -80,10 +75,14 @@ class HeadingBudget:
             ext = 0.0 if self._last_est is None else _wrap(y0 - self._last_est)  # moved between ticks: fixes
             out = est_update(t, sensor_tick, dt, *args, **kwargs)
             self._last_est = heading(ekf.R)
+            # the propagation and the leg odometry run inside one compiled kernel (tick_kernel.odometry_tick),
+            # which calls neither `ekf.propagate` nor `ekf.update`: their share is the tick's whole change less
+            # the updates seen here (the odometry holds heading, so it is the propagation's)
+            acc["prop"] = _wrap(self._last_est - y0) - acc["zaru"] - acc["grav"] - acc["odo"] - acc["other"]
             self._tick = {**acc, "other": acc["other"] + ext, "dt": dt, "stand": bool(kwargs.get("standing"))}
             return out
 
-        ekf.propagate, ekf.update, est.update = prop, update, tick
+        ekf.update, est.update = update, tick
 
     def on_tick(self, sample, truth, robot) -> None:
         p = self._tick
@@ -141,6 +140,7 @@ class HeadingBudget:
         stand = np.array([row["stand"] for row in r])
         edges = np.diff(np.r_[0, stand.astype(int), 0])
         stands = []
+        prev_end = 0
         for a, b in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1) - 1, strict=True):
             true_bz = float(np.mean([row["bz_true"] for row in r[a : b + 1]]))
             stands.append(
@@ -149,9 +149,38 @@ class HeadingBudget:
                     "s": round(r[b]["t"] - r[a]["t"], 1),
                     "bz_error_before": round((r[a]["bz_est"] - true_bz) * 1e4, 2),
                     "bz_error_after": round((r[b]["bz_est"] - true_bz) * 1e4, 2),
+                    # what the walk since the last standstill added to the heading error, and this one
+                    "walk_added_deg": round(math.degrees(err[a] - err[prev_end]), 2),
+                    "stand_added_deg": round(math.degrees(err[b] - err[a]), 2),
+                    "zaru_turned_deg": round(
+                        math.degrees(cum["zaru"][b] - cum["zaru"][a - 1 if a else 0]), 2
+                    ),
+                    "error_after_deg": round(math.degrees(err[b]), 2),
                 }
             )
-        return {"at_max": at(i_max), "at_end": at(len(r) - 1), "standstills_bz_error_1e-4_rad_s": stands}
+            prev_end = b
+        # the localizer's pose fixes, with the error and σ around them: a fix moves the estimate after the
+        # estimator's tick k and before row k is logged; the next tick's hook books it (row k + 1's `other`)
+        other = np.array([row["other"] for row in r])
+        fixes = [
+            {
+                "t_s": round(r[i - 1]["t"], 1),
+                "walked_m": round(r[i - 1]["walked"], 1),
+                "turned_deg": round(math.degrees(other[i]), 3),
+                "error_before_deg": round(math.degrees(err[i - 2]), 2),
+                "error_after_deg": round(math.degrees(err[i - 1]), 2),
+                "sigma_before_deg": round(math.degrees(r[i - 2]["sigma"]), 2),
+                "sigma_after_deg": round(math.degrees(r[i - 1]["sigma"]), 2),
+            }
+            for i in np.flatnonzero(np.abs(other) > math.radians(0.005))
+            if i > 1
+        ]
+        return {
+            "at_max": at(i_max),
+            "at_end": at(len(r) - 1),
+            "standstills_bz_error_1e-4_rad_s": stands,
+            "pose_fixes": fixes,
+        }
 
 
 def main(argv: list[str]) -> int:

@@ -69,6 +69,8 @@ ERROR_KEYS = (
     "pos_error_growth_final_m",
     "drift_after_start_xy_pct",
     "yaw_error_max_deg",
+    "yaw_error_start_deg",  # the survey's heading draw, and the most the walk moved the error from it
+    "yaw_error_growth_max_deg",
     "nees_pos_mean",
     "inside_3sigma_frac",
     "nees_yaw_mean",

@@ -7,7 +7,9 @@
 - `pos_error_start_m`: the horizontal error at the first tick (the launch survey's), and
   `pos_error_growth_max_m`, `pos_error_growth_final_m`: how far the error vector moved from it, the largest over
   the run and at the end, |e(t) − e(0)| (what the walk added to the start's error: the start and the drift apart);
-- `yaw_error_max_deg`: the largest heading error;
+- `yaw_error_max_deg`: the largest heading error; `yaw_error_start_deg`, the heading error at the first tick (the
+  launch survey's draw), and `yaw_error_growth_max_deg`, the largest |ε(t) − ε(0)| (what the walk added to it:
+  nothing proprioceptive observes the survey's heading, so the two are apart);
 - `nees_pos_mean`: mean normalised estimation error squared of the horizontal position, eᵀ P⁻¹ e with P the
   filter's 2×2 horizontal position covariance; a consistent filter averages 2 (two degrees of freedom);
 - `inside_3sigma_frac`: share of ticks whose true horizontal position lies inside the estimate's 3σ ellipse
@@ -55,7 +57,9 @@ def yaw_of_quat(quat: np.ndarray) -> float:
     _NEES_Z_SUM,
     _NEES_Z_N,
     _Z_INSIDE,
-) = range(18)
+    _YAW0,
+    _YAW_GROWTH_MAX,
+) = range(20)
 
 
 @njit(cache=True, nogil=True)
@@ -90,6 +94,10 @@ def _add(
     acc[_ERR_MAX] = max(acc[_ERR_MAX], err)
     dyaw = (_yaw(est_quat) - _yaw(truth_quat) + math.pi) % (2 * math.pi) - math.pi
     acc[_YAW_MAX] = max(acc[_YAW_MAX], abs(dyaw))
+    if acc[_N] == 1.0:
+        acc[_YAW0] = dyaw
+    dgrow = (dyaw - acc[_YAW0] + math.pi) % (2 * math.pi) - math.pi
+    acc[_YAW_GROWTH_MAX] = max(acc[_YAW_GROWTH_MAX], abs(dgrow))
     ez = truth_pos[2] - est_pos[2]
     acc[_Z_MAX] = max(acc[_Z_MAX], abs(ez))
     if var_z > 0:  # False for NaN
@@ -132,7 +140,7 @@ def _add_filter(
 
 class ConsistencyTracker:
     def __init__(self) -> None:
-        self._acc = np.zeros(18)
+        self._acc = np.zeros(20)
         self._acc[_ERR_FINAL] = math.nan
 
     def add(
@@ -186,6 +194,8 @@ class ConsistencyTracker:
             "pos_error_growth_max_m": r(acc[_GROWTH_MAX]) if n else None,
             "pos_error_growth_final_m": r(acc[_GROWTH_FINAL]) if n else None,
             "yaw_error_max_deg": r(math.degrees(acc[_YAW_MAX]), 3) if n else None,
+            "yaw_error_start_deg": r(math.degrees(acc[_YAW0]), 3) if n else None,
+            "yaw_error_growth_max_deg": r(math.degrees(acc[_YAW_GROWTH_MAX]), 3) if n else None,
             "nees_pos_mean": r(acc[_NEES_SUM] / nees_n, 3) if nees_n else None,
             "inside_3sigma_frac": r(acc[_INSIDE] / nees_n) if nees_n else None,
             "nees_yaw_mean": r(acc[_NEES_YAW_SUM] / nees_yaw_n, 3) if nees_yaw_n else None,

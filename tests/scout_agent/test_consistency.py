@@ -49,6 +49,20 @@ def test_the_start_error_and_the_growth_after_it_are_apart() -> None:
     assert s["pos_error_growth_max_m"] == pytest.approx(0.4)
 
 
+def test_the_surveys_heading_draw_and_what_the_walk_added_are_apart() -> None:
+    """A launch heading 1.5° off, then the walk turns the error to −0.5° (back through zero) and on to +2.0°:
+    the largest error is 2.0°, the start's 1.5°, and the most the walk moved it is 2.0° (from +1.5 to −0.5),
+    across ±π as well."""
+    tr = ConsistencyTracker()
+    for e in (1.5, 0.5, -0.5, 1.0, 2.0):
+        true_yaw = math.pi - 0.001
+        tr.add(np.zeros(3), _quat(true_yaw), np.zeros(3), _quat(true_yaw + math.radians(e)), np.eye(2))
+    s = tr.summary()
+    assert s["yaw_error_start_deg"] == pytest.approx(1.5, abs=1e-6)
+    assert s["yaw_error_max_deg"] == pytest.approx(2.0, abs=1e-6)
+    assert s["yaw_error_growth_max_deg"] == pytest.approx(2.0, abs=1e-6)
+
+
 def test_height_nees_and_containment_follow_the_errors_and_the_variance() -> None:
     """With a 3×3 position covariance the height is judged too: errors 0.1, −0.2, 0.4 m at σ 0.1 m give NEES
     1, 4, 16 (the last outside 3σ); a 2×2 covariance judges no height."""
