@@ -37,6 +37,8 @@ REQUIRED = (
     "pos_error_max_m",
     "pos_error_final_m",
     "yaw_error_max_deg",
+    "yaw_error_start_deg",
+    "yaw_error_growth_max_deg",
     "nees_pos_mean",
     "inside_3sigma_frac",
     "nees_yaw_mean",
