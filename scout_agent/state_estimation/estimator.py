@@ -242,6 +242,9 @@ class StateEstimator:
         self.zaru_updates = 0  # zero-rate updates fused
         self.zaru_refused = 0  # windows refused (feet moved against each other, or the χ² gate)
         self.standstill_s = 0.0  # time stood with standstill updates [s]
+        self.standstills = (
+            0  # standstills begun (each is one draw of the stance's creep: bias_temperature.py)
+        )
         self._inflation = Inflation(
             temp0=math.nan,
             gyro_temp0=math.nan,
@@ -359,6 +362,16 @@ class StateEstimator:
     def bias_heading_rad(self) -> float:
         """∫σ_bz dt since the last zero-rate update: the heading σ the gyro bias may have added [rad]."""
         return self._inflation.bias_heading_rad
+
+    @property
+    def gyro_tempco_sd_z(self) -> float:
+        """σ of the gyro z offset's temperature coefficient as learnt so far (the datasheet's before) [rad/s/K]."""
+        return float(self._tempco_sd[2])
+
+    @property
+    def imu_temp_c(self) -> float:
+        """The IMU thermometer's last reading [°C] (NaN before one)."""
+        return self._inflation.temp_prev
 
     @property
     def walked_m(self) -> float:
@@ -516,6 +529,7 @@ class StateEstimator:
         ss, e = self.config.standstill, self.ekf
         if self._stand_since is None:
             self._stand_since = t
+            self.standstills += 1
         if t - self._stand_since < ss.settle_s:
             return
         self.standstill_s += dt
@@ -556,7 +570,9 @@ class StateEstimator:
                 if self._u_first is None:  # what the g-sensitivity may have moved since the first window
                     self._u_first = u
                 gs2 = self.config.gyro_g_sens_std**2 * float(np.sum((u - self._u_first) ** 2))
-                self.tempco.add(temp, z, np.full(3, var + gs2))
+                # the creep and the g-sensitivity: one draw per standstill, its windows' random intercept
+                own = ss.zaru_var(span, win.turned_rad, creep=False)
+                self.tempco.add(temp, z, np.full(3, own), self.standstills, ss.creep_std_rad_s**2 + gs2)
                 self._tempco_k, self._tempco_sd = self.tempco.slope()
         self._u_zaru = u  # and its g-sensitivity from this attitude
         self._inflation = self._inflation._replace(du2_peak=0.0)

@@ -70,6 +70,15 @@ def start_standstill_s(
 class StandstillConfig:
     enabled: bool = True  # False: never stand on purpose, no standstill updates (the build before)
     start_s: float = 20.0  # stand at power-on: this much of fused windows [s] (start_standstill_s() = 17 s)
+    # and on, up to `start_max_s` [s] from the stop command, while the offset's drift the temperature
+    # coefficient's σ leaves, σ_k̂z·|dT/dt| (the thermometer's rate over the standstill), exceeds
+    # `start_drift_max` [rad/s per s]. The power-on ground is the launch site's level pad, and a creep is one
+    # steady draw per standstill, so the warming board's windows measure k there (bias_temperature.py): on the
+    # 100 m walk of seed 33 (k_z 3.8e-4 rad/s/K, 1.5σ) the offset ran 3.4–4.8e-4 rad/s ahead of the estimate
+    # over the first 190 s, pauses and all, and the heading 2.3° off by 35 m (docs/results.md, "heading5").
+    # 1e-6: under 6e-5 rad/s of unexplained drift per minute walked, a third of a pause's creep. 0: as before
+    start_drift_max: float = 1e-6
+    start_max_s: float = 150.0
     pause_s: float = 6.0  # each pause: this much of fused zero-rate windows [s]
     # pause when ∫σ_bz dt since the last standstill passes this [deg]: 0.3, not 0.5, because each pause's
     # creep (above) is a new error of the bias, and more pauses average it (docs/results.md, "Heading at 100 m")
@@ -100,13 +109,15 @@ class StandstillConfig:
     min_walk_s: float = 10.0  # at least this long between two pauses [s]
     timeout_s: float = 10.0  # give a pause up this long past its length (windows refused: rocking, slips) [s]
 
-    def zaru_var(self, window_s: float, turned_rad: float = 0.0) -> float:
+    def zaru_var(self, window_s: float, turned_rad: float = 0.0, creep: bool = True) -> float:
         """Variance of one window's bias measurement, per axis [(rad/s)²], the trunk having turned by
         `turned_rad` over it; the creep counted `creep_windows` times (one draw shared by the standstill's
-        windows)."""
+        windows). `creep` False: the window's own variance alone (white noise, kinematics), for a fit that
+        models the creep as one draw per standstill (bias_temperature.py)."""
         g = self.gyro_density * self.gyro_density_margin
         kin = 2.0 * self.kin_std_rad**2 + (self.kin_turn_frac * turned_rad) ** 2
-        return g * g / window_s + kin / window_s**2 + max(self.creep_windows, 1) * self.creep_std_rad_s**2
+        own = g * g / window_s + kin / window_s**2
+        return own + max(self.creep_windows, 1) * self.creep_std_rad_s**2 if creep else own
 
 
 class ZeroRateWindow:
@@ -148,6 +159,12 @@ class StandstillState(Protocol):
     @property
     def bias_heading_rad(self) -> float: ...
 
+    @property
+    def gyro_tempco_sd_z(self) -> float: ...
+
+    @property
+    def imu_temp_c(self) -> float: ...
+
 
 class StandstillPlanner:
     """When the robot stands: `hold(t)` True while the pilot should keep it standing (the start-up standstill,
@@ -160,6 +177,7 @@ class StandstillPlanner:
         self._open: tuple[str, float, float, int, float] | None = None  # reason, t0, stood0, zaru0, need
         self._started = False
         self._t_end = -math.inf
+        self._temp0: tuple[float, float] | None = None  # (t, °C) where the power-on standstill began
 
     def hold(self, t: float) -> bool:
         c, e = self.config, self.est
@@ -180,9 +198,18 @@ class StandstillPlanner:
             else:
                 return False
         reason, t0, stood0, zaru0, need = self._open
+        if reason == "start" and (self._temp0 is None or self._temp0[1] != self._temp0[1]):
+            self._temp0 = (t, e.imu_temp_c)  # the thermometer's first reading (none before the first tick)
         stood = e.standstill_s - stood0
         fused_s = (e.zaru_updates - zaru0) * c.window_s  # windows the estimator fused
         if fused_s < need - 1e-9 and t - t0 < need + c.timeout_s:
+            return True
+        if (
+            reason == "start"
+            and c.start_drift_max > 0
+            and t - t0 < c.start_max_s
+            and self.start_drift(t) > c.start_drift_max
+        ):
             return True
         self.stands.append(
             {
@@ -196,6 +223,18 @@ class StandstillPlanner:
         self._open = None
         self._t_end = t
         return False
+
+    def start_drift(self, t: float) -> float:
+        """σ_k̂z·|dT/dt| [rad/s per s]: how fast the offset may move unexplained while the board warms at the
+        thermometer's rate since the power-on standstill began (the temperature coefficient's σ left); 0 when
+        the thermometer reads nothing or no time has passed."""
+        if self._temp0 is None:
+            return 0.0
+        t0, temp0 = self._temp0
+        temp = self.est.imu_temp_c
+        if not (t > t0 and temp == temp and temp0 == temp0):
+            return 0.0
+        return float(self.est.gyro_tempco_sd_z * abs(temp - temp0) / (t - t0))
 
     def summary(self) -> dict:
         """The standstills' count and mission time cost [s] (from the stop command to walking on)."""

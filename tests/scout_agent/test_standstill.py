@@ -159,6 +159,60 @@ def test_the_gyro_tempco_is_learnt_from_windows_at_different_temperatures():
     assert np.all(off.slope()[0] == 0.0) and np.all(off.slope()[1] == 0.0)
 
 
+def _warming_standstills(rng: np.random.Generator, k_true: float, start_windows: int, creep: float):
+    """(temperature, offset, standstill) of each window: a power-on standstill of `start_windows` 3 s
+    windows, then 15 pauses of 2 every 45 s, on a board warming 8 K with τ 600 s; each standstill one creep
+    draw N(0, creep²) shared by its windows, each window the gyro's white noise (1.4e-4 rad/s)."""
+    rows, t = [], 0.0
+    for j, n in enumerate([start_windows] + [2] * 15):
+        c = rng.normal(0.0, creep)
+        for _ in range(n):
+            t += 3.0
+            temp = 20.0 + 8.0 * (1.0 - np.exp(-t / 600.0))
+            rows.append((temp, 2e-4 + k_true * (temp - 20.0) + c + rng.normal(0.0, 1.4e-4), j))
+        t += 45.0
+    return rows
+
+
+def test_the_tempco_fit_takes_each_standstills_creep_as_one_draw_and_learns_the_slope_within_it():
+    """The stance's creep is one draw per standstill (standstill.py). Fitted with a random intercept per
+    standstill, a long power-on standstill on a warming board measures k from the temperature change within
+    it, where the creep cancels: its σ is honest over many walks (normalised error² ≈ 1), and its error smaller
+    than the fit that counts the creep in every window as an independent error (the build before), which is
+    also overconfident: the power-on standstill's windows share one draw it counted forty times (measured:
+    normalised error² 1.0 against 5.6, rms error 2.5e-5 against 3.7e-5 rad/s/K)."""
+    from scout_agent.state_estimation.bias_temperature import GyroTempco
+
+    tco, creep, white = np.radians(0.015), 1.6e-4, 1.4e-4
+    rng = np.random.default_rng(7)
+    z_grouped, z_old, sd_start, err_g, err_o = [], [], [], [], []
+    for _ in range(150):
+        k_true = rng.normal(0.0, tco)
+        rows = _warming_standstills(rng, k_true, start_windows=40, creep=creep)
+        grouped, old = GyroTempco(tco), GyroTempco(tco)
+        for i, (temp, z, j) in enumerate(rows):
+            zz = np.full(3, z)
+            grouped.add(temp, zz, np.full(3, white**2), j, creep**2)
+            old.add(temp, zz, np.full(3, white**2 + 2 * creep**2))
+            if i == 39:  # the power-on standstill alone
+                sd_start.append(grouped.slope()[1][2])
+        (kg, sg), (ko, so) = grouped.slope(), old.slope()
+        z_grouped.append((kg[2] - k_true) / sg[2])
+        z_old.append((ko[2] - k_true) / so[2])
+        err_g.append(kg[2] - k_true)
+        err_o.append(ko[2] - k_true)
+    assert 0.7 < np.mean(np.square(z_grouped)) < 1.4  # honest σ
+    assert np.median(sd_start) < 0.3 * tco  # learnt before the walk: under a third of the datasheet's spread
+    assert np.mean(np.square(z_old)) > 3.0  # the fit before: overconfident
+    assert np.sqrt(np.mean(np.square(err_g))) < 0.8 * np.sqrt(np.mean(np.square(err_o)))
+    # without a group (None) every window is its own draw: the fit before
+    a, b = GyroTempco(tco), GyroTempco(tco)
+    for temp, z, _ in _warming_standstills(rng, 0.5 * tco, 10, creep):
+        a.add(temp, np.full(3, z), np.full(3, white**2 + creep**2))
+        b.add(temp, np.full(3, z), np.full(3, white**2), None, creep**2)
+    assert np.allclose(a.slope()[0], b.slope()[0]) and np.allclose(a.slope()[1], b.slope()[1])
+
+
 def test_a_pauses_windows_share_one_creep_draw_and_their_average_keeps_its_variance():
     # the stance creeps as a whole over a pause (one draw, 1.6e-4 rad/s rms measured per pause on the 100 m
     # field): fusing a pause's windows must not shrink that draw's variance as if each had its own
@@ -220,3 +274,53 @@ def test_a_zero_rate_window_corrects_the_offset_and_leaves_the_heading_as_it_was
         plain.propagate(np.zeros(3), -g, 0.01)
     plain.update(z - plain.bg, H, np.full(3, var))
     assert abs(np.arctan2(plain.R[1, 0], plain.R[0, 0]) - yaw0) > 1e-3
+
+
+class _Board:
+    """A stand-in for the estimator the planner reads (unit test): fused windows every 3 s while held, a
+    thermometer warming at `rate` K/s, the tempco's σ shrinking as 1/√windows from the datasheet's."""
+
+    def __init__(self, rate: float, learns: bool) -> None:
+        self.rate, self.learns = rate, learns
+        self.standstill_s, self.zaru_updates, self.t = 0.0, 0, 0.0
+        self.bias_heading_rad = 0.0
+
+    @property
+    def gyro_tempco_sd_z(self) -> float:
+        sd = np.radians(0.015)
+        return sd / np.sqrt(1.0 + self.zaru_updates) if self.learns else sd
+
+    @property
+    def imu_temp_c(self) -> float:  # no reading before the first tick (the estimator's NaN)
+        return 20.0 + self.rate * self.t if self.t > 0 else float("nan")
+
+    def tick(self, held: bool, dt: float = 0.5) -> None:
+        self.t += dt
+        if held:
+            self.standstill_s += dt
+            self.zaru_updates = int(self.standstill_s // 3.0)
+
+
+def _start_length(board: _Board, config: StandstillConfig) -> float:
+    from scout_agent.state_estimation.standstill import StandstillPlanner
+
+    planner = StandstillPlanner(board, config)
+    while planner.hold(board.t):
+        board.tick(True)
+        assert board.t < 1000.0
+    return planner.stands[0]["s"]
+
+
+def test_the_power_on_standstill_stands_on_while_the_warming_boards_tempco_is_unknown():
+    """On a board warming 0.013 K/s (8 K, τ 600 s) the power-on standstill lasts until σ_k̂z·dT/dt is under
+    `start_drift_max`, and no longer; a board that does not warm, or the option off, stands `start_s`; a
+    tempco that is never learnt stands `start_max_s`."""
+    c = StandstillConfig()
+    warming = _start_length(_Board(8.0 / 600.0, learns=True), c)
+    # σ_k/√(1+n)·0.0133 ≤ 1e-6 → n ≥ 11.0 windows: 36 s (the windows fuse every 3 s)
+    assert 33.0 <= warming <= 40.0
+    assert _start_length(_Board(0.0, learns=True), c) == pytest.approx(c.start_s, abs=1.5)
+    assert _start_length(_Board(8.0 / 600.0, learns=True), replace(c, start_drift_max=0.0)) == pytest.approx(
+        c.start_s, abs=1.5
+    )
+    assert _start_length(_Board(8.0 / 600.0, learns=False), c) == pytest.approx(c.start_max_s, abs=1.5)
