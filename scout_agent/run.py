@@ -315,7 +315,10 @@ def run_scout(
     if cfg.localize == "on" and scout.config.state_source == "estimate":
         if dem is not None or map_source is not None:
             localizer = Localizer(robot.estimator, cfg.localizer, dem=dem, map_source=map_source)
-    limit = cfg.sim_seconds or 2.0 * path_length(world.waypoints) / max(cfg.speed, 0.05) + 10.0
+    # the walking-time limit: twice the route at the commanded speed, and the power-on standstill's planned
+    # extension (standstill.py: up to `start_max_s` while the board's tempco is unknown) beside it
+    extra = planner.start_extension_s if planner is not None else 0.0
+    limit = cfg.sim_seconds or 2.0 * path_length(world.waypoints) / max(cfg.speed, 0.05) + 10.0 + extra
     n_ticks = int(np.ceil(limit / scout.control_dt))
     bar = None
     if progress and sys.stderr.isatty():

@@ -224,6 +224,12 @@ class StandstillPlanner:
         self._t_end = t
         return False
 
+    @property
+    def start_extension_s(self) -> float:
+        """The most the power-on standstill may stand beyond `start_s` [s] (a walk's time limit allows it)."""
+        c = self.config
+        return max(c.start_max_s - c.start_s, 0.0) if c.enabled and c.start_drift_max > 0 else 0.0
+
     def start_drift(self, t: float) -> float:
         """σ_k̂z·|dT/dt| [rad/s per s]: how fast the offset may move unexplained while the board warms at the
         thermometer's rate since the power-on standstill began (the temperature coefficient's σ left); 0 when

@@ -324,3 +324,8 @@ def test_the_power_on_standstill_stands_on_while_the_warming_boards_tempco_is_un
         c.start_s, abs=1.5
     )
     assert _start_length(_Board(8.0 / 600.0, learns=False), c) == pytest.approx(c.start_max_s, abs=1.5)
+    # a walk's time limit allows the extension (run.py), and none when it is off
+    from scout_agent.state_estimation.standstill import StandstillPlanner
+
+    assert StandstillPlanner(_Board(0.0, True), c).start_extension_s == c.start_max_s - c.start_s
+    assert StandstillPlanner(_Board(0.0, True), replace(c, start_drift_max=0.0)).start_extension_s == 0.0
