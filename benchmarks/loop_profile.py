@@ -48,6 +48,7 @@ PARTS = (  # (module, attribute path, part)
         "estimators: pipeline (CoT, margins, forces)",
     ),
     ("scout_agent.estimators.slip", "SlipDetector.update", "estimators: slip detector"),
+    ("scout_agent.estimators.nonfoot", "UnexplainedForce.update", "estimators: non-foot force (dynamics)"),
     ("scout_agent.localization.localizer", "Localizer.on_tick", "localizer bookkeeping"),
     ("scout_agent.run", "run_scout", "run loop (truth bookkeeping)"),
 )

@@ -141,10 +141,15 @@ def _world_feet_and_forces(
     tau: np.ndarray,
     tau_gravity: np.ndarray,
     contact: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray]:
+    q: np.ndarray,
+    q_lo: np.ndarray,
+    q_hi: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, bool]:
     """The feet (4, 3) in the world (R·f + p) and their ground forces from the joint torques (4, 3), world,
     zeroed off `contact` (`leg_forces_from_torques` rotated by R): numpy's figures (the same BLAS products),
-    in one compiled call a tick."""
+    in one compiled call a tick; and whether a leg in contact has a joint within the margin of its range's end
+    (`q` outside [`q_lo`, `q_hi`]: its motor's torque then does not give its foot's force, the limit bears the
+    rest, and the non-foot force is not known)."""
     Rt = np.ascontiguousarray(rot.T)
     fw = np.dot(feet_b, Rt)
     for i in range(4):
@@ -155,7 +160,11 @@ def _world_feet_and_forces(
         if not contact[i]:
             for j in range(3):
                 f[i, j] = 0.0
-    return fw, f
+    at_limit = False
+    for j in range(12):
+        if (q[j] < q_lo[j] or q[j] > q_hi[j]) and contact[j // 3]:
+            at_limit = True
+    return fw, f, at_limit
 
 
 _ZERO12 = np.zeros(12)  # joint gravity torques: the legs below the joints weigh ≈ 0.2 N at a foot at lunar g
@@ -227,10 +236,12 @@ class EstimatorPipeline:
         # foot sphere centres (4, 3), world [m]; ground forces on the feet from their joint torques (4, 3),
         # world [N], zero off contact
         jac = self._jacobians(s.q)
-        fw, f_w = _world_feet_and_forces(feet_b, rot, s.base.pos, jac, s.tau, _ZERO12, s.contact)
-        resid = self._unexplained.update(s, rot, jac)  # None: nothing new to difference (lost packet)
-        if _leg_at_limit(s.q, self._q_lo, self._q_hi, s.contact):
+        fw, f_w, at_limit = _world_feet_and_forces(
+            feet_b, rot, s.base.pos, jac, s.tau, _ZERO12, s.contact, s.q, self._q_lo, self._q_hi
+        )
+        if at_limit:
             self._t_limit = s.t
+        resid = self._unexplained.update(s, rot, jac)  # None: nothing new to difference (lost packet)
         r, m = c.foot_radius_m, c.mass_kg
 
         # footholds: slip layer n at touchdown, events at the same foothold, elevation at the end of the stance
@@ -359,16 +370,6 @@ class EstimatorPipeline:
             np.array(stances) if stances else _EMPTY2,
             np.array(slips) if slips else _EMPTY2,
         )
-
-
-@njit(cache=True, nogil=True)
-def _leg_at_limit(q: np.ndarray, q_lo: np.ndarray, q_hi: np.ndarray, contact: np.ndarray) -> bool:
-    """A leg in contact has a joint within the margin of its range's end: its motor's torque then does not give
-    its foot's force (the limit bears the rest), and the non-foot force is not known."""
-    for j in range(12):
-        if (q[j] < q_lo[j] or q[j] > q_hi[j]) and contact[j // 3]:
-            return True
-    return False
 
 
 @njit(cache=True, nogil=True)
