@@ -180,7 +180,42 @@ class HeadingBudget:
             "at_end": at(len(r) - 1),
             "standstills_bz_error_1e-4_rad_s": stands,
             "pose_fixes": fixes,
+            "turns": self.turns(cum["scale"], err),
         }
+
+    def turns(
+        self, scale_cum: np.ndarray, err: np.ndarray, rate_min: float = 0.1, net_min_deg: float = 20.0
+    ) -> list[dict]:
+        """The walk's turns: runs of ticks whose true heading rate exceeds `rate_min` [rad/s] (runs less than 1 s
+        apart joined), kept when they turned at least `net_min_deg` net; each with its net turn, the heading the
+        gyro's scale and cross-axis error added over it, and the heading error's change across it [°]."""
+        r = self.rows
+        if len(r) < 3:
+            return []
+        t = np.array([row["t"] for row in r])
+        yaw = np.unwrap(np.array([row["yaw_true"] for row in r]))
+        edges = np.diff(np.r_[0, (np.abs(np.gradient(yaw, t)) > rate_min).astype(int), 0])
+        runs: list[list[int]] = []
+        for i, j in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1) - 1, strict=True):
+            if runs and t[i] - t[runs[-1][1]] < 1.0:
+                runs[-1][1] = int(j)
+            else:
+                runs.append([int(i), int(j)])
+        out = []
+        for i0, j0 in runs:  # from the tick before the run to the tick after it
+            i, j = max(i0 - 1, 0), min(j0 + 1, len(r) - 1)
+            net = math.degrees(yaw[j] - yaw[i])
+            if abs(net) >= net_min_deg:
+                out.append(
+                    {
+                        "t_s": round(float(t[i]), 1),
+                        "s": round(float(t[j] - t[i]), 1),
+                        "net_turn_deg": round(net, 1),
+                        "scale_added_deg": round(math.degrees(scale_cum[j] - scale_cum[i]), 3),
+                        "error_change_deg": round(math.degrees(err[j] - err[i]), 3),
+                    }
+                )
+        return out
 
 
 def main(argv: list[str]) -> int:
@@ -207,7 +242,8 @@ def main(argv: list[str]) -> int:
     run_mod.SimulatedScout = Hooked  # type: ignore[misc]
     evaluate_mod.Evaluator = Logged  # type: ignore[misc]
     res = evaluate_mod.evaluate_run(cfg, args.res, progress=False)
-    keys = ("fell", "reached_goal", "gave_up", "distance_m", "sim_seconds", "yaw_error_max_deg", "nees_yaw_mean",
+    keys = ("fell", "reached_goal", "gave_up", "distance_m", "sim_seconds", "yaw_error_max_deg", "yaw_error_start_deg",
+            "yaw_error_growth_max_deg", "pos_error_final_m", "nees_yaw_mean",
             "yaw_inside_3sigma_frac", "pos_error_max_m", "inside_3sigma_frac", "standstills", "launch")  # fmt: skip
     est = budget.scout.robot.estimator if budget.scout is not None else None
     out = {k: res.get(k) for k in keys} | budget.report()
