@@ -53,7 +53,7 @@ class CotMeter:
         dt = 0.0 if self._t_prev is None else t - self._t_prev
         self._t_prev = t
         e = energy_j if dt > 0 else 0.0
-        vx, vy = base_vel_world[0], base_vel_world[1]
+        vx, vy, _ = base_vel_world.tolist()  # Python floats: numpy scalars' arithmetic costs ~10× more
         d = math.sqrt(vx * vx + vy * vy) * dt
         self.energy_j += e
         self.dist_m += d

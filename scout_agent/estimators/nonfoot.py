@@ -37,7 +37,7 @@ from scout_agent.robot.kinematics import LegKinematics
 from scout_agent.robot.statics import solve_transposed
 from scout_agent.signals import ProprioSample
 
-__all__ = ["UnexplainedForce"]
+__all__ = ["UnexplainedForce", "unexplained_tick"]
 
 
 class UnexplainedForce:
@@ -54,14 +54,28 @@ class UnexplainedForce:
         self._t_prev = math.nan
         self.force_w = np.zeros(3)  # the last result [N], world frame
 
-    def update(self, s: ProprioSample, rot: np.ndarray, jacobians: np.ndarray) -> np.ndarray | None:
+    def interval(self, s: ProprioSample) -> float:
+        """The time since the last fresh reading [s], this one now the last: NaN on the first, −1 for a lost
+        packet (nothing new: the state stays)."""
         if not s.fresh:
-            return None
+            return -1.0
         t_prev, self._t_prev = self._t_prev, s.t
-        dt = s.t - t_prev  # NaN on the first reading
-        done = _unexplained_tick(
-            self._params,
-            self._damping,
+        return s.t - t_prev
+
+    @property
+    def state(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """`unexplained_tick`'s model and state arrays (updated in place): parameters, damping, the last fresh
+        rates, contacts, the result."""
+        return self._params, self._damping, self._prev, self._contact_prev, self.force_w
+
+    def update(self, s: ProprioSample, rot: np.ndarray, jacobians: np.ndarray) -> np.ndarray | None:
+        dt = self.interval(s)
+        if dt == -1.0:
+            return None
+        params, damping, prev, contact_prev, force_w = self.state
+        done = unexplained_tick(
+            params,
+            damping,
             s.q,
             s.dq,
             s.base.omega,
@@ -71,15 +85,15 @@ class UnexplainedForce:
             s.contact,
             rot,
             dt,
-            self._prev,
-            self._contact_prev,
-            self.force_w,
+            prev,
+            contact_prev,
+            force_w,
         )
-        return self.force_w if done else None
+        return force_w if done else None
 
 
 @njit(cache=True, nogil=True)
-def _unexplained_tick(
+def unexplained_tick(
     params: np.ndarray,
     damping: np.ndarray,
     q: np.ndarray,

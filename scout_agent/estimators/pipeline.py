@@ -40,12 +40,13 @@ from numba import njit
 from scout_agent.errors import ScoutConfigError
 from scout_agent.robot import constants as C
 from scout_agent.robot import kinematics as K
+from scout_agent.robot.kinematics import leg_motion
 from scout_agent.robot.statics import leg_forces_from_torques
 from scout_agent.signals import ProprioSample
 
 from .cot import CotConfig, CotMeter
 from .elevation import terrain_normal
-from .nonfoot import UnexplainedForce
+from .nonfoot import UnexplainedForce, unexplained_tick
 from .slip import SlipConfig, SlipDetector, SlipTick
 from .stability import _EPS_N, _face_margins, margins_fast, order_ccw_xy
 
@@ -133,38 +134,19 @@ def _quat_to_matrix(q: np.ndarray) -> np.ndarray:
 
 
 @njit(cache=True, nogil=True)
-def _world_feet_and_forces(
-    feet_b: np.ndarray,
-    rot: np.ndarray,
-    pos: np.ndarray,
-    jacobians: np.ndarray,
-    tau: np.ndarray,
-    tau_gravity: np.ndarray,
-    contact: np.ndarray,
+def _legs_and_rotation(
     q: np.ndarray,
-    q_lo: np.ndarray,
-    q_hi: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray, bool]:
-    """The feet (4, 3) in the world (R·f + p) and their ground forces from the joint torques (4, 3), world,
-    zeroed off `contact` (`leg_forces_from_torques` rotated by R): numpy's figures (the same BLAS products),
-    in one compiled call a tick; and whether a leg in contact has a joint within the margin of its range's end
-    (`q` outside [`q_lo`, `q_hi`]: its motor's torque then does not give its foot's force, the limit bears the
-    rest, and the non-foot force is not known)."""
-    Rt = np.ascontiguousarray(rot.T)
-    fw = np.dot(feet_b, Rt)
-    for i in range(4):
-        for j in range(3):
-            fw[i, j] += pos[j]
-    f = np.dot(leg_forces_from_torques(jacobians, tau, tau_gravity), Rt)
-    for i in range(4):
-        if not contact[i]:
-            for j in range(3):
-                f[i, j] = 0.0
-    at_limit = False
-    for j in range(12):
-        if (q[j] < q_lo[j] or q[j] > q_hi[j]) and contact[j // 3]:
-            at_limit = True
-    return fw, f, at_limit
+    dq: np.ndarray,
+    quat: np.ndarray,
+    feet: np.ndarray,
+    vel: np.ndarray,
+    omega: np.ndarray,
+    J: np.ndarray,
+) -> np.ndarray:
+    """`PinocchioFeet.feet_base_and_vel` into its buffers (`kinematics.leg_motion`) and world_R_base from
+    `quat`, in one compiled call a tick."""
+    leg_motion(q, dq, feet, vel, omega, J)
+    return _quat_to_matrix(quat)
 
 
 _ZERO12 = np.zeros(12)  # joint gravity torques: the legs below the joints weigh ≈ 0.2 N at a foot at lunar g
@@ -199,13 +181,15 @@ class EstimatorPipeline:
         self._t_prev: float | None = None
         self._t0: float | None = None
         self._combined = getattr(kinematics, "feet_base_and_vel", None)
+        buffers = getattr(kinematics, "buffers", None)  # a `PinocchioFeet`: its closed form, compiled here
+        self._buffers = buffers() if buffers is not None else None
+        self._foot_omega = getattr(kinematics, "foot_omega", None)
         lo, hi = np.array(C.JOINT_RANGES, dtype=float).T
         self._q_lo = np.tile(lo + c.nonfoot_limit_margin_rad, 4)  # (12,) joints nearer their end than this:
         self._q_hi = np.tile(hi - c.nonfoot_limit_margin_rad, 4)  # at the limit
         self._t_limit = -math.inf  # a leg in contact was at a joint limit then [s]
         model = getattr(kinematics, "model", None)
         self._unexplained = UnexplainedForce(model if isinstance(model, pin.Model) else None)
-        self._resid = np.zeros(3)  # this tick's unexplained force, world [N] (zeros: none computed)
 
     def _jacobians(self, q: np.ndarray) -> np.ndarray:
         """The legs' Jacobians at `q`: from this tick's kinematics pass when it computed them, else anew."""
@@ -218,12 +202,17 @@ class EstimatorPipeline:
         self._t_prev = s.t
         if self._t0 is None:
             self._t0 = s.t
-        if self._combined is not None:
-            feet_b, vel_b = self._combined(s.q, s.dq)
+        if self._buffers is not None:  # the legs' closed form and the trunk's rotation in one compiled call
+            feet_b, vel_b, f_om, jac = self._buffers
+            rot = _legs_and_rotation(s.q, s.dq, s.base.quat, feet_b, vel_b, f_om, jac)
         else:
-            feet_b, vel_b = self.kin.feet_base(s.q), self.kin.feet_vel_base(s.q, s.dq)
-        rot = quat_to_matrix(s.base.quat)
-        f_om = getattr(self.kin, "foot_omega", None)
+            if self._combined is not None:
+                feet_b, vel_b = self._combined(s.q, s.dq)
+            else:
+                feet_b, vel_b = self.kin.feet_base(s.q), self.kin.feet_vel_base(s.q, s.dq)
+            rot = quat_to_matrix(s.base.quat)
+            f_om = self._foot_omega
+            jac = self._jacobians(s.q)
         st = self.slip.update(
             s.t, s.stance_planned, s.contact, feet_b, vel_b, rot, s.base.vel, s.base.omega, f_om
         )
@@ -235,13 +224,32 @@ class EstimatorPipeline:
 
         # foot sphere centres (4, 3), world [m]; ground forces on the feet from their joint torques (4, 3),
         # world [N], zero off contact
-        jac = self._jacobians(s.q)
-        fw, f_w, at_limit = _world_feet_and_forces(
-            feet_b, rot, s.base.pos, jac, s.tau, _ZERO12, s.contact, s.q, self._q_lo, self._q_hi
+        # and the force the feet do not explain (`nonfoot`), in one compiled call
+        uf = self._unexplained
+        params, damping, prev, contact_prev, resid = uf.state
+        fw, f_w, at_limit, fresh = _legs_tick(
+            feet_b,
+            rot,
+            s.base.pos,
+            jac,
+            s.tau,
+            _ZERO12,
+            s.contact,
+            s.q,
+            self._q_lo,
+            self._q_hi,
+            params,
+            damping,
+            s.dq,
+            s.base.omega,
+            s.imu_acc,
+            uf.interval(s),
+            prev,
+            contact_prev,
+            resid,
         )
         if at_limit:
             self._t_limit = s.t
-        resid = self._unexplained.update(s, rot, jac)  # None: nothing new to difference (lost packet)
         r, m = c.foot_radius_m, c.mass_kg
 
         # footholds: slip layer n at touchdown, events at the same foothold, elevation at the end of the stance
@@ -258,8 +266,8 @@ class EstimatorPipeline:
         # The support points are the ground points (sphere centres − r·n̂); shifting the CoM by +r·n̂ instead
         # is the same geometry and copies nothing.
         alpha = dt / (c.nonfoot_tau_s + dt) if dt > 0 else 1.0
-        if resid is None:
-            alpha, resid = 0.0, self._resid  # the low-pass holds
+        if not fresh:
+            alpha = 0.0  # nothing new to difference (the first tick, a lost packet): the low-pass holds
         core = self._core
         self._reorder = _tick_core(
             fw,
@@ -370,6 +378,70 @@ class EstimatorPipeline:
             np.array(stances) if stances else _EMPTY2,
             np.array(slips) if slips else _EMPTY2,
         )
+
+
+@njit(cache=True, nogil=True)
+def _legs_tick(
+    feet_b: np.ndarray,
+    rot: np.ndarray,
+    pos: np.ndarray,
+    jacobians: np.ndarray,
+    tau: np.ndarray,
+    tau_gravity: np.ndarray,
+    contact: np.ndarray,
+    q: np.ndarray,
+    q_lo: np.ndarray,
+    q_hi: np.ndarray,
+    params: np.ndarray,
+    damping: np.ndarray,
+    dq: np.ndarray,
+    omega: np.ndarray,
+    f_imu: np.ndarray,
+    dt_fresh: float,
+    prev: np.ndarray,
+    contact_prev: np.ndarray,
+    resid: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, bool, bool]:
+    """The feet (4, 3) in the world (R·f + p) and their ground forces from the joint torques (4, 3), world,
+    zeroed off `contact` (`leg_forces_from_torques` rotated by R: numpy's figures, the same BLAS products);
+    whether a leg in contact has a joint within the margin of its range's end (`q` outside [`q_lo`, `q_hi`]:
+    its motor's torque then does not give its foot's force, the limit bears the rest, and the non-foot force is
+    not known); and the force the feet do not explain into `resid` (`nonfoot.unexplained_tick` on its state
+    arrays; `dt_fresh` −1: a lost packet, nothing new) — one compiled call a tick. Returns the world feet, their
+    forces, the joint-limit flag, and whether `resid` is new."""
+    Rt = np.ascontiguousarray(rot.T)
+    fw = np.dot(feet_b, Rt)
+    for i in range(4):
+        for j in range(3):
+            fw[i, j] += pos[j]
+    f = np.dot(leg_forces_from_torques(jacobians, tau, tau_gravity), Rt)
+    for i in range(4):
+        if not contact[i]:
+            for j in range(3):
+                f[i, j] = 0.0
+    at_limit = False
+    for j in range(12):
+        if (q[j] < q_lo[j] or q[j] > q_hi[j]) and contact[j // 3]:
+            at_limit = True
+    fresh = False
+    if dt_fresh != -1.0:
+        fresh = unexplained_tick(
+            params,
+            damping,
+            q,
+            dq,
+            omega,
+            f_imu,
+            tau,
+            jacobians,
+            contact,
+            rot,
+            dt_fresh,
+            prev,
+            contact_prev,
+            resid,
+        )
+    return fw, f, at_limit, fresh
 
 
 @njit(cache=True, nogil=True)
