@@ -84,10 +84,11 @@ can do, from what the robot knows:
   rolling, compliance, link lengths): the horizontal position variance grows along the velocity by
   2 k² d·|v| dt, so σ = k·d with k = `odometry_scale_std` (measured since the gyro timing, realistic sensors
   from the exact start: +0.3 % on the ramps, +0.3–1.2 % on the 20 m lunar routes' rougher ground). Its mean
-  part, and the legs' crab (their velocity turned ≈ 0.35° left of what they measure, the same on every 100 m
-  walk measured), is calibrated (`odometry_calibration`, taken off in the odometry update); k is then the
-  spread the calibration leaves, and `odometry_crab_std` the crab's, across the velocity (it was 1 % along
-  and nothing across: three times the along-track error of the 100 m walks, none of their sideways 0.5 %);
+  part is calibrated (`odometry_calibration`, taken off in the odometry update), and k is the spread the
+  calibration leaves (0.4 %); the legs' crab (their velocity turned 0.3–0.46° from the true motion, its sign
+  the route's: not calibrated) grows the variance across the velocity the same way, k = `odometry_crab_std`
+  (0.6 %). It was 1 % along and nothing across: three times the along-track error of the 100 m walks, none of
+  their sideways 0.5–0.8 %;
 - the gyro's scale and cross-axis error turn heading by a constant fraction of the net turn: the heading variance
   is raised to k²·max|ψ − ψ_ref|² with k = `gyro_scale_std` (1.4 %, BMI088 ±1 % each), the reference restarting
   when a measurement halved the heading variance (a pose fix); it is added about world z (`ErrorStateEKF.add_heading_variance`);
@@ -140,17 +141,19 @@ class EstimatorConfig:
     acc_tempco_std: float = 0.2e-3 * 9.80665  # [m/s²/K]
     gyro_scale_std: float = 0.014  # heading error per radian of net turn: scale ⊕ cross-axis (1 % each)
     gyro_g_sens_std: float = float(np.radians(0.1) / 9.80665)  # BMI088 0.1 °/s/g per element [rad/s per m/s²]
-    # the legs' along-track excess (share of the distance) and crab angle [rad] on level lunar ground, calibrated
-    # the way a team calibrates odometry before a mission: walks of a surveyed course against its truth
-    # (benchmarks/dem_place_replay.py `split` on two 100 m-field routes that no test or goal walk uses: seed 41
-    # west, seed 43 east; docs/results.md, "Honest odometry terms"); the odometry's horizontal velocity is
-    # scaled by 1 − excess and turned by the crab (leg_odometry.odometry_rows). (0, 0): as before
-    odometry_calibration: tuple[float, float] = (0.0, 0.0)
-    # what is left of the legs' along-track error per metre walked after that calibration (the spread of the
-    # excess between walks and grounds), and its sideways counterpart (the crab's spread) [m/m]; the along-track
-    # σ was 1 % (the literature's 1–2 % class), three times the error it was meant to bound on the 100 m walks
-    odometry_scale_std: float = 0.01  # leg odometry's along-track error per metre walked (1–2 % class)
-    odometry_crab_std: float = 0.0
+    # the legs' along-track excess (share of the distance) and crab angle [rad], calibrated the way a team
+    # calibrates odometry before a mission: walks of a surveyed course against its truth (benchmarks/
+    # dem_place_replay.py `split` on two 100 m-field routes no goal walk uses: seed 41 west −0.01 %, seed 43 east
+    # +0.51 %; docs/results.md, "Honest odometry terms"); the odometry's horizontal velocity is scaled by
+    # 1 − excess and turned by the crab (leg_odometry.odometry_rows). The crab is not calibrated: +0.30…+0.45° on
+    # the direct and west routes, −0.46° on the east one (the ground's, not the robot's)
+    odometry_calibration: tuple[float, float] = (0.0025, 0.0)
+    # what is left of the legs' along-track error per metre walked after that calibration (the excess measured
+    # −0.01…+0.51 % on six 100 m walks: RMS 0.2 % about the calibration), and sideways (the crab, RMS 0.39° =
+    # 0.68 %) [m/m]. The along-track σ was 1 % (the literature's 1–2 % class), three times the error on the 100 m
+    # walks, and nothing stood for the crab
+    odometry_scale_std: float = 0.004
+    odometry_crab_std: float = 0.006
     # how much older the tick's IMU reading is than its encoder angles [s] ("Timing" in the module docstring):
     # the driver reports the mean of the tick's 5 IMU samples (10 ms), each latched one servo step (2 ms) after
     # it was sensed, against the encoders' last sample: (5 + 1) / 2 × 2 ms. 0: the gyro as read
