@@ -117,3 +117,16 @@ def test_split_finds_a_known_excess_and_crab_and_the_heading_share(tmp_path) -> 
     legs_m = math.hypot(excess * 140.0, crab * 140.0)
     assert out["perfect_heading_error_max_m"] == pytest.approx(legs_m, rel=0.1)
     assert out["pos_error_max_m"] > 1.5 * legs_m
+
+
+def test_the_replays_along_track_term_is_k_squared_d_squared_along_the_walk() -> None:
+    """`replay --along-k` rebuilds the filter's along-track term from the recorded poses: on a straight walk at
+    37° its variance is d² along the walk (k = 1) and nothing across, so a recorded covariance can be re-weighed."""
+    import benchmarks.dem_place_replay as replay
+
+    h = math.radians(37.0)
+    u, n = np.array([math.cos(h), math.sin(h)]), np.array([-math.sin(h), math.cos(h)])
+    w = np.linspace(0.0, 50.0, 251)
+    Q = replay._along_term(w[:, None] * u, w)
+    assert u @ Q[-1, :2, :2] @ u == pytest.approx(50.0**2, rel=0.01)
+    assert abs(n @ Q[-1, :2, :2] @ n) < 1e-9 and np.all(Q[:, 2, :] == 0.0)
