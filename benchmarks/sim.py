@@ -19,7 +19,9 @@ scout_loop_real_time_factor / raw_real_time_factor (`ratio_cpu` the same on CPU 
 Measured (docs/results.md, "Scout loop speed"): `--repeats 5` ratio 0.293 (CPU 0.283) with the estimators
 (seventh pass, median of six runs alternated with the tree before it, 0.261 / 0.254, at load 8.6–10 on the
 shared 2-core machine; the sixth pass's 0.270 / 0.266 was at load 1.5–2.4; the issue's goal is 0.25); 0.260 with
-`--no-estimators` (second pass, load ≈ 4.7). CPU time includes the walk's set-up (≈ 20 ms: the orbital DEM
+`--no-estimators` (second pass, load ≈ 4.7); eighth pass (the non-foot detector's dynamics, fused): 0.265 / 0.257
+at load 8–13 and 0.275 / 0.271 at load 6–8, the session's start 0.267 / 0.260 and 0.275 / 0.273 in the same
+minutes. CPU time includes the walk's set-up (≈ 20 ms: the orbital DEM
 written and read back, the scene built).
 """
 
