@@ -32,6 +32,7 @@ from scout_agent.signals import ProprioSample
 from scout_agent.state_estimation import StateEstimator
 from scout_agent.state_estimation.pose_update import heading, heading_row, update_pose
 
+from .fleet_ties import FleetTieConfig, fleet_ties
 from .height_track import HeightTrack, HeightTrackConfig
 from .matcher import HeightFix, MatchConfig, MatchResult, match_height, match_track
 from .reference import DemReference, GridReference, HeightReference
@@ -101,6 +102,10 @@ class LocalizerConfig:
     # set to that estimate (it holds all the DEM said so far, and the shared map's height fixes). None: the
     # height alone from the last `track_m` where the place is not found (`match_height`), as before
     height_track: HeightTrackConfig | None = field(default_factory=HeightTrackConfig)
+    # with a DEM's whole-walk fit and the shared map: before each whole-walk fit (and at the walk's end), the
+    # other scouts' cells under the stretch the scout still holds, as measurements of its datum there
+    # (fleet_ties.py); None: off
+    fleet_tie: FleetTieConfig | None = field(default_factory=FleetTieConfig)
     yaw_steps: int = 3  # yaw candidates each side of the estimate's heading
     # the orbital DEM's place and heading fix (`trail.match_trail`): the footholds walked since the last fused
     # fix, read against the DEM with the last `dem_trail_m` of trail fixing the datum line, the filter's own
@@ -160,6 +165,7 @@ class LocalizerReport:
     height_corrections_m: list[float] = field(default_factory=list)  # each fused height-only correction [m]
     heading_corrections_deg: list[float] = field(default_factory=list)  # each fused fix's heading change [°]
     drift_rate_m_per_m: float = 0.0  # the height drift per metre walked learnt and taken off (Localizer)
+    fleet_ties: int = 0  # pieces of the held walk tied to the other scouts' cells (fleet_ties.py)
 
     @staticmethod
     def _largest(values: list[float]) -> float | None:
@@ -188,6 +194,7 @@ class LocalizerReport:
             "height_correction_max_m": self._largest(self.height_corrections_m),
             "heading_correction_max_deg": self._largest(self.heading_corrections_deg),
             "drift_rate_m_per_m": round(self.drift_rate_m_per_m, 5),
+            "fleet_ties": self.fleet_ties,
         }
 
 
@@ -274,6 +281,7 @@ class Localizer:
             if config.height_track is not None and isinstance(dem, DemReference)
             else None
         )
+        self._tied: set[int] = set()  # pieces of walk (fleet_ties.py) whose datum the shared map measured
 
     def on_tick(self, sample: ProprioSample) -> None:
         c = self.config
@@ -303,10 +311,40 @@ class Localizer:
     def finish(self, min_track_m: float = 15.0, min_m: float = 5.0) -> None:
         """At the walk's end: one more attempt per source, over at least `min_track_m` of track, if `min_m`
         or more was walked since its last attempt, so the last stretch's footholds, held for the next fix, do
-        not leave uncorrected (and a walk shorter than the first match's track gets one fix at all)."""
+        not leave uncorrected (and a walk shorter than the first match's track gets one fix at all). The other
+        scouts' cells under the stretch still held join the DEM's whole-walk fit first (`_tie_to_fleet`); if
+        they added a tie and no DEM attempt is due, the whole-walk height is fitted again with them."""
+        tied = self._tie_to_fleet()
         for name in self.report.sources:
             if self.walked_m >= min_track_m and self.walked_m - self._tried[name] >= min_m:
                 self.localize(name)
+                tied = tied if name != "dem" else 0
+        if tied and self.heights is not None and isinstance(self.dem, DemReference):
+            self._fuse_walk_height(self.config.dem)
+
+    def _tie_to_fleet(self) -> int:
+        """The other scouts' cells under the pieces of walk still held and not yet tied (`fleet_ties`), each
+        a point measurement of the datum for the DEM's whole-walk fit (`HeightTrack.add_point`); how many."""
+        c = self.config.fleet_tie
+        if c is None or self.heights is None or self.map_source is None:
+            return 0
+        length = min(c.span_m, self.track.keep_m)
+        pts = self.track.window(length, self.walked_m)
+        walked = self.track.walked(length, self.walked_m)
+        ties = fleet_ties(pts, walked, self.walked_m, self.map_source, _sigma_xy(self.est.ekf.P), c,
+                          self.config.map.match, skip=self._tied.__contains__)  # fmt: skip
+        for tie in ties:
+            self.heights.add_point(tie.walked_m, tie.dz_m, tie.var_m2 + self.config.map.datum_m**2)
+            self._tied.add(tie.piece)
+        self.report.fleet_ties += len(ties)
+        return len(ties)
+
+    def _mark_tied(self, track_m: float) -> None:
+        """The pieces of the last `track_m` walked (a map fix just measured their datum) need no fleet tie."""
+        c = self.config.fleet_tie
+        if c is not None:
+            lo = int(np.floor(max(self.walked_m - track_m, 0.0) / c.piece_m))
+            self._tied.update(range(lo, int(np.floor(self.walked_m / c.piece_m)) + 1))
 
     def _learn_drift_rate(self, fix: HeightFix, share: float) -> None:
         """The track's slope of reference minus footholds per metre walked (`HeightFix.rate_data`) is the drift
@@ -384,6 +422,7 @@ class Localizer:
                 if up.accepted:
                     if name == "map" and self.heights is not None:  # the DEM's next fix keeps this datum
                         self.heights.add_point(self.walked_m, res.dz, float(cov[2, 2]))
+                        self._mark_tied(src.track_m)
                     self._shift(before, float(up.correction[3]))
                     self.report.fused[name] += 1
                     self.report.corrections_m.append(float(np.hypot(*up.correction[:2])))
@@ -495,6 +534,8 @@ class Localizer:
         if up.accepted:
             if self.heights is not None:  # the DEM's next fix keeps what this one said
                 self.heights.add_point(self.walked_m, fix.dz, var)
+                if name == "map":
+                    self._mark_tied(src.track_m)
             self._shift(before, float(up.correction[3]))
             self.report.fused[f"{name}_height"] += 1
             self._height_at[name] = self.walked_m
