@@ -340,11 +340,14 @@ class Localizer:
         return len(ties)
 
     def _mark_tied(self, track_m: float) -> None:
-        """The pieces of the last `track_m` walked (a map fix just measured their datum) need no fleet tie."""
+        """The pieces at least half inside the last `track_m` walked (a map fix just measured their datum from
+        the same cells) need no fleet tie."""
         c = self.config.fleet_tie
         if c is not None:
-            lo = int(np.floor(max(self.walked_m - track_m, 0.0) / c.piece_m))
-            self._tied.update(range(lo, int(np.floor(self.walked_m / c.piece_m)) + 1))
+            a, b = max(self.walked_m - track_m, 0.0), self.walked_m
+            for k in range(int(np.floor(a / c.piece_m)), int(np.floor(b / c.piece_m)) + 1):
+                if min(b, (k + 1) * c.piece_m) - max(a, k * c.piece_m) >= 0.5 * c.piece_m:
+                    self._tied.add(k)
 
     def _learn_drift_rate(self, fix: HeightFix, share: float) -> None:
         """The track's slope of reference minus footholds per metre walked (`HeightFix.rate_data`) is the drift
@@ -386,6 +389,7 @@ class Localizer:
         elif isinstance(ref, DemReference):  # place and heading (trail.py), then the height
             self._dem_fix(ref)
             if batch:
+                self._tie_to_fleet()
                 self._fuse_walk_height(src)
             elif src.height_fix and self.walked_m - self._height_at[name] >= src.height_every_m:
                 sig_xy = float(np.sqrt(max(np.linalg.eigvalsh(ekf.P[6:8, 6:8]).max(), 0.0)))
