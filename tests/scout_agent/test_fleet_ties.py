@@ -148,3 +148,16 @@ def test_the_walks_end_takes_the_others_cells_into_the_held_stretchs_datum() -> 
                 assert loc.report.fleet_ties == 0
     rms = lambda v: float(np.sqrt(np.mean(np.square(v))))  # noqa: E731
     assert rms(err_fleet) < 0.6 * rms(err_alone), (rms(err_fleet), rms(err_alone))
+
+
+def test_a_map_height_fix_leaves_only_the_pieces_it_read_mostly_untied() -> None:
+    """A map height fix over the last 10 m at 127 m walked read 3 m of piece 11 (110–120 m) and 7 m of piece 12:
+    only piece 12 is left out of the next fleet ties; without a fleet tie config nothing is marked."""
+    loc, _ = _localizer(True, None, 0)
+    loc.walked_m = 127.0
+    loc._mark_tied(10.0)
+    assert loc._tied == {12}
+    off, _ = _localizer(False, None, 0)
+    off.walked_m = 127.0
+    off._mark_tied(10.0)
+    assert off._tied == set()
