@@ -26,6 +26,10 @@ class PhysicsConfig:
     gravity: float = LUNAR_G  # [m/s²]
     impratio: float = 10.0
     ground_mu: float = DEFAULT_MU
+    # the ground goes on beyond the generated field: its edge heights carried this far outward [m] (what
+    # `Terrain.height` answers there too). A scout placed a few metres wrong near the field's edge walked off a
+    # cliff into the void before (100 m seed 33 with `--localize off`, true x 100.1); the Moon has no such edge.
+    skirt_m: float = 5.0
 
 
 def build_scene(terrain: Terrain, physics: PhysicsConfig = PhysicsConfig()) -> mujoco.MjModel:
@@ -35,11 +39,22 @@ def build_scene(terrain: Terrain, physics: PhysicsConfig = PhysicsConfig()) -> m
     spec.option.cone = mujoco.mjtCone.mjCONE_ELLIPTIC
     spec.option.impratio = physics.impratio
     spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
-    z = terrain.z
+    if not physics.skirt_m >= 0.0:
+        raise ValueError(f"skirt_m {physics.skirt_m!r}: valid: a width >= 0 [m]")
+    pad = int(np.ceil(physics.skirt_m / terrain.res))
+    z = np.pad(
+        terrain.z, pad, mode="edge"
+    )  # the same cell spacing: the field's vertices stay where they were
     ny, nx = z.shape
     zmin, zmax = float(z.min()), float(z.max())
     zrange = max(zmax - zmin, 1e-3)
     xa, ya, xb, yb = terrain.extent
+    xa, ya, xb, yb = (
+        xa - pad * terrain.res,
+        ya - pad * terrain.res,
+        xb + pad * terrain.res,
+        yb + pad * terrain.res,
+    )
     spec.add_hfield(
         name=TERRAIN_GEOM,
         size=[(xb - xa) / 2, (yb - ya) / 2, zrange, 0.2],

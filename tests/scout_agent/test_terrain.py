@@ -52,6 +52,13 @@ def test_mujoco_heightfield_matches_exact_height(lunar):
     for x, y in rng.uniform(0.5, 19.5, (100, 2)):
         dist = mujoco.mj_ray(m, d, np.array([x, y, 10.0]), np.array([0.0, 0.0, -1.0]), None, 1, 1, gid)
         assert 10.0 - dist == pytest.approx(float(lunar.height(x, y)), abs=1e-6)
+    # beyond the field the ground goes on at its edge's height (what `height` answers there), 5 m out
+    for x, y in ((-4.0, 7.0), (23.5, 12.0), (10.0, 24.0), (-3.0, -3.0), (26.0, 10.0)):
+        dist = mujoco.mj_ray(m, d, np.array([x, y, 10.0]), np.array([0.0, 0.0, -1.0]), None, 1, 1, gid)
+        if abs(x - 10.0) <= 15.0 and abs(y - 10.0) <= 15.0:
+            assert 10.0 - dist == pytest.approx(float(lunar.height(x, y)), abs=1e-6)
+        else:
+            assert dist == -1.0  # past the skirt: nothing
 
 
 def test_lunar_is_seeded_and_has_lunar_features(lunar):
