@@ -262,7 +262,8 @@ def _status_json(st: Status | None) -> dict[str, Any]:
 
 # each scout's estimate against truth (scout_agent.run / evaluate), as its summary reports them
 ERROR_KEYS = ("sensors", "localization", "pos_error_max_m", "pos_error_final_m", "yaw_error_max_deg",
-              "nees_pos_mean", "inside_3sigma_frac", "localization_stats")  # fmt: skip
+              "yaw_error_start_deg", "yaw_error_growth_max_deg", "nees_pos_mean", "inside_3sigma_frac",
+              "localization_stats")  # fmt: skip
 
 
 def _map_truth(
