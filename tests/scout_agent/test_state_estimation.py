@@ -112,10 +112,9 @@ def test_the_covariance_contains_the_true_position_error(ramp_walk):
     assert np.mean(nees_a <= 9.0) >= 0.95
     # a consistent filter averages 2; without the consistency terms this walk's second half averaged 4.4. Since the
     # gyro is taken at the encoders' instant (estimator.py, "Timing") the along-track error on a ramp is ≈ 0.35 %
-    # of the distance against the 1 % the covariance allowed (sized for the lunar routes' 0.3–1.2 %): ≈ 0.15. The
-    # calibrated excess (0.25 %, estimator.py `odometry_calibration`) takes most of that off, and what is left
-    # is small against the start's and the IMU's own σ over this 5 m: ≈ 0.07 here
-    assert 0.04 < nees_a[len(nees_a) // 2 :].mean() < 3.0
+    # of the distance against the 1 % the covariance allowed (sized for the lunar routes' 0.3–1.2 %): ≈ 0.15; with
+    # the 100 m walks' 0.5 % (estimator.py `odometry_scale_std`) and the crab's sideways term: higher, under 3
+    assert 0.08 < nees_a[len(nees_a) // 2 :].mean() < 3.0
 
 
 def test_the_imu_lever_arm_is_removed():
