@@ -96,12 +96,15 @@ _CHILDREN: list[
 ] = []  # every service `spawn` started: stopped at exit whatever ends the benchmark
 
 
-# `python -m map_server ...` that first asks the kernel for SIGTERM when its parent dies, even by SIGKILL (Linux's
-# PR_SET_PDEATHSIG = 1; elsewhere only the atexit and signal handlers below stop the children)
+# `python -m map_server ...` that first asks the kernel for SIGKILL when its parent dies, even by SIGKILL (Linux's
+# PR_SET_PDEATHSIG = 1; elsewhere only the atexit and signal handlers below stop the children). SIGKILL, not
+# SIGTERM: a parent that exits normally or by SIGTERM stops its children cleanly first (`_stop_children`), so this
+# fires only for a parent killed outright; there, two routers linked to each other and told to stop cleanly at the
+# same instant sometimes hung in their close for over a minute (fresh-clone CI, quiet machine), orphaned
 _LAUNCH = (
     "import ctypes, runpy, signal, sys\n"
     "if sys.platform.startswith('linux'):\n"
-    "    ctypes.CDLL(None).prctl(1, signal.SIGTERM)\n"
+    "    ctypes.CDLL(None).prctl(1, signal.SIGKILL)\n"
     "sys.argv[0] = 'map_server'\n"
     "runpy.run_module('map_server', run_name='__main__', alter_sys=True)\n"
 )

@@ -46,8 +46,8 @@ def test_a_stopped_benchmark_leaves_no_service_running(sig: signal.Signals) -> N
     p.send_signal(sig)
     p.wait(30)
     p.stdout.close()
-    # the children stop cleanly on the SIGTERM their parent's death sends (a Zenoh router closes its links): on a
-    # loaded 2-core machine that took over 20 s once (CI with three walks beside it); an orphan never stops
+    # SIGTERM: the parent stops its children cleanly before it exits; SIGKILL: the kernel kills them (PDEATHSIG).
+    # A clean stop under load took over 20 s once (CI with three walks beside it); an orphan never stops
     deadline = time.monotonic() + 60
     while time.monotonic() < deadline and any(_alive(c) for c in pids):
         time.sleep(0.1)
